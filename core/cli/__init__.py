@@ -1,0 +1,52 @@
+"""The ``python -m mogaface`` command line.
+
+Each sub-command is a module in this package with ``add_arguments(parser)`` and
+``run(args) -> int``. Modules are imported only when their command runs (or its
+``--help`` is asked for), so ``--help`` stays fast and needs no torch.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from ..errors import MogafaceError
+
+# name -> (module in this package, one-line help)
+COMMANDS: dict[str, tuple[str, str]] = {
+    "make-head": ("make_head", "write the procedural default head model (FLAME file layout)"),
+    "preview-head": ("preview_head", "render preview images of a head model"),
+    "make-capture": ("make_capture", "render a synthetic multi-view capture of the procedural head"),
+    "check-capture": ("check_capture", "validate a capture folder and print a summary"),
+    "demo": ("demo", "run the main job on the embedded default head"),
+    "bench": ("bench", "run a benchmark and print JSON"),
+}
+
+
+def _build_parser(argv: list[str]) -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="python -m mogaface",
+        description="MoGaFace: animatable Gaussian head avatars from multi-view captures.",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    wanted = next((a for a in argv if not a.startswith("-")), None)
+    for name, (module, help_text) in COMMANDS.items():
+        p = sub.add_parser(name, help=help_text, description=help_text)
+        if name == wanted:
+            _command_module(name).add_arguments(p)
+    return parser
+
+
+def _command_module(name: str):
+    return importlib.import_module(f"{__name__}.{COMMANDS[name][0]}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    args = _build_parser(argv).parse_args(argv)
+    try:
+        return int(_command_module(args.command).run(args) or 0)
+    except MogafaceError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2

@@ -1,0 +1,1 @@
+"""Capture datasets (GaussianAvatars/VHAP layout) and the synthetic capture generator."""

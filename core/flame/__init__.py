@@ -1,0 +1,1 @@
+"""FLAME-format head models: safe file loading, linear blend skinning, the procedural default head."""

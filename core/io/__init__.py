@@ -1,0 +1,1 @@
+"""File formats: atomic writes, images (PNG/EXR), meshes and Gaussian PLY files."""

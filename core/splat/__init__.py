@@ -1,0 +1,1 @@
+"""The differentiable CPU Gaussian splat engine."""

@@ -1,0 +1,1 @@
+"""The Blender UI layer: properties, the N-panel, preferences, registration."""

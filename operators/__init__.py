@@ -1,0 +1,1 @@
+"""Blender operators: thin, they translate Blender state to and from core calls."""
