@@ -18,6 +18,7 @@ import numpy as np
 
 from ..errors import ModelFileError, UnsafePickleError
 from ..io.atomic import atomic_open
+from ..io.restricted_pickle import NUMPY_ARRAY_GLOBALS, restricted_load
 
 
 class ChumpyArray:
@@ -73,22 +74,9 @@ def _sparse(name):
     return {"csc_matrix": SparseMatrix, "csr_matrix": SparseRowMatrix}.get(name)
 
 
-def _numpy_multiarray(name):
-    """numpy's own array and scalar rebuilders (``numpy._core`` in numpy 2, ``numpy.core`` before)."""
-    if name not in ("_reconstruct", "scalar"):
-        return None
-    try:
-        from numpy._core import multiarray
-    except ImportError:
-        from numpy.core import multiarray
-    return getattr(multiarray, name)
-
-
 # module -> resolver(name) giving the object to use, or None; nothing else may be loaded.
 _ALLOWED_MODULES = {
-    "numpy.core.multiarray": _numpy_multiarray,
-    "numpy._core.multiarray": _numpy_multiarray,
-    "numpy": lambda name: {"ndarray": np.ndarray, "dtype": np.dtype}.get(name),
+    **NUMPY_ARRAY_GLOBALS,
     "chumpy.ch": _chumpy,
     "chumpy": _chumpy,
     "scipy.sparse.csc": _sparse,
@@ -111,24 +99,6 @@ def _latin1_encode(text, encoding="latin1"):
     return text.encode("latin1")
 
 
-class _RestrictedUnpickler(pickle.Unpickler):
-    def __init__(self, handle, path):
-        super().__init__(handle, encoding="latin1")
-        self._path = path
-
-    def find_class(self, module, name):
-        resolver = _ALLOWED_MODULES.get(module)
-        found = resolver(name) if resolver else None
-        if found is None:
-            raise UnsafePickleError(
-                self._path, None, f"refused to load global '{module}.{name}' (not part of a FLAME model file)"
-            )
-        return found
-
-    def persistent_load(self, pid):
-        raise UnsafePickleError(self._path, None, "refused a persistent reference in the pickle")
-
-
 def _plain(value):
     """Turn chumpy / sparse stand-ins into numpy arrays; leave everything else as it is."""
     if isinstance(value, ChumpyArray):
@@ -143,8 +113,7 @@ def _plain(value):
 def load_model_pickle(path: str | os.PathLike) -> dict:
     """Read a FLAME ``.pkl`` into a dict of plain values (arrays, strings), executing nothing."""
     try:
-        with open(path, "rb") as handle:
-            raw = _RestrictedUnpickler(handle, path).load()
+        raw = restricted_load(path, _ALLOWED_MODULES, "a FLAME model file")
     except UnsafePickleError:
         raise
     except FileNotFoundError:
