@@ -36,3 +36,16 @@ def atomic_open(path: str | os.PathLike, mode: str = "wb", **kwargs):
             yield handle
             handle.flush()
             os.fsync(handle.fileno())
+
+
+def write_text(path: str | os.PathLike, text: str) -> None:
+    """Write UTF-8 text atomically."""
+    with atomic_open(path, "w", encoding="utf-8", newline="\n") as handle:
+        handle.write(text)
+
+
+def write_json(path: str | os.PathLike, obj, *, indent: int | None = 2) -> None:
+    """Write ``obj`` as JSON atomically; NaN and inf are refused (they are not JSON)."""
+    import json
+
+    write_text(path, json.dumps(obj, indent=indent, allow_nan=False) + "\n")

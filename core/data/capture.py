@@ -1,0 +1,402 @@
+"""Read a capture dataset in the GaussianAvatars/VHAP layout (see :mod:`.layout`).
+
+:meth:`Capture.open` parses the split files and checks their structure (keys, types, paths
+that stay inside the folder, one set of intrinsics and one pose per camera id); it does not
+touch images or FLAME files. :func:`~mogaface.core.data.validate.validate_capture` checks
+those. Images load lazily through a least-recently-used cache with a byte bound, so a capture
+of any length never has to fit in memory.
+"""
+
+from __future__ import annotations
+
+import collections
+import dataclasses
+import json
+import math
+import os
+import pathlib
+import threading
+import zipfile
+
+import numpy as np
+
+from ..camera import Camera, intrinsics_matrix, opengl_c2w_to_opencv_w2c
+from ..errors import CaptureError, InputError
+from ..io.image import read_image
+from ..io.npz import load_npz
+from . import layout
+
+DEFAULT_CACHE_BYTES = 512 * 1024 * 1024
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class Frame:
+    """One image of the capture: one camera at one timestep, as listed in a split file."""
+
+    split: str
+    position: int  # index in the split file's "frames" list (for error messages)
+    timestep_index: int
+    timestep_id: str
+    camera_index: int
+    camera_id: str
+    file_path: str
+    fg_mask_path: str | None
+    flame_param_path: str
+    sequence: str | None
+
+    @property
+    def source(self) -> str:
+        """The split file that lists this frame."""
+        return layout.split_file(self.split)
+
+    def field(self, name: str) -> str:
+        return f"frames[{self.position}].{name}"
+
+
+class _ByteLRU:
+    """A thread-safe least-recently-used cache whose values' ``nbytes`` sum stays <= a bound."""
+
+    def __init__(self, max_bytes: int):
+        self.max_bytes = int(max_bytes)
+        self.nbytes = 0
+        self._items: collections.OrderedDict = collections.OrderedDict()
+        self._lock = threading.Lock()
+
+    def get(self, key):
+        with self._lock:
+            value = self._items.get(key)
+            if value is not None:
+                self._items.move_to_end(key)
+            return value
+
+    def put(self, key, value, size: int) -> None:
+        if size > self.max_bytes:
+            return  # never cached: it alone would break the bound
+        with self._lock:
+            if key in self._items:
+                return
+            while self._items and self.nbytes + size > self.max_bytes:
+                _, (_, old) = self._items.popitem(last=False)
+                self.nbytes -= old
+            self._items[key] = (value, size)
+            self.nbytes += size
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+    def clear(self) -> None:
+        with self._lock:
+            self._items.clear()
+            self.nbytes = 0
+
+
+def _load_json(path: pathlib.Path) -> dict:
+    try:
+        with open(path, encoding="utf-8") as handle:
+            doc = json.load(handle)
+    except FileNotFoundError:
+        raise CaptureError(path, None, "file not found") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
+        raise CaptureError(path, None, f"unreadable JSON ({error})") from None
+    if not isinstance(doc, dict):
+        raise CaptureError(path, None, f"expected a JSON object at the top level, got {type(doc).__name__}")
+    return doc
+
+
+def _int_field(frame: dict, name: str, source, where: str) -> int:
+    value = frame.get(name)
+    if value is None:
+        raise CaptureError(source, f"{where}.{name}", "missing key")
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        raise CaptureError(source, f"{where}.{name}", f"expected a non-negative integer, got {value!r}")
+    return value
+
+
+def _number(frame: dict, top: dict, name: str, source, where: str, default=None) -> float | None:
+    value = frame.get(name, top.get(name, default))
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise CaptureError(source, f"{where}.{name}", f"expected a finite number, got {value!r}")
+    return float(value)
+
+
+def _frame_camera(frame: dict, top: dict, camera_id: str, source, where: str) -> Camera:
+    """The camera of one frame entry: per-frame fields first, then the file's top-level ones."""
+    w = _number(frame, top, "w", source, where)
+    h = _number(frame, top, "h", source, where)
+    for name, value in (("w", w), ("h", h)):
+        if value is None:
+            raise CaptureError(source, f"{where}.{name}", "missing key (not in the frame nor at the top level)")
+        if value <= 0 or value != int(value):
+            raise CaptureError(source, f"{where}.{name}", f"expected a positive integer, got {value!r}")
+    w, h = int(w), int(h)
+    fx = _number(frame, top, "fl_x", source, where)
+    if fx is None:
+        angle = _number(frame, top, "camera_angle_x", source, where)
+        if angle is None:
+            raise CaptureError(source, f"{where}.fl_x", "missing key (neither fl_x nor camera_angle_x given)")
+        if not 0 < angle < math.pi:
+            raise CaptureError(source, f"{where}.camera_angle_x", f"expected an angle in (0, pi), got {angle}")
+        fx = 0.5 * w / math.tan(0.5 * angle)
+    fy = _number(frame, top, "fl_y", source, where)
+    if fy is None:
+        angle = _number(frame, top, "camera_angle_y", source, where)
+        fy = fx if angle is None else 0.5 * h / math.tan(0.5 * angle)
+    cx = _number(frame, top, "cx", source, where, 0.5 * w)
+    cy = _number(frame, top, "cy", source, where, 0.5 * h)
+    if fx <= 0 or fy <= 0:
+        raise CaptureError(source, f"{where}.fl_x", f"focal lengths must be positive, got {fx}, {fy}")
+    matrix = frame.get("transform_matrix")
+    if matrix is None:
+        raise CaptureError(source, f"{where}.transform_matrix", "missing key")
+    try:
+        c2w = np.array(matrix, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise CaptureError(source, f"{where}.transform_matrix", "expected a 4x4 list of numbers") from None
+    if c2w.shape != (4, 4) or not np.isfinite(c2w).all():
+        raise CaptureError(source, f"{where}.transform_matrix", f"expected a finite 4x4 matrix, got shape {c2w.shape}")
+    rot = c2w[:3, :3]
+    if not np.allclose(c2w[3], [0, 0, 0, 1], atol=1e-6) or not np.allclose(rot @ rot.T, np.eye(3), atol=1e-4):
+        raise CaptureError(source, f"{where}.transform_matrix", "not a rigid camera-to-world transform")
+    return Camera(intrinsics_matrix(fx, fy, cx, cy), opengl_c2w_to_opencv_w2c(c2w), w, h, camera_id)
+
+
+def _camera_difference(known: Camera, new: Camera) -> tuple[str, str] | None:
+    """The first field in which two sightings of one camera id disagree, or None."""
+    for name, a, b in (
+        ("w", known.width, new.width),
+        ("h", known.height, new.height),
+        ("fl_x", known.fx, new.fx),
+        ("fl_y", known.fy, new.fy),
+        ("cx", known.cx, new.cx),
+        ("cy", known.cy, new.cy),
+    ):
+        if not np.isclose(a, b, rtol=1e-6, atol=1e-6):
+            return name, f"{a:g} before, {b:g} here"
+    if not np.allclose(known.w2c, new.w2c, rtol=1e-6, atol=1e-6):
+        return "transform_matrix", "a different pose before"
+    return None
+
+
+class Capture:
+    """An opened capture folder: splits, frames, cameras, timesteps, sequences, lazy images.
+
+    Attributes:
+        root: the dataset folder.
+        splits: split name -> list of :class:`Frame` (only split files that exist).
+        cameras: camera id -> :class:`~mogaface.core.camera.Camera`, ordered by camera index.
+        timesteps: sorted timestep indices over all splits.
+        timestep_ids: timestep index -> id string.
+        sequences: sequence name -> sorted timestep indices (empty when frames name none).
+        memory_bound_bytes: the most bytes the image cache ever holds.
+    """
+
+    def __init__(self, root, splits: dict[str, list[Frame]], cameras: dict[str, Camera], cache_bytes: int):
+        self.root = pathlib.Path(root)
+        self.splits = splits
+        self.cameras = cameras
+        frames = self.frames()
+        self.timestep_ids = dict(sorted({f.timestep_index: f.timestep_id for f in frames}.items()))
+        self.timesteps = list(self.timestep_ids)
+        seq: dict[str, set[int]] = {}
+        for f in frames:
+            if f.sequence is not None:
+                seq.setdefault(f.sequence, set()).add(f.timestep_index)
+        self.sequences = {name: sorted(ts) for name, ts in sorted(seq.items())}
+        self._timestep_frame: dict[int, Frame] = {}
+        for f in frames:
+            self._timestep_frame.setdefault(f.timestep_index, f)
+        self._images = _ByteLRU(cache_bytes)
+
+    # -- opening -------------------------------------------------------------------------------
+    @classmethod
+    def open(cls, root: str | os.PathLike, *, cache_bytes: int = DEFAULT_CACHE_BYTES) -> "Capture":
+        """Parse the split files of ``root`` (``transforms_train.json`` required; val/test optional).
+
+        Raises :class:`~mogaface.core.errors.CaptureError` naming the file and field of the
+        first problem found.
+        """
+        root = pathlib.Path(root)
+        if not root.is_dir():
+            raise CaptureError(root, None, "not a folder")
+        if not (root / layout.split_file("train")).exists():
+            raise CaptureError(root / layout.split_file("train"), None, "file not found (every capture needs a train split)")
+        splits: dict[str, list[Frame]] = {}
+        cameras: dict[str, tuple[int, Camera]] = {}
+        per_timestep: dict[int, tuple] = {}
+        for split in layout.SPLITS:
+            source = root / layout.split_file(split)
+            if split != "train" and not source.exists():
+                continue
+            splits[split] = cls._parse_split(root, split, source, cameras, per_timestep)
+        ordered = dict(sorted(((cid, cam) for cid, (_, cam) in cameras.items()), key=lambda kv: cameras[kv[0]][0]))
+        return cls(root, splits, ordered, cache_bytes)
+
+    @staticmethod
+    def _parse_split(root, split, source, cameras, per_timestep) -> list[Frame]:
+        doc = _load_json(source)
+        entries = doc.get("frames")
+        if entries is None:
+            raise CaptureError(source, "frames", "missing key")
+        if not isinstance(entries, list):
+            raise CaptureError(source, "frames", f"expected a list, got {type(entries).__name__}")
+        if not entries:
+            raise CaptureError(source, "frames", f"the {split} split is empty")
+        frames = []
+        seen: set[tuple[int, int]] = set()
+        for pos, entry in enumerate(entries):
+            where = f"frames[{pos}]"
+            if not isinstance(entry, dict):
+                raise CaptureError(source, where, "expected a JSON object")
+            t = _int_field(entry, "timestep_index", source, where)
+            c = _int_field(entry, "camera_index", source, where)
+            camera_id = str(entry.get("camera_id", c))
+            timestep_id = str(entry.get("timestep_id", f"{t:05d}"))
+            sequence = entry.get("sequence")
+            if sequence is not None and not isinstance(sequence, str):
+                raise CaptureError(source, f"{where}.sequence", f"expected a string, got {sequence!r}")
+            for name in ("file_path", "flame_param_path"):
+                if name not in entry:
+                    raise CaptureError(source, f"{where}.{name}", "missing key")
+                layout.resolve_inside(root, entry[name], source, f"{where}.{name}")
+            mask = entry.get("fg_mask_path")
+            if mask is not None:
+                layout.resolve_inside(root, mask, source, f"{where}.fg_mask_path")
+            if (t, c) in seen:
+                raise CaptureError(source, where, f"timestep {t} camera {c} is listed twice")
+            seen.add((t, c))
+            camera = _frame_camera(entry, doc, camera_id, source, where)
+            known = cameras.get(camera_id)
+            if known is None:
+                for other_id, (other_index, _) in cameras.items():
+                    if other_index == c:
+                        raise CaptureError(source, f"{where}.camera_index", f"index {c} is used by cameras {other_id!r} and {camera_id!r}")
+                cameras[camera_id] = (c, camera)
+            else:
+                if known[0] != c:
+                    raise CaptureError(source, f"{where}.camera_index", f"camera {camera_id!r} has indices {known[0]} and {c}")
+                difference = _camera_difference(known[1], camera)
+                if difference is not None:
+                    raise CaptureError(
+                        source, f"{where}.{difference[0]}",
+                        f"camera {camera_id!r} appears twice with different values ({difference[1]})",
+                    )
+            record = (timestep_id, entry["flame_param_path"], sequence)
+            if per_timestep.setdefault(t, record) != record:
+                raise CaptureError(
+                    source, f"{where}.timestep_id/flame_param_path/sequence",
+                    f"timestep {t} is described differently by another frame: {per_timestep[t]} vs {record}",
+                )
+            frames.append(Frame(split, pos, t, timestep_id, c, camera_id, entry["file_path"], mask, entry["flame_param_path"], sequence))
+        for name, values in (("camera_indices", {f.camera_index for f in frames}), ("timestep_indices", {f.timestep_index for f in frames})):
+            listed = doc.get(name)
+            if listed is not None and (not isinstance(listed, list) or set(listed) != values):
+                raise CaptureError(source, name, "does not match the indices of the frames")
+        return frames
+
+    # -- queries -------------------------------------------------------------------------------
+    def frames(self, split: str | None = None) -> list[Frame]:
+        """The frames of one split, or of every split in train, val, test order."""
+        if split is not None:
+            if split not in self.splits:
+                raise CaptureError(self.root, "split", f"no {split!r} split (have {list(self.splits)})")
+            return list(self.splits[split])
+        return [f for frames in self.splits.values() for f in frames]
+
+    def camera(self, frame: Frame) -> Camera:
+        return self.cameras[frame.camera_id]
+
+    def path(self, frame: Frame, name: str) -> pathlib.Path:
+        """Absolute path of one of ``frame``'s files: ``"file_path"``, ``"fg_mask_path"``, ``"flame_param_path"``."""
+        return layout.resolve_inside(self.root, getattr(frame, name), self.root / frame.source, frame.field(name))
+
+    @property
+    def memory_bound_bytes(self) -> int:
+        return self._images.max_bytes
+
+    @property
+    def cached_bytes(self) -> int:
+        return self._images.nbytes
+
+    # -- pixels --------------------------------------------------------------------------------
+    def load_image(self, frame: Frame) -> tuple[np.ndarray, np.ndarray]:
+        """``(rgb (H,W,3), mask (H,W))`` float32 in [0,1], read-only, cached (LRU, byte-bounded).
+
+        The mask comes from ``fg_mask_path``; without one, from the image's alpha channel;
+        without that, it is all ones.
+        """
+        key = (frame.file_path, frame.fg_mask_path)
+        hit = self._images.get(key)
+        if hit is not None:
+            return hit[0]
+        camera = self.camera(frame)
+        rgb = self._read(frame, "file_path")
+        channels = rgb.shape[2]
+        alpha = rgb[..., channels - 1] if channels in (2, 4) else None
+        rgb = np.repeat(rgb[..., :1], 3, axis=2) if channels <= 2 else rgb[..., :3]
+        if frame.fg_mask_path is not None:
+            mask = self._read(frame, "fg_mask_path")[..., 0]
+        elif alpha is not None:
+            mask = alpha
+        else:
+            mask = np.ones(rgb.shape[:2], np.float32)
+        for name, array in (("file_path", rgb), ("fg_mask_path", mask)):
+            if array.shape[:2] != (camera.height, camera.width):
+                raise CaptureError(
+                    self.path(frame, name), f"{frame.source} {frame.field('w/h')}",
+                    f"image is {array.shape[1]}x{array.shape[0]}, the frame says {camera.width}x{camera.height}",
+                )
+        rgb = np.ascontiguousarray(rgb, dtype=np.float32)
+        mask = np.ascontiguousarray(mask, dtype=np.float32)
+        rgb.setflags(write=False)
+        mask.setflags(write=False)
+        self._images.put(key, (rgb, mask), rgb.nbytes + mask.nbytes)
+        return rgb, mask
+
+    def _read(self, frame: Frame, name: str) -> np.ndarray:
+        path = self.path(frame, name)
+        try:
+            return read_image(path)
+        except InputError as error:
+            raise CaptureError(path, f"{frame.source} {frame.field(name)}", error.problem) from None
+
+    # -- FLAME parameters ----------------------------------------------------------------------
+    def flame_params(self, timestep: int) -> dict[str, np.ndarray]:
+        """The tracked FLAME parameters of one timestep: float32 ``(n,)`` vectors (``static_offset (V,3)``)."""
+        frame = self._timestep_frame.get(timestep)
+        if frame is None:
+            raise CaptureError(self.root, "timestep_index", f"no frame has timestep {timestep}")
+        field = f"{frame.source} {frame.field('flame_param_path')}"
+        return self._load_flame(self.path(frame, "flame_param_path"), field)
+
+    def flame_params_stacked(self, timesteps: list[int] | None = None) -> dict[str, np.ndarray]:
+        """Parameters of many timesteps stacked to ``(T, n)`` (``static_offset`` from the first)."""
+        timesteps = self.timesteps if timesteps is None else list(timesteps)
+        rows = [self.flame_params(t) for t in timesteps]
+        out = {}
+        for key in rows[0]:
+            if key == "static_offset":
+                out[key] = rows[0][key]
+                continue
+            sizes = {r[key].shape for r in rows}
+            if len(sizes) != 1:
+                raise CaptureError(self.root, key, f"sizes differ between timesteps: {sorted(sizes)}")
+            out[key] = np.stack([r[key] for r in rows])
+        return out
+
+    def canonical_flame_params(self) -> dict[str, np.ndarray] | None:
+        """``canonical_flame_param.npz`` normalised like :meth:`flame_params`, or None if absent."""
+        path = self.root / layout.CANONICAL_FILE
+        return self._load_flame(path, None) if path.exists() else None
+
+    @staticmethod
+    def _load_flame(path: pathlib.Path, field: str | None) -> dict[str, np.ndarray]:
+        """Load and check one FLAME file; ``field`` names the reference to it for errors."""
+        if path.is_file() and not zipfile.is_zipfile(path):
+            raise CaptureError(path, field, "not an .npz (zip) archive")
+        try:
+            arrays = load_npz(path)
+        except InputError as error:
+            raise CaptureError(path, error.field or field, error.problem) from None
+        return layout.normalize_flame_params(arrays, path)

@@ -1,0 +1,133 @@
+"""Check a whole capture before training: every referenced file, FLAME array and image size.
+
+Image files are checked by their headers only (no pixel decoding), so a long capture is
+checked in seconds. The first problem raises :class:`~mogaface.core.errors.CaptureError`
+naming the file and the field.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+
+from ..errors import CaptureError, InputError
+from ..io.image import image_size
+from . import layout
+from .capture import DEFAULT_CACHE_BYTES, Capture
+
+
+@dataclasses.dataclass
+class CaptureSummary:
+    """What a checked capture holds."""
+
+    root: str
+    views: int
+    camera_ids: list[str]
+    timesteps: int
+    sequences: dict[str, int]  # name -> number of timesteps
+    resolutions: list[tuple[int, int]]  # distinct (width, height)
+    splits: dict[str, dict[str, int]]  # split -> frames, views, timesteps
+    flame_sizes: dict[str, tuple[int, ...]]  # parameter -> per-timestep shape
+    has_canonical: bool
+    memory_bound_bytes: int
+
+    def lines(self) -> list[str]:
+        res = ", ".join(f"{w}x{h}" for w, h in self.resolutions)
+        seqs = ", ".join(f"{name} ({n} timesteps)" for name, n in self.sequences.items()) or "none named"
+        out = [
+            f"capture: {self.root}",
+            f"views: {self.views} ({', '.join(self.camera_ids)})",
+            f"timesteps: {self.timesteps}",
+            f"sequences: {seqs}",
+            f"resolution: {res}",
+        ]
+        for split, counts in self.splits.items():
+            out.append(f"split {split}: {counts['frames']} frames, {counts['views']} views, {counts['timesteps']} timesteps")
+        sizes = ", ".join(f"{k} {v}" for k, v in self.flame_sizes.items())
+        out.append(f"flame params: {sizes}; canonical: {'yes' if self.has_canonical else 'no'}")
+        out.append(f"image cache bound: {self.memory_bound_bytes / 2**20:.0f} MiB")
+        return out
+
+
+def validate_capture(capture: Capture | str | os.PathLike, *, cache_bytes: int = DEFAULT_CACHE_BYTES) -> CaptureSummary:
+    """Run every check on a capture (a path or an opened :class:`Capture`) and summarise it."""
+    if not isinstance(capture, Capture):
+        capture = Capture.open(capture, cache_bytes=cache_bytes)
+    _check_images(capture)
+    sizes = _check_flame_files(capture)
+    canonical = capture.canonical_flame_params()
+    if canonical is not None:
+        _check_same_sizes(capture.root / layout.CANONICAL_FILE, canonical, sizes, canonical_file=True)
+    splits = {
+        name: {
+            "frames": len(frames),
+            "views": len({f.camera_id for f in frames}),
+            "timesteps": len({f.timestep_index for f in frames}),
+        }
+        for name, frames in capture.splits.items()
+    }
+    return CaptureSummary(
+        root=str(capture.root),
+        views=len(capture.cameras),
+        camera_ids=list(capture.cameras),
+        timesteps=len(capture.timesteps),
+        sequences={name: len(ts) for name, ts in capture.sequences.items()},
+        resolutions=sorted({(c.width, c.height) for c in capture.cameras.values()}),
+        splits=splits,
+        flame_sizes=sizes,
+        has_canonical=canonical is not None,
+        memory_bound_bytes=capture.memory_bound_bytes,
+    )
+
+
+def _check_images(capture: Capture) -> None:
+    checked: set[str] = set()
+    for frame in capture.frames():
+        camera = capture.camera(frame)
+        for name in ("file_path", "fg_mask_path"):
+            rel = getattr(frame, name)
+            if rel is None or rel in checked:
+                continue
+            checked.add(rel)
+            path = capture.path(frame, name)
+            where = f"{frame.source} {frame.field(name)}"
+            try:
+                size = image_size(path)
+            except InputError as error:
+                raise CaptureError(path, where, error.problem) from None
+            if size != (camera.width, camera.height):
+                raise CaptureError(
+                    path, f"{frame.source} {frame.field('w/h')}",
+                    f"image is {size[0]}x{size[1]}, the frame says {camera.width}x{camera.height}",
+                )
+
+
+def _check_flame_files(capture: Capture) -> dict[str, tuple[int, ...]]:
+    first_frame = {}
+    for frame in capture.frames():
+        first_frame.setdefault(frame.timestep_index, frame)
+    sizes: dict[str, tuple[int, ...]] = {}
+    first = None
+    for t in capture.timesteps:
+        frame = first_frame[t]
+        path = capture.path(frame, "flame_param_path")
+        if not path.is_file():
+            raise CaptureError(path, f"{frame.source} {frame.field('flame_param_path')}", "file not found")
+        params = capture.flame_params(t)
+        if first is None:
+            first = path
+            sizes = {k: v.shape for k, v in params.items()}
+        else:
+            _check_same_sizes(path, params, sizes, first=first)
+    return sizes
+
+
+def _check_same_sizes(path, params, sizes, *, first=None, canonical_file=False) -> None:
+    for key, shape in sizes.items():
+        if key not in params:
+            if key == "static_offset":
+                continue
+            raise CaptureError(path, key, "missing FLAME parameter")
+        if params[key].shape != shape:
+            other = "the timesteps" if canonical_file else str(first)
+            raise CaptureError(path, key, f"shape {params[key].shape} differs from {shape} in {other}")

@@ -1,0 +1,174 @@
+"""Write a capture dataset in the GaussianAvatars/VHAP layout (see :mod:`.layout`).
+
+Every file is written atomically. The ``transforms_*.json`` files are written last, by
+:meth:`CaptureWriter.finish`, so a folder whose writing was interrupted has no split files and
+is refused by the reader instead of being read half-complete.
+"""
+
+from __future__ import annotations
+
+import os
+import pathlib
+
+import numpy as np
+
+from ..camera import Camera, opencv_w2c_to_opengl_c2w
+from ..errors import CaptureError
+from ..io.atomic import write_json
+from ..io.image import write_png
+from ..io.npz import save_npz
+from . import layout
+
+# Per-frame camera fields that are also written at the top level when all frames agree.
+_UNIFORM_FIELDS = ("fl_x", "fl_y", "cx", "cy", "w", "h", "camera_angle_x", "camera_angle_y")
+
+
+def camera_fields(camera: Camera) -> dict:
+    """A frame's camera entries: intrinsics, image size, fields of view, OpenGL ``transform_matrix``."""
+    return {
+        "fl_x": camera.fx,
+        "fl_y": camera.fy,
+        "cx": camera.cx,
+        "cy": camera.cy,
+        "w": camera.width,
+        "h": camera.height,
+        "camera_angle_x": camera.fov_x,
+        "camera_angle_y": camera.fov_y,
+        "transform_matrix": opencv_w2c_to_opengl_c2w(camera.w2c).tolist(),
+    }
+
+
+class CaptureWriter:
+    """Builds a capture folder frame by frame.
+
+    Usage::
+
+        with CaptureWriter(root) as w:
+            w.write_flame_params(t, params)            # once per timestep
+            w.add_frame(t, camera, rgb, mask, split="train", sequence="EXP-1")
+            w.write_canonical_flame_params(canonical)
+        # leaving the block without an error writes the transforms_*.json files
+
+    Camera indices follow the order in which camera ids first appear, unless given.
+    """
+
+    def __init__(self, root: str | os.PathLike, *, png_compress_level: int = 4):
+        self.root = pathlib.Path(root)
+        self.root.mkdir(parents=True, exist_ok=True)
+        self.png_compress_level = png_compress_level
+        self._frames: dict[str, list[dict]] = {split: [] for split in layout.SPLITS}
+        self._camera_index: dict[str, int] = {}
+        self._flame_written: set[int] = set()
+        self._seen: set[tuple[int, str]] = set()
+
+    def camera_index(self, camera_id: str, index: int | None = None) -> int:
+        """The index of ``camera_id``, assigned on first use (``index`` pins it)."""
+        known = self._camera_index.get(camera_id)
+        if known is None:
+            known = len(self._camera_index) if index is None else int(index)
+            if known in self._camera_index.values():
+                raise CaptureError(self.root, "camera_index", f"index {known} already belongs to another camera")
+            self._camera_index[camera_id] = known
+        elif index is not None and index != known:
+            raise CaptureError(self.root, "camera_index", f"camera {camera_id!r} already has index {known}, not {index}")
+        return known
+
+    def write_flame_params(self, timestep: int, params: dict[str, np.ndarray]) -> str:
+        """Write ``flame_param/{t:05d}.npz`` (VHAP form); returns its relative path."""
+        rel = layout.flame_param_path(timestep)
+        checked = layout.normalize_flame_params(params, self.root / rel)
+        save_npz(self.root / rel, layout.batched_flame_params(checked))
+        self._flame_written.add(int(timestep))
+        return rel
+
+    def write_canonical_flame_params(self, params: dict[str, np.ndarray]) -> None:
+        """Write ``canonical_flame_param.npz``."""
+        path = self.root / layout.CANONICAL_FILE
+        save_npz(path, layout.batched_flame_params(layout.normalize_flame_params(params, path)))
+
+    def add_frame(
+        self,
+        timestep: int,
+        camera: Camera,
+        rgb: np.ndarray,
+        mask: np.ndarray,
+        *,
+        split: str,
+        timestep_id: str | None = None,
+        sequence: str | None = None,
+        camera_index: int | None = None,
+    ) -> dict:
+        """Write one view of one timestep (image and mask PNGs) and record its frame entry.
+
+        ``rgb`` (H,W,3) float sRGB in [0,1] or uint8; ``mask`` (H,W) float in [0,1] or uint8;
+        both must match ``camera.width/height``. The timestep's FLAME file must be written
+        (before or after) with :meth:`write_flame_params`.
+        """
+        if split not in self._frames:
+            raise CaptureError(self.root, "split", f"unknown split {split!r}; expected one of {layout.SPLITS}")
+        timestep = int(timestep)
+        key = (timestep, camera.camera_id)
+        if key in self._seen:
+            raise CaptureError(self.root, "frames", f"timestep {timestep}, camera {camera.camera_id!r} added twice")
+        c = self.camera_index(camera.camera_id, camera_index)
+        size = (camera.height, camera.width)
+        if np.shape(rgb)[:2] != size or np.shape(mask)[:2] != size:
+            raise CaptureError(
+                self.root, "rgb/mask", f"image {np.shape(rgb)} / mask {np.shape(mask)} do not match the camera's {size}"
+            )
+        frame = {
+            "timestep_index": timestep,
+            "timestep_id": timestep_id if timestep_id is not None else f"{timestep:05d}",
+            "camera_index": c,
+            "camera_id": camera.camera_id,
+            "file_path": layout.image_path(timestep, c),
+            "fg_mask_path": layout.mask_path(timestep, c),
+            "flame_param_path": layout.flame_param_path(timestep),
+        }
+        if sequence is not None:
+            frame["sequence"] = str(sequence)
+        frame.update(camera_fields(camera))
+        write_png(self.root / frame["file_path"], rgb, compress_level=self.png_compress_level)
+        write_png(self.root / frame["fg_mask_path"], mask, compress_level=self.png_compress_level)
+        self._frames[split].append(frame)
+        self._seen.add(key)
+        return frame
+
+    def finish(self) -> None:
+        """Write ``transforms_{split}.json`` for every non-empty split and ``transforms.json``."""
+        missing = {f["timestep_index"] for frames in self._frames.values() for f in frames} - self._flame_written
+        if missing:
+            raise CaptureError(self.root, "flame_param", f"no FLAME parameters written for timesteps {sorted(missing)[:10]}")
+        everything = []
+        for split, frames in self._frames.items():
+            if frames:
+                write_json(self.root / layout.split_file(split), transforms_document(frames))
+                everything.extend(frames)
+        if not everything:
+            raise CaptureError(self.root, "frames", "no frames were added")
+        everything.sort(key=lambda f: (f["timestep_index"], f["camera_index"]))
+        write_json(self.root / layout.ALL_FRAMES_FILE, transforms_document(everything))
+
+    def __enter__(self) -> "CaptureWriter":
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is None:
+            self.finish()
+
+
+def transforms_document(frames: list[dict]) -> dict:
+    """A ``transforms_*.json`` document: index lists, uniform camera fields, frames."""
+    doc: dict = {
+        "camera_indices": sorted({f["camera_index"] for f in frames}),
+        "timestep_indices": sorted({f["timestep_index"] for f in frames}),
+    }
+    for field in _UNIFORM_FIELDS:
+        values = {f[field] for f in frames}
+        if len(values) == 1:
+            doc[field] = values.pop()
+    sequences = sorted({f["sequence"] for f in frames if "sequence" in f})
+    if sequences:
+        doc["sequences"] = sequences
+    doc["frames"] = frames
+    return doc
