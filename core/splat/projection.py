@@ -113,7 +113,7 @@ def project_forward(means, quats, scales, viewmat, K, width, height,
         cov2d[g, 0] = sxx
         cov2d[g, 1] = sxy
         cov2d[g, 2] = syy
-        radii[g] = np.int32(min(math.ceil(3.0 * math.sqrt(lam)), MAX_RADIUS))
+        radii[g] = np.int32(math.ceil(min(3.0 * math.sqrt(lam), MAX_RADIUS)))
 
 
 @njit(cache=True, parallel=True)
