@@ -192,6 +192,14 @@ def test_lpips_module_matches_the_official_code_on_random_batches(official_lpips
     assert torch.allclose(ours, reference, atol=1e-4, rtol=0)
 
 
+def test_lpips_module_is_differentiable_for_use_as_a_loss():
+    generator = torch.Generator().manual_seed(8)
+    target = torch.rand(1, 3, 40, 40, generator=generator)
+    pred = torch.rand(1, 3, 40, 40, generator=generator, requires_grad=True)
+    load_lpips_alex()(pred, target).sum().backward()
+    assert pred.grad is not None and torch.isfinite(pred.grad).all() and pred.grad.abs().sum() > 0
+
+
 def test_lpips_of_an_image_with_itself_is_zero_and_distortions_rank():
     face, blurred = structured_pairs()["blur"]
     assert lpips(face, face) == 0.0
