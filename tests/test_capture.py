@@ -241,6 +241,8 @@ BAD_CASES = {
     "non-rigid transform": (lambda r: _edit_json(r, "transforms_train.json",
                                                  _set_frame(0, "transform_matrix", (np.eye(4) * 2).tolist())),
                             "transforms_train.json", "frames[0].transform_matrix"),
+    "camera index changes": (lambda r: _edit_json(r, "transforms_train.json", _set_frame(3, "camera_index", 5)),
+                             "transforms_train.json", "frames[3].camera_index"),
     "no intrinsics": (lambda r: _edit_json(r, "transforms_val.json", _drop_focal), "transforms_val.json", "fl_x"),
 }
 

@@ -162,6 +162,18 @@ def _frame_camera(frame: dict, top: dict, camera_id: str, source, where: str) ->
     return Camera(intrinsics_matrix(fx, fy, cx, cy), opengl_c2w_to_opencv_w2c(c2w), w, h, camera_id)
 
 
+_RAW_CAMERA_KEYS = ("w", "h", "fl_x", "fl_y", "cx", "cy", "camera_angle_x", "camera_angle_y")
+
+
+def _raw_camera_key(frame: dict, top: dict) -> tuple | None:
+    """A frame's camera entries as a hashable tuple (None if malformed), to skip re-parsing repeats."""
+    try:
+        matrix = tuple(tuple(row) for row in frame.get("transform_matrix"))
+    except TypeError:
+        return None
+    return tuple(frame.get(k, top.get(k)) for k in _RAW_CAMERA_KEYS) + (matrix,)
+
+
 def _camera_difference(known: Camera, new: Camera) -> tuple[str, str] | None:
     """The first field in which two sightings of one camera id disagree, or None."""
     for name, a, b in (
@@ -245,6 +257,7 @@ class Capture:
             raise CaptureError(source, "frames", f"the {split} split is empty")
         frames = []
         seen: set[tuple[int, int]] = set()
+        raw_seen: dict[str, tuple] = {}
         for pos, entry in enumerate(entries):
             where = f"frames[{pos}]"
             if not isinstance(entry, dict):
@@ -266,22 +279,26 @@ class Capture:
             if (t, c) in seen:
                 raise CaptureError(source, where, f"timestep {t} camera {c} is listed twice")
             seen.add((t, c))
-            camera = _frame_camera(entry, doc, camera_id, source, where)
             known = cameras.get(camera_id)
-            if known is None:
-                for other_id, (other_index, _) in cameras.items():
-                    if other_index == c:
-                        raise CaptureError(source, f"{where}.camera_index", f"index {c} is used by cameras {other_id!r} and {camera_id!r}")
-                cameras[camera_id] = (c, camera)
-            else:
-                if known[0] != c:
-                    raise CaptureError(source, f"{where}.camera_index", f"camera {camera_id!r} has indices {known[0]} and {c}")
-                difference = _camera_difference(known[1], camera)
-                if difference is not None:
-                    raise CaptureError(
-                        source, f"{where}.{difference[0]}",
-                        f"camera {camera_id!r} appears twice with different values ({difference[1]})",
-                    )
+            if known is not None and known[0] != c:
+                raise CaptureError(source, f"{where}.camera_index", f"camera {camera_id!r} has indices {known[0]} and {c}")
+            raw = _raw_camera_key(entry, doc)
+            if known is None or raw is None or raw_seen.get(camera_id) != raw:
+                # A camera id's first sighting in this file, or values that differ in their text.
+                camera = _frame_camera(entry, doc, camera_id, source, where)
+                if known is None:
+                    taken = next((cid for cid, (index, _) in cameras.items() if index == c), None)
+                    if taken is not None:
+                        raise CaptureError(source, f"{where}.camera_index", f"index {c} is used by cameras {taken!r} and {camera_id!r}")
+                    cameras[camera_id] = (c, camera)
+                else:
+                    difference = _camera_difference(known[1], camera)
+                    if difference is not None:
+                        raise CaptureError(
+                            source, f"{where}.{difference[0]}",
+                            f"camera {camera_id!r} appears twice with different values ({difference[1]})",
+                        )
+                raw_seen[camera_id] = raw
             record = (timestep_id, entry["flame_param_path"], sequence)
             if per_timestep.setdefault(t, record) != record:
                 raise CaptureError(
