@@ -333,3 +333,18 @@ def test_writer_refuses_inconsistent_input(tmp_path):
         writer.finish()
     with pytest.raises(CaptureError, match="jaw_pose"):
         writer.write_flame_params(0, {**_params(np.random.default_rng(0)), "jaw_pose": np.zeros(2, np.float32)})
+
+
+def test_record_frame_for_files_written_elsewhere(tmp_path):
+    root = tmp_path / "cap"
+    cam = _cameras()[1]
+    writer = CaptureWriter(root)
+    writer.write_flame_params(4, _params(np.random.default_rng(0)))
+    with pytest.raises(CaptureError, match="not found"):
+        writer.record_frame(4, cam, split="train", camera_index=3)
+    write_png(root / "images/00004_03.png", np.zeros((H, W, 3)))
+    write_png(root / "fg_masks/00004_03.png", np.ones((H, W)))
+    frame = writer.record_frame(4, cam, split="train", camera_index=3)
+    assert frame["file_path"] == "images/00004_03.png"
+    writer.finish()
+    assert validate_capture(root).views == 1

@@ -95,7 +95,8 @@ def _sphere(n_lat=16, n_lon=24, radius=0.3, centre=(0, 0, 2)):
     lat = np.linspace(0, np.pi, n_lat + 1)[1:-1]
     lon = np.linspace(0, 2 * np.pi, n_lon, endpoint=False)
     ring = np.stack(np.meshgrid(lat, lon, indexing="ij"), -1).reshape(-1, 2)
-    dirs = np.stack([np.sin(ring[:, 0]) * np.cos(ring[:, 1]), np.cos(ring[:, 0]), np.sin(ring[:, 0]) * np.sin(ring[:, 1])], 1)
+    theta, phi = ring[:, 0], ring[:, 1]
+    dirs = np.stack([np.sin(theta) * np.cos(phi), np.cos(theta), np.sin(theta) * np.sin(phi)], 1)
     dirs = np.vstack([[0, 1, 0], dirs, [0, -1, 0]])
     import scipy.spatial
 
@@ -179,7 +180,8 @@ def test_mesh_through_near_plane_is_clipped_without_nan():
 
 def test_empty_and_bad_inputs():
     cam = _cam(8)
-    rgb, alpha = render_mesh(np.zeros((0, 3)), np.zeros((0, 3), int), np.zeros((0, 2)), np.zeros((0, 3), int), _solid((1, 1, 1)), cam, BG)
+    none = np.zeros((0, 3), int)
+    rgb, alpha = render_mesh(np.zeros((0, 3)), none, np.zeros((0, 2)), none, _solid((1, 1, 1)), cam, BG)
     assert rgb.shape == (8, 8, 3) and alpha.max() == 0
     v, f, vt, ft = _quad(-0.5, 0.5, -0.5, 0.5, 2.0)
     from mogaface.core.errors import InputError

@@ -155,7 +155,9 @@ def _frame_camera(frame: dict, top: dict, camera_id: str, source, where: str) ->
     except (TypeError, ValueError):
         raise CaptureError(source, f"{where}.transform_matrix", "expected a 4x4 list of numbers") from None
     if c2w.shape != (4, 4) or not np.isfinite(c2w).all():
-        raise CaptureError(source, f"{where}.transform_matrix", f"expected a finite 4x4 matrix, got shape {c2w.shape}")
+        raise CaptureError(
+            source, f"{where}.transform_matrix", f"expected a finite 4x4 matrix, got shape {c2w.shape}"
+        )
     rot = c2w[:3, :3]
     if not np.allclose(c2w[3], [0, 0, 0, 1], atol=1e-6) or not np.allclose(rot @ rot.T, np.eye(3), atol=1e-4):
         raise CaptureError(source, f"{where}.transform_matrix", "not a rigid camera-to-world transform")
@@ -233,7 +235,8 @@ class Capture:
         if not root.is_dir():
             raise CaptureError(root, None, "not a folder")
         if not (root / layout.split_file("train")).exists():
-            raise CaptureError(root / layout.split_file("train"), None, "file not found (every capture needs a train split)")
+            train = root / layout.split_file("train")
+            raise CaptureError(train, None, "file not found (every capture needs a train split)")
         splits: dict[str, list[Frame]] = {}
         cameras: dict[str, tuple[int, Camera]] = {}
         per_timestep: dict[int, tuple] = {}
@@ -281,7 +284,8 @@ class Capture:
             seen.add((t, c))
             known = cameras.get(camera_id)
             if known is not None and known[0] != c:
-                raise CaptureError(source, f"{where}.camera_index", f"camera {camera_id!r} has indices {known[0]} and {c}")
+                problem = f"camera {camera_id!r} has indices {known[0]} and {c}"
+                raise CaptureError(source, f"{where}.camera_index", problem)
             raw = _raw_camera_key(entry, doc)
             if known is None or raw is None or raw_seen.get(camera_id) != raw:
                 # A camera id's first sighting in this file, or values that differ in their text.
@@ -289,7 +293,8 @@ class Capture:
                 if known is None:
                     taken = next((cid for cid, (index, _) in cameras.items() if index == c), None)
                     if taken is not None:
-                        raise CaptureError(source, f"{where}.camera_index", f"index {c} is used by cameras {taken!r} and {camera_id!r}")
+                        problem = f"index {c} is used by cameras {taken!r} and {camera_id!r}"
+                        raise CaptureError(source, f"{where}.camera_index", problem)
                     cameras[camera_id] = (c, camera)
                 else:
                     difference = _camera_difference(known[1], camera)
@@ -305,8 +310,16 @@ class Capture:
                     source, f"{where}.timestep_id/flame_param_path/sequence",
                     f"timestep {t} is described differently by another frame: {per_timestep[t]} vs {record}",
                 )
-            frames.append(Frame(split, pos, t, timestep_id, c, camera_id, entry["file_path"], mask, entry["flame_param_path"], sequence))
-        for name, values in (("camera_indices", {f.camera_index for f in frames}), ("timestep_indices", {f.timestep_index for f in frames})):
+            frames.append(
+                Frame(
+                    split, pos, t, timestep_id, c, camera_id,
+                    entry["file_path"], mask, entry["flame_param_path"], sequence,
+                )
+            )
+        for name, values in (
+            ("camera_indices", {f.camera_index for f in frames}),
+            ("timestep_indices", {f.timestep_index for f in frames}),
+        ):
             listed = doc.get(name)
             if listed is not None and (not isinstance(listed, list) or set(listed) != values):
                 raise CaptureError(source, name, "does not match the indices of the frames")

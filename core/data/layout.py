@@ -98,7 +98,8 @@ def _checked(value: np.ndarray, key: str, ndim: int, size: int | None, source) -
         array = array[0]
     wanted = ("n",) * (ndim - 1) + (size if size is not None else "n",)
     if array.ndim != ndim or (size is not None and array.shape[-1] != size) or array.size == 0:
-        raise CaptureError(source, key, f"expected shape {wanted} or (1, {', '.join(map(str, wanted))}), got {np.shape(value)}")
+        batched = "(1, " + ", ".join(map(str, wanted)) + ")"
+        raise CaptureError(source, key, f"expected shape {wanted} or {batched}, got {np.shape(value)}")
     if not np.isfinite(array).all():
         raise CaptureError(source, key, "contains NaN or inf")
     return array.astype(np.float32)

@@ -42,14 +42,18 @@ class CaptureSummary:
             f"resolution: {res}",
         ]
         for split, counts in self.splits.items():
-            out.append(f"split {split}: {counts['frames']} frames, {counts['views']} views, {counts['timesteps']} timesteps")
+            out.append(
+                f"split {split}: {counts['frames']} frames, {counts['views']} views, {counts['timesteps']} timesteps"
+            )
         sizes = ", ".join(f"{k} {v}" for k, v in self.flame_sizes.items())
         out.append(f"flame params: {sizes}; canonical: {'yes' if self.has_canonical else 'no'}")
         out.append(f"image cache bound: {self.memory_bound_bytes / 2**20:.0f} MiB")
         return out
 
 
-def validate_capture(capture: Capture | str | os.PathLike, *, cache_bytes: int = DEFAULT_CACHE_BYTES) -> CaptureSummary:
+def validate_capture(
+    capture: Capture | str | os.PathLike, *, cache_bytes: int = DEFAULT_CACHE_BYTES
+) -> CaptureSummary:
     """Run every check on a capture (a path or an opened :class:`Capture`) and summarise it."""
     if not isinstance(capture, Capture):
         capture = Capture.open(capture, cache_bytes=cache_bytes)

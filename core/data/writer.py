@@ -70,7 +70,8 @@ class CaptureWriter:
                 raise CaptureError(self.root, "camera_index", f"index {known} already belongs to another camera")
             self._camera_index[camera_id] = known
         elif index is not None and index != known:
-            raise CaptureError(self.root, "camera_index", f"camera {camera_id!r} already has index {known}, not {index}")
+            problem = f"camera {camera_id!r} already has index {known}, not {index}"
+            raise CaptureError(self.root, "camera_index", problem)
         return known
 
     def write_flame_params(self, timestep: int, params: dict[str, np.ndarray]) -> str:
@@ -104,18 +105,43 @@ class CaptureWriter:
         both must match ``camera.width/height``. The timestep's FLAME file must be written
         (before or after) with :meth:`write_flame_params`.
         """
+        size = (camera.height, camera.width)
+        if np.shape(rgb)[:2] != size or np.shape(mask)[:2] != size:
+            problem = f"image {np.shape(rgb)} / mask {np.shape(mask)} do not match the camera {size}"
+            raise CaptureError(self.root, "rgb/mask", problem)
+        frame = self._entry(timestep, camera, split, timestep_id, sequence, camera_index)
+        write_png(self.root / frame["file_path"], rgb, compress_level=self.png_compress_level)
+        write_png(self.root / frame["fg_mask_path"], mask, compress_level=self.png_compress_level)
+        return self._record(frame, split)
+
+    def record_frame(
+        self,
+        timestep: int,
+        camera: Camera,
+        *,
+        split: str,
+        timestep_id: str | None = None,
+        sequence: str | None = None,
+        camera_index: int | None = None,
+    ) -> dict:
+        """Record a frame whose PNGs were already written, e.g. by worker processes.
+
+        The files must exist at ``layout.image_path(t, c)`` and ``layout.mask_path(t, c)``,
+        with ``c`` the index :meth:`camera_index` gives (pin it with ``camera_index``).
+        """
+        frame = self._entry(timestep, camera, split, timestep_id, sequence, camera_index)
+        for name in ("file_path", "fg_mask_path"):
+            if not (self.root / frame[name]).is_file():
+                raise CaptureError(self.root / frame[name], name, "file not found; write it before recording the frame")
+        return self._record(frame, split)
+
+    def _entry(self, timestep, camera, split, timestep_id, sequence, camera_index) -> dict:
         if split not in self._frames:
             raise CaptureError(self.root, "split", f"unknown split {split!r}; expected one of {layout.SPLITS}")
         timestep = int(timestep)
-        key = (timestep, camera.camera_id)
-        if key in self._seen:
+        if (timestep, camera.camera_id) in self._seen:
             raise CaptureError(self.root, "frames", f"timestep {timestep}, camera {camera.camera_id!r} added twice")
         c = self.camera_index(camera.camera_id, camera_index)
-        size = (camera.height, camera.width)
-        if np.shape(rgb)[:2] != size or np.shape(mask)[:2] != size:
-            raise CaptureError(
-                self.root, "rgb/mask", f"image {np.shape(rgb)} / mask {np.shape(mask)} do not match the camera's {size}"
-            )
         frame = {
             "timestep_index": timestep,
             "timestep_id": timestep_id if timestep_id is not None else f"{timestep:05d}",
@@ -128,17 +154,19 @@ class CaptureWriter:
         if sequence is not None:
             frame["sequence"] = str(sequence)
         frame.update(camera_fields(camera))
-        write_png(self.root / frame["file_path"], rgb, compress_level=self.png_compress_level)
-        write_png(self.root / frame["fg_mask_path"], mask, compress_level=self.png_compress_level)
+        return frame
+
+    def _record(self, frame: dict, split: str) -> dict:
         self._frames[split].append(frame)
-        self._seen.add(key)
+        self._seen.add((frame["timestep_index"], frame["camera_id"]))
         return frame
 
     def finish(self) -> None:
         """Write ``transforms_{split}.json`` for every non-empty split and ``transforms.json``."""
         missing = {f["timestep_index"] for frames in self._frames.values() for f in frames} - self._flame_written
         if missing:
-            raise CaptureError(self.root, "flame_param", f"no FLAME parameters written for timesteps {sorted(missing)[:10]}")
+            problem = f"no FLAME parameters written for timesteps {sorted(missing)[:10]}"
+            raise CaptureError(self.root, "flame_param", problem)
         everything = []
         for split, frames in self._frames.items():
             if frames:
