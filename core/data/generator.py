@@ -1,0 +1,196 @@
+"""The synthetic multi-view capture: the procedural head performing, seen by a camera dome.
+
+Ground truth comes from the independent mesh renderer (never from the splat engine). The
+capture is written in the GaussianAvatars/VHAP layout with *tracked* parameters (the truth
+plus tracker-like noise) in ``flame_param/`` and the truth in ``flame_param_gt/``, so how
+well a method recovers the true expressions can be measured. See docs/data-format.md.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import pathlib
+import shutil
+
+import numpy as np
+import torch
+
+from ..camera import Camera
+from ..errors import InputError
+from ..flame.lbs import axis_angle_to_matrix
+from ..flame.model import FlameModel
+from ..flame.model_file import write_model_file
+from ..io.atomic import write_json
+from ..io.npz import save_npz
+from ..progress import ProgressBar
+from . import layout
+from .mesh_render import render_mesh
+from .sequences import TEST_SEQUENCE, TrackingNoise, add_tracking_noise, make_sequences
+from .writer import CaptureWriter, camera_fields
+
+GT_FLAME_DIR = "flame_param_gt"
+GT_CAMERAS_FILE = "cameras_gt.json"
+INFO_FILE = "capture_info.json"
+BACKGROUND = (1.0, 1.0, 1.0)
+
+
+@dataclasses.dataclass(frozen=True)
+class CaptureSettings:
+    """Everything that decides a synthetic capture; the same settings give the same capture."""
+
+    subject: int = 0
+    views: int = 16
+    timesteps: int = 150
+    size: int = 256
+    expr_noise: float = 0.5
+    pose_noise: float = 0.01
+    camera_noise: float = 0.0  # degrees of rotation error (and 5 mm of position error per degree)
+    seed: int = 0
+    supersample: int = 3
+
+    def check(self) -> None:
+        limits = {"views": (2, 64), "timesteps": (16, 100000), "size": (32, 4096), "supersample": (1, 8)}
+        for name, (low, high) in limits.items():
+            value = getattr(self, name)
+            if not low <= value <= high:
+                raise InputError(None, name, f"must lie in [{low}, {high}], got {value}")
+        for name in ("expr_noise", "pose_noise", "camera_noise"):
+            if not getattr(self, name) >= 0:
+                raise InputError(None, name, f"must be >= 0, got {getattr(self, name)}")
+
+
+def camera_dome(views: int, size: int, vertices: np.ndarray, rng) -> tuple[list[Camera], int]:
+    """A NeRSemble-like rig: an arc from left to right profile, zig-zagging above and below eye
+    level, about 1 m away, with per-camera intrinsics; plus one frontal camera at eye level.
+
+    Returns the cameras ordered by azimuth and the index of the frontal (held-out) camera.
+    """
+    centre = 0.5 * (vertices.min(0) + vertices.max(0))
+    extent = float(np.max(vertices.max(0) - vertices.min(0)))
+    azimuths = np.linspace(-90.0, 90.0, views - 1)
+    elevations = np.array([0.0, 22.0, -16.0])[np.arange(views - 1) % 3]
+    placements = sorted([*zip(azimuths, elevations), (0.0, 0.0)], key=lambda p: (p[0], p[1]))
+    frontal = placements.index((0.0, 0.0))
+    cameras = []
+    for index, (azimuth, elevation) in enumerate(placements):
+        az, el = np.radians(azimuth), np.radians(elevation)
+        distance = 1.0 + rng.normal(scale=0.03)
+        direction = np.array([np.sin(az) * np.cos(el), np.sin(el), np.cos(az) * np.cos(el)])
+        target = centre + rng.normal(scale=0.008, size=3)
+        fx = 0.85 * size * distance / extent * (1.0 + rng.normal(scale=0.02))
+        cameras.append(
+            Camera.look_at(
+                centre + distance * direction,
+                target,
+                width=size,
+                height=size,
+                fx=fx,
+                fy=fx * (1.0 + rng.normal(scale=0.003)),
+                cx=size / 2 + rng.normal(scale=0.012 * size),
+                cy=size / 2 + rng.normal(scale=0.012 * size),
+                camera_id=f"cam{index:02d}",
+            )
+        )
+    return cameras, frontal
+
+
+def perturb_camera(camera: Camera, degrees: float, rng) -> Camera:
+    """The camera a calibration with ``degrees`` of rotation error (and 5 mm/degree) would report."""
+    if degrees == 0:
+        return camera
+    delta = np.eye(4)
+    rotvec = torch.tensor(rng.normal(scale=np.radians(degrees), size=3))
+    delta[:3, :3] = axis_angle_to_matrix(rotvec).numpy()
+    delta[:3, 3] = rng.normal(scale=0.005 * degrees, size=3)
+    return dataclasses.replace(camera, w2c=delta @ camera.w2c)
+
+
+def _write_gt_params(root: pathlib.Path, timestep: int, params: dict[str, np.ndarray]) -> None:
+    path = root / GT_FLAME_DIR / f"{timestep:05d}.npz"
+    save_npz(path, layout.batched_flame_params(layout.normalize_flame_params(params, path)))
+
+
+def _model_for(settings: CaptureSettings, out: pathlib.Path, model_path) -> pathlib.Path:
+    """Copy the given model, or write the procedural head, into the capture (self-contained)."""
+    if model_path is not None:
+        model_path = pathlib.Path(model_path)
+        target = out / f"head{model_path.suffix}"
+        shutil.copyfile(model_path, target)
+        return target
+    from ..flame.procedural import build_head
+
+    target = out / "head.pkl"
+    write_model_file(target, build_head(subject=settings.subject, seed=settings.seed))
+    return target
+
+
+def make_capture(
+    out: str | os.PathLike,
+    settings: CaptureSettings = CaptureSettings(),
+    model_path: str | os.PathLike | None = None,
+    progress: bool = True,
+) -> pathlib.Path:
+    """Render and write a synthetic capture into ``out``; returns the folder."""
+    settings.check()
+    out = pathlib.Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    head_file = _model_for(settings, out, model_path)
+    model = FlameModel.load(head_file)
+    arrays = model.arrays
+    if arrays.vt is None or arrays.texture is None:
+        raise InputError(head_file, "vt/ft/texture", "a synthetic capture needs a model with UVs and a texture")
+    texture = arrays.texture.astype(np.float32) / 255.0
+
+    rng = np.random.default_rng([settings.seed, settings.subject])
+    with torch.no_grad():
+        rest = model()[0].double().numpy()
+    cameras, frontal = camera_dome(settings.views, settings.size, rest, rng)
+    reported = [perturb_camera(c, settings.camera_noise, rng) for c in cameras]
+    sequences = make_sequences(settings.timesteps, model.n_shape, model.expression_names, seed=settings.seed + 7919 * settings.subject)
+    noise = TrackingNoise(expr=settings.expr_noise, pose=settings.pose_noise)
+
+    total = sum(s.length for s in sequences)
+    bar = ProgressBar(total * len(cameras), "make-capture") if progress else None
+    timestep = 0
+    ranges = {}
+    with CaptureWriter(out) as writer:
+        for sequence in sequences:
+            tracked = add_tracking_noise(sequence.params, noise, rng)
+            ranges[sequence.name] = [timestep, timestep + sequence.length]
+            for local in range(sequence.length):
+                truth = {k: v[local] for k, v in sequence.params.items()}
+                writer.write_flame_params(timestep, {k: v[local] for k, v in tracked.items()})
+                _write_gt_params(out, timestep, truth)
+                with torch.no_grad():
+                    vertices = model(**{k: torch.from_numpy(v)[None] for k, v in truth.items()})[0].double().numpy()
+                for index, (camera, written) in enumerate(zip(cameras, reported)):
+                    rgb, alpha = render_mesh(
+                        vertices, arrays.faces, arrays.vt, arrays.ft, texture, camera, BACKGROUND,
+                        supersample=settings.supersample,
+                    )
+                    split = "test" if sequence.name == TEST_SEQUENCE else ("val" if index == frontal else "train")
+                    writer.add_frame(
+                        timestep, written, rgb, alpha, split=split, sequence=sequence.name,
+                        timestep_id=f"{sequence.name}_{local:04d}", camera_index=index,
+                    )
+                    if bar:
+                        bar.update()
+                timestep += 1
+        zeros = {k: np.zeros_like(v[0]) for k, v in sequences[0].params.items()}
+        writer.write_canonical_flame_params(zeros)
+    write_json(out / GT_CAMERAS_FILE, {c.camera_id: camera_fields(c) for c in cameras})
+    write_json(
+        out / INFO_FILE,
+        {
+            "generator": "mogaface make-capture",
+            "settings": dataclasses.asdict(settings),
+            "model_file": head_file.name,
+            "background": list(BACKGROUND),
+            "val_camera": cameras[frontal].camera_id,
+            "test_sequence": TEST_SEQUENCE,
+            "sequences": ranges,
+            "ground_truth": {"flame_param": GT_FLAME_DIR, "cameras": GT_CAMERAS_FILE},
+        },
+    )
+    return out

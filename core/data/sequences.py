@@ -1,0 +1,165 @@
+"""Ground-truth FLAME parameter sequences of a synthetic capture: smooth in time, seeded.
+
+A subject performs the kinds of sequences multi-view face captures record: expression
+sequences that exercise every expression component (plus jaw and eyes) with head motion, a
+speech-like sequence, and a free performance (held out for self-reenactment).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+# name, share of the timesteps
+SEQUENCES = (("EXP-1", 0.27), ("EXP-2", 0.27), ("SPEECH", 0.23), ("FREE", 0.23))
+TEST_SEQUENCE = "FREE"
+POSE_SIZES = {"rotation": 3, "neck_pose": 3, "jaw_pose": 3, "eyes_pose": 6, "translation": 3}
+
+
+@dataclasses.dataclass
+class Sequence:
+    name: str
+    params: dict[str, np.ndarray]  # name -> (T, n) float32, FLAME parameter names
+
+    @property
+    def length(self) -> int:
+        return len(self.params["expr"])
+
+
+def split_timesteps(total: int) -> list[int]:
+    """How many timesteps each sequence gets (at least 4 each)."""
+    counts = [max(4, int(round(total * share))) for _, share in SEQUENCES]
+    counts[-1] = max(4, total - sum(counts[:-1]))
+    return counts
+
+
+def _bump(t: np.ndarray, centre: float, width: float) -> np.ndarray:
+    """A smooth raised-cosine pulse: 0 outside ``centre ± width``, 1 at the centre."""
+    x = np.clip((t - centre) / width, -1.0, 1.0)
+    return 0.5 * (1.0 + np.cos(np.pi * x))
+
+
+def _smooth_noise(rng, length: int, channels: int, correlation: float) -> np.ndarray:
+    """Unit-variance noise low-pass filtered over ``correlation`` timesteps."""
+    pad = int(3 * correlation) + 1
+    raw = rng.normal(size=(length + 2 * pad, channels))
+    kernel = np.exp(-0.5 * (np.arange(-pad, pad + 1) / max(correlation, 1e-3)) ** 2)
+    kernel /= np.sqrt((kernel**2).sum())
+    smooth = np.stack([np.convolve(raw[:, c], kernel, mode="valid") for c in range(channels)], axis=1)
+    return smooth[:length]
+
+
+def _head_motion(rng, t: np.ndarray, amplitude: float) -> dict[str, np.ndarray]:
+    """Slow head turns and nods (global rotation, a little neck, tiny translation)."""
+    phase = rng.uniform(0, 2 * np.pi, size=4)
+    duration = max(t[-1], 1.0)
+    yaw = amplitude * np.sin(2 * np.pi * t / duration + phase[0])
+    pitch = 0.5 * amplitude * np.sin(4 * np.pi * t / duration + phase[1])
+    roll = 0.2 * amplitude * np.sin(2 * np.pi * t / duration + phase[2])
+    rotation = np.stack([pitch, yaw, roll], axis=1)
+    neck = 0.3 * np.stack([0.5 * pitch, yaw, np.zeros_like(t)], axis=1)
+    translation = 0.004 * np.stack([np.sin(2 * np.pi * t / duration + phase[3]), np.zeros_like(t), np.zeros_like(t)], 1)
+    return {"rotation": rotation, "neck_pose": neck, "translation": translation}
+
+
+def _eyes(gaze_yaw: np.ndarray, gaze_pitch: np.ndarray) -> np.ndarray:
+    """Both eyes looking the same way: axis-angle (pitch about x, yaw about y) per eye."""
+    one = np.stack([gaze_pitch, gaze_yaw, np.zeros_like(gaze_yaw)], axis=1)
+    return np.concatenate([one, one], axis=1)
+
+
+def _jaw(opening: np.ndarray) -> np.ndarray:
+    """Jaw opening in radians about the x axis (positive opens the mouth)."""
+    return np.stack([opening, np.zeros_like(opening), np.zeros_like(opening)], axis=1)
+
+
+def expression_sequence(rng, length: int, components: list[int], n_expr: int, with_jaw: bool) -> dict:
+    """Each listed component rises and falls in turn (overlapping), plus jaw or eye movements."""
+    t = np.arange(length, dtype=np.float64)
+    expr = np.zeros((length, n_expr))
+    slot = length / max(len(components), 1)
+    for k, component in enumerate(components):
+        amplitude = rng.uniform(1.0, 1.6) * rng.choice([1.0, 1.0, -0.6])
+        expr[:, component] = amplitude * _bump(t, (k + 0.5) * slot, 1.3 * slot)
+    if with_jaw:
+        jaw = 0.28 * _bump(t, 0.3 * length, 0.2 * length) + 0.15 * _bump(t, 0.75 * length, 0.15 * length)
+        eyes = _eyes(np.zeros(length), np.zeros(length))
+    else:
+        jaw = np.zeros(length)
+        eyes = _eyes(0.3 * np.sin(2 * np.pi * t / max(length, 1)), 0.15 * np.sin(4 * np.pi * t / max(length, 1)))
+    return {"expr": expr, "jaw_pose": _jaw(jaw), "eyes_pose": eyes, **_head_motion(rng, t, 0.18)}
+
+
+def speech_sequence(rng, length: int, lip_components: list[int], n_expr: int) -> dict:
+    """Syllable-rate jaw opening with lip shapes that follow it, and small nods."""
+    t = np.arange(length, dtype=np.float64)
+    jaw = np.zeros(length)
+    centre = rng.uniform(0.5, 2.0)
+    while centre < length:
+        jaw += rng.uniform(0.08, 0.2) * _bump(t, centre, rng.uniform(1.5, 2.5))
+        centre += rng.uniform(2.5, 4.5)
+    expr = np.zeros((length, n_expr))
+    lips = _smooth_noise(rng, length, len(lip_components), correlation=2.0)
+    for k, component in enumerate(lip_components):
+        expr[:, component] = 0.8 * lips[:, k] * (0.4 + jaw / max(jaw.max(), 1e-6))
+    eyes = _eyes(0.1 * _smooth_noise(rng, length, 1, 6.0)[:, 0], 0.05 * _smooth_noise(rng, length, 1, 6.0)[:, 0])
+    return {"expr": expr, "jaw_pose": _jaw(np.clip(jaw, 0.0, 0.3)), "eyes_pose": eyes, **_head_motion(rng, t, 0.1)}
+
+
+def free_sequence(rng, length: int, n_expr: int) -> dict:
+    """A free performance: every component, the jaw and the eyes wander smoothly together."""
+    t = np.arange(length, dtype=np.float64)
+    expr = 0.7 * _smooth_noise(rng, length, n_expr, correlation=3.0)
+    jaw = np.clip(0.12 + 0.1 * _smooth_noise(rng, length, 1, 3.0)[:, 0], 0.0, 0.3)
+    gaze = _smooth_noise(rng, length, 2, 5.0)
+    return {"expr": expr, "jaw_pose": _jaw(jaw), "eyes_pose": _eyes(0.2 * gaze[:, 0], 0.1 * gaze[:, 1]), **_head_motion(rng, t, 0.22)}
+
+
+def lip_components(expression_names: list[str]) -> list[int]:
+    """Components whose names say they shape the lips or mouth (all of them if none do)."""
+    keys = ("lip", "mouth", "smile", "pucker", "funnel", "press", "stretch")
+    found = [i for i, name in enumerate(expression_names) if any(k in name.lower() for k in keys)]
+    return found or list(range(len(expression_names)))
+
+
+def make_sequences(total_timesteps: int, n_shape: int, expression_names: list[str], seed: int) -> list[Sequence]:
+    """The ground-truth parameters of every sequence of one subject."""
+    rng = np.random.default_rng(seed)
+    n_expr = len(expression_names)
+    counts = split_timesteps(total_timesteps)
+    half = (n_expr + 1) // 2
+    raw = [
+        expression_sequence(rng, counts[0], list(range(half)), n_expr, with_jaw=False),
+        expression_sequence(rng, counts[1], list(range(half, n_expr)), n_expr, with_jaw=True),
+        speech_sequence(rng, counts[2], lip_components(expression_names), n_expr),
+        free_sequence(rng, counts[3], n_expr),
+    ]
+    sequences = []
+    for (name, _), params in zip(SEQUENCES, raw):
+        length = len(params["expr"])
+        full = {"shape": np.zeros((length, n_shape)), **params}
+        sequences.append(Sequence(name, {k: np.asarray(v, dtype=np.float32) for k, v in full.items()}))
+    return sequences
+
+
+@dataclasses.dataclass(frozen=True)
+class TrackingNoise:
+    """How far the "tracked" parameters stray from the truth, as a landmark tracker's do.
+
+    ``expr``: std of the per-timestep error of each expression coefficient; ``pose``: std in
+    radians of the global, neck, jaw and eye rotations (translation: ``pose``·0.1 m).
+    """
+
+    expr: float = 0.5
+    pose: float = 0.01
+
+
+def add_tracking_noise(params: dict[str, np.ndarray], noise: TrackingNoise, rng) -> dict[str, np.ndarray]:
+    """Ground truth → "tracked" parameters: independent Gaussian errors per timestep."""
+    tracked = {k: v.copy() for k, v in params.items()}
+    tracked["expr"] = tracked["expr"] + rng.normal(scale=noise.expr, size=tracked["expr"].shape)
+    for name in ("rotation", "neck_pose", "jaw_pose", "eyes_pose"):
+        tracked[name] = tracked[name] + rng.normal(scale=noise.pose, size=tracked[name].shape)
+    tracked["translation"] = tracked["translation"] + rng.normal(scale=0.1 * noise.pose, size=tracked["translation"].shape)
+    return {k: v.astype(np.float32) for k, v in tracked.items()}
