@@ -107,6 +107,7 @@ def render_mesh(
     near: float = 1e-3,
     cull_backfaces: bool = False,
     flat_shading: bool = False,
+    normals: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Render a textured mesh seen by ``camera``.
 
@@ -119,6 +120,10 @@ def render_mesh(
         supersample: samples per pixel along each axis; ``s*s`` samples are box-filtered.
         lighting: :class:`Lighting`; ``None`` uses the default world-space lights.
         near: clipping distance in front of the camera (world units).
+        cull_backfaces: drop triangles seen from behind instead of shading their facing side.
+        flat_shading: shade with face normals instead of interpolated vertex normals.
+        normals: (V,3) world vertex normals, e.g. :func:`vertex_normals` computed once for
+            many views of the same pose; computed here when None.
 
     Returns:
         ``rgb`` (H,W,3) float32 in [0,1], composited over ``background``, and ``alpha`` (H,W)
@@ -154,6 +159,11 @@ def render_mesh(
         fn = np.cross(tri_w[:, 1] - tri_w[:, 0], tri_w[:, 2] - tri_w[:, 0])
         fn /= np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-300)
         nrm = np.repeat(fn[:, None, :], 3, axis=1)
+    elif normals is not None:
+        normals = np.asarray(normals, dtype=np.float64)
+        if normals.shape != vertices.shape:
+            raise InputError(None, "normals", f"expected shape {vertices.shape}, got {normals.shape}")
+        nrm = normals[faces]
     else:
         nrm = vertex_normals(vertices, faces)[faces]
     cam_pts = camera.world_to_camera(vertices)[faces]
