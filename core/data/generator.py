@@ -25,7 +25,7 @@ from ..io.atomic import write_json
 from ..io.npz import save_npz
 from ..progress import ProgressBar
 from . import layout
-from .mesh_render import render_mesh
+from .mesh_render import render_mesh, vertex_normals
 from .sequences import TEST_SEQUENCE, TrackingNoise, add_tracking_noise, make_sequences
 from .writer import CaptureWriter, camera_fields
 
@@ -164,10 +164,11 @@ def make_capture(
                 _write_gt_params(out, timestep, truth)
                 with torch.no_grad():
                     vertices = model(**{k: torch.from_numpy(v)[None] for k, v in truth.items()})[0].double().numpy()
+                normals = vertex_normals(vertices, arrays.faces)  # shared by every view of the timestep
                 for index, (camera, written) in enumerate(zip(cameras, reported)):
                     rgb, alpha = render_mesh(
                         vertices, arrays.faces, arrays.vt, arrays.ft, texture, camera, BACKGROUND,
-                        supersample=settings.supersample,
+                        supersample=settings.supersample, normals=normals,
                     )
                     split = "test" if sequence.name == TEST_SEQUENCE else ("val" if index == frontal else "train")
                     writer.add_frame(

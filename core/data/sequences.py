@@ -100,9 +100,9 @@ def speech_sequence(rng, length: int, lip_components: list[int], n_expr: int) ->
         jaw += rng.uniform(0.08, 0.2) * _bump(t, centre, rng.uniform(1.5, 2.5))
         centre += rng.uniform(2.5, 4.5)
     expr = np.zeros((length, n_expr))
-    lips = _smooth_noise(rng, length, len(lip_components), correlation=2.0)
+    lips = _smooth_noise(rng, length, len(lip_components), correlation=3.0)
     for k, component in enumerate(lip_components):
-        expr[:, component] = 0.8 * lips[:, k] * (0.4 + jaw / max(jaw.max(), 1e-6))
+        expr[:, component] = 0.7 * lips[:, k] * (0.4 + jaw / max(jaw.max(), 1e-6))
     eyes = _eyes(0.1 * _smooth_noise(rng, length, 1, 6.0)[:, 0], 0.05 * _smooth_noise(rng, length, 1, 6.0)[:, 0])
     return {"expr": expr, "jaw_pose": _jaw(np.clip(jaw, 0.0, 0.3)), "eyes_pose": eyes, **_head_motion(rng, t, 0.1)}
 
