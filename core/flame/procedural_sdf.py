@@ -1,0 +1,128 @@
+"""The implicit surface of the procedural head: smooth unions of simple solids.
+
+Negative inside. The skin mesh is found by intersecting rays with this field, so
+it only needs the right sign and smoothness, not exact distances. All lengths in
+metres, FLAME axes (y up, +z front, +x the subject's left).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+EYE_CENTRE = np.array([0.031, 0.017, 0.060])  # the +x eyeball; mirror for the other
+EYE_RADIUS = 0.012
+LID_RADIUS = 0.0134  # lids rest on a sphere slightly larger than the eyeball
+EAR_CENTRE = np.array([0.074, -0.002, -0.012])
+
+
+def ellipsoid(p, centre, radii):
+    """Approximate signed distance to an axis-aligned ellipsoid."""
+    q = (p - centre) / radii
+    k0 = np.linalg.norm(q, axis=-1)
+    k1 = np.linalg.norm(q / radii, axis=-1)
+    return k0 * (k0 - 1.0) / np.maximum(k1, 1e-12)
+
+
+def tapered_capsule(p, a, b, ra, rb):
+    """Distance to a segment a→b whose radius goes from ra to rb."""
+    ab = b - a
+    h = np.clip(((p - a) @ ab) / (ab @ ab), 0.0, 1.0)
+    return np.linalg.norm(p - a - h[..., None] * ab, axis=-1) - (ra + (rb - ra) * h)
+
+
+def smooth_union(a, b, k):
+    h = np.clip(0.5 + 0.5 * (b - a) / k, 0.0, 1.0)
+    return b + (a - b) * h - k * h * (1.0 - h)
+
+
+def smooth_subtract(a, b, k):
+    """Remove solid b from solid a with a rounded edge."""
+    return -smooth_union(-a, b, k)
+
+
+def mirrored(p):
+    """Fold x so one-sided features serve both sides."""
+    q = p.copy()
+    q[..., 0] = np.abs(q[..., 0])
+    return q
+
+
+def _ear(p):
+    """An ear: a flattened disc standing out from the side, with a hollow bowl."""
+    q = mirrored(p) - EAR_CENTRE
+    normal = np.array([0.91, 0.0, 0.41])
+    up = np.array([0.0, 1.0, 0.0])
+    along = np.cross(up, normal)
+    local = np.stack([q @ normal, q @ up, q @ along], axis=-1)
+    # Lean the top of the ear backwards a little.
+    tilt = 0.25
+    ly = local[..., 1] * np.cos(tilt) - local[..., 2] * np.sin(tilt)
+    lz = local[..., 1] * np.sin(tilt) + local[..., 2] * np.cos(tilt)
+    local = np.stack([local[..., 0] - 0.006, ly, lz], axis=-1)
+    disc = ellipsoid(local, np.zeros(3), np.array([0.0075, 0.031, 0.019]))
+    bowl = ellipsoid(local, np.array([0.009, -0.004, 0.003]), np.array([0.008, 0.012, 0.0095]))
+    return smooth_subtract(disc, bowl, 0.003)
+
+
+def _nose(p):
+    q = mirrored(p)
+    bridge = tapered_capsule(p, np.array([0.0, 0.021, 0.082]), np.array([0.0, -0.022, 0.112]), 0.0052, 0.0075)
+    tip = ellipsoid(p, np.array([0.0, -0.026, 0.1115]), np.array([0.0105, 0.0095, 0.0100]))
+    alae = ellipsoid(q, np.array([0.0135, -0.033, 0.0965]), np.array([0.0085, 0.0075, 0.0085]))
+    base = ellipsoid(p, np.array([0.0, -0.030, 0.090]), np.array([0.016, 0.011, 0.014]))
+    flank = ellipsoid(p, np.array([0.0, -0.012, 0.084]), np.array([0.017, 0.03, 0.016]))
+    nose = smooth_union(smooth_union(bridge, tip, 0.006), smooth_union(alae, base, 0.004), 0.005)
+    nose = smooth_union(nose, flank, 0.01)
+    nostrils = ellipsoid(q, np.array([0.0068, -0.0405, 0.1035]), np.array([0.0036, 0.0022, 0.0060]))
+    return smooth_subtract(nose, nostrils, 0.0015)
+
+
+def _jaw(p):
+    q = mirrored(p)
+    body = tapered_capsule(q, np.array([0.050, -0.070, -0.012]), np.array([0.016, -0.097, 0.074]), 0.013, 0.014)
+    chin = ellipsoid(p, np.array([0.0, -0.094, 0.080]), np.array([0.021, 0.016, 0.015]))
+    lower_face = ellipsoid(p, np.array([0.0, -0.052, 0.036]), np.array([0.054, 0.048, 0.061]))
+    return smooth_union(smooth_union(body, chin, 0.012), lower_face, 0.02)
+
+
+def head_sdf(p: np.ndarray) -> np.ndarray:
+    """Signed field of the base head (skin, closed lids, no mouth opening) at points (...,3)."""
+    q = mirrored(p)
+    cranium = ellipsoid(p, np.array([0.0, 0.028, -0.012]), np.array([0.0745, 0.094, 0.097]))
+    midface = ellipsoid(p, np.array([0.0, -0.004, 0.030]), np.array([0.062, 0.050, 0.056]))
+    neck = tapered_capsule(p, np.array([0.0, -0.26, 0.0]), np.array([0.0, -0.05, -0.022]), 0.056, 0.052)
+    cheekbone = ellipsoid(q, np.array([0.046, -0.002, 0.058]), np.array([0.021, 0.013, 0.021]))
+    brow = ellipsoid(q, np.array([0.022, 0.036, 0.062]), np.array([0.032, 0.0115, 0.021]))
+    d = smooth_union(cranium, midface, 0.02)
+    d = smooth_union(d, _jaw(p), 0.018)
+    d = smooth_union(d, neck, 0.03)
+    d = smooth_union(d, cheekbone, 0.012)
+    d = smooth_union(d, brow, 0.014)
+    socket = ellipsoid(q, EYE_CENTRE + np.array([0.0, -0.001, 0.020]), np.array([0.020, 0.0135, 0.0135]))
+    d = smooth_subtract(d, socket, 0.012)
+    lids = np.linalg.norm(q - EYE_CENTRE, axis=-1) - LID_RADIUS
+    d = smooth_union(d, lids, 0.006)
+    d = smooth_union(d, _nose(p), 0.011)
+    d = smooth_union(d, _ear(p), 0.005)
+    return d
+
+
+def march_rays(origins: np.ndarray, directions: np.ndarray, r_max: float = 0.3, steps: int = 120) -> np.ndarray:
+    """Distance along each ray to the outermost surface crossing, found from outside in.
+
+    Rays start inside the head; sampling from far away inwards finds the first
+    outside→inside transition, which bisection then refines.
+    """
+    radii = np.linspace(r_max, 0.0, steps)
+    inside = np.empty((len(origins), steps), dtype=bool)
+    for k, r in enumerate(radii):
+        inside[:, k] = head_sdf(origins + r * directions) < 0
+    first_inside = np.argmax(inside, axis=1)
+    outer = radii[np.maximum(first_inside - 1, 0)]
+    inner = radii[first_inside]
+    for _ in range(24):
+        mid = 0.5 * (outer + inner)
+        is_in = head_sdf(origins + mid[:, None] * directions) < 0
+        inner = np.where(is_in, mid, inner)
+        outer = np.where(is_in, outer, mid)
+    return 0.5 * (outer + inner)
