@@ -79,6 +79,10 @@ def test_winding_is_consistent_and_outward(head, mesh):
         fs = f[np.all(mesh.part[f] == part, axis=1)]
         volume = np.einsum("ij,ij->i", v[fs[:, 0]], np.cross(v[fs[:, 1]], v[fs[:, 2]])).sum() / 6.0
         assert volume == pytest.approx(4 / 3 * np.pi * 0.012**3, rel=0.15)
+    for part in (5, 6):  # each ear is a closed shell
+        fs = f[np.all(mesh.part[f] == part, axis=1)]
+        volume = np.einsum("ij,ij->i", v[fs[:, 0]], np.cross(v[fs[:, 1]], v[fs[:, 2]])).sum() / 6.0
+        assert 1e-6 < volume < 2e-5
     cranium = f[np.all(v[f][:, :, 1] > 0.06, axis=1)]
     normals = np.cross(v[cranium[:, 1]] - v[cranium[:, 0]], v[cranium[:, 2]] - v[cranium[:, 0]])
     outward = v[cranium].mean(axis=1) - np.array([0.0, 0.02, -0.01])
@@ -153,7 +157,8 @@ def test_expressions_stay_on_the_face(head, mesh):
     back = v[:, 2] < -0.02
     neck = v[:, 1] < -0.15
     eyes = (mesh.part == 2) | (mesh.part == 3)
-    assert np.abs(expr[back | neck | eyes]).max() == 0.0
+    ears = (mesh.part == 5) | (mesh.part == 6)
+    assert np.abs(expr[back | neck | eyes | ears]).max() == 0.0
     assert np.abs(head["posedirs"][eyes]).max() == 0.0
     # Strong but plausible: at most a couple of centimetres per unit.
     assert np.abs(expr).max() < 0.02

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .procedural_ear import EAR_ORIGIN
 from .procedural_mesh import HeadMesh
 from .procedural_rig import jaw_weight, lower_lip_side, smoothstep
 from .procedural_sdf import EAR_CENTRE, EYE_CENTRE
@@ -105,6 +106,9 @@ def shape_components(mesh: HeadMesh, v: np.ndarray) -> np.ndarray:
         np.stack([0.0025 * x / 0.015 * blob(v, np.array([0.0, -0.03, 0.1]), np.array([0.02, 0.012, 0.02])), zero, zero], 1),  # nose_width
         np.stack([zero, 0.002 * both_sides(v, EYE_CENTRE, np.array([0.02, 0.02, 0.03])), zero], 1),  # eye_height
     ]
+    for k, sign in enumerate((1.0, -1.0)):
+        ear = mesh.part == 5 + k
+        comps[SHAPE_NAMES.index("ear_size")][ear] = 0.08 * (v[ear] - EAR_ORIGIN * np.array([sign, 1.0, 1.0]))
     dirs = np.stack([_eye_rigid(mesh, v, c) for c in comps], axis=2)
     return dirs
 
@@ -163,9 +167,11 @@ def expression_components(mesh: HeadMesh, v: np.ndarray) -> np.ndarray:
     def cheek(side):
         return blob(v, np.array([0.036 * side, -0.03, 0.072]), np.array([0.022, 0.02, 0.03]))
 
+    above_lids = smoothstep(y, EYE_CENTRE[1] + 0.008, EYE_CENTRE[1] + 0.018)
+
     def brow(side):
-        return blob(v, np.array([0.03 * side, 0.036, 0.08]), np.array([0.024, 0.02, 0.04])) + \
-            0.5 * blob(v, np.array([0.03 * side, 0.06, 0.08]), np.array([0.03, 0.03, 0.04]))
+        return above_lids * (blob(v, np.array([0.03 * side, 0.036, 0.08]), np.array([0.024, 0.02, 0.04]))
+                             + 0.5 * blob(v, np.array([0.03 * side, 0.06, 0.08]), np.array([0.03, 0.03, 0.04])))
 
     def smile(side):
         c, ch = corner(side), cheek(side)
@@ -209,7 +215,7 @@ def expression_components(mesh: HeadMesh, v: np.ndarray) -> np.ndarray:
     # Expressions live on the face: nothing behind the ears, on the neck, or on the eyeballs.
     face = smoothstep(z, -0.015, 0.02) * smoothstep(y, -0.15, -0.115)
     dirs *= face[:, None, None]
-    dirs[(mesh.part == 2) | (mesh.part == 3)] = 0.0
+    dirs[np.isin(mesh.part, (2, 3, 5, 6))] = 0.0  # eyeballs and ears
     return dirs
 
 

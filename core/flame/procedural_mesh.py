@@ -18,11 +18,12 @@ import functools
 
 import numpy as np
 
+from .procedural_ear import build_ear
 from .procedural_sdf import EYE_CENTRE, EYE_RADIUS, march_rays
 
-N_HALF_COLUMNS = 44  # columns from the front midline to the back midline
-HEAD_ROWS = 64  # rows from the crown to the last ray from the centre
-NECK_ROWS = 9  # rows sliding down the neck
+N_HALF_COLUMNS = 38  # columns from the front midline to the back midline
+HEAD_ROWS = 58  # rows from the crown to the last ray from the centre
+NECK_ROWS = 8  # rows sliding down the neck
 NECK_BOTTOM = -0.20
 
 EYE_ROW_ANGLE = 78.0  # polar angle (degrees) of the eye slit
@@ -32,12 +33,14 @@ MOUTH_CORNER_DEG = 16.0
 
 SKIN_UV_BOTTOM = 0.25  # the skin fills v in [0.25, 1]; eyes and mouth share the strip below
 EYE_UV_BOXES = ((0.0, 0.0, 0.25), (0.25, 0.0, 0.25))  # (u0, v0, size): +x eye, −x eye
-MOUTH_UV_BOX = (0.5, 0.0, 0.5, 0.2)  # (u0, v0, width, height)
-LID_LINING_UV_BOX = (0.5, 0.2, 0.5, 0.05)  # the pink lining inside both eye openings
+MOUTH_UV_BOX = (0.5, 0.0, 0.25, 0.2)  # (u0, v0, width, height)
+LID_LINING_UV_BOX = (0.5, 0.2, 0.25, 0.05)  # the lining inside both eye openings
+EAR_UV_BOXES = ((0.75, 0.125, 0.25), (0.75, 0.0, 0.25))  # (u0, v0, width); height is width / 2
 
 EYEBALL_RINGS = np.array([0.1, 0.2, 0.3, 0.4, 0.47, 0.53, 0.62, 0.8, 1.05, 1.4, 1.85, 2.35, 2.8])
 EYEBALL_SEGMENTS = 20
 IRIS_ANGLE = 0.52  # angular radius of the iris on the eyeball
+EYE_UV_POWER = 0.6
 
 
 @dataclasses.dataclass
@@ -48,7 +51,7 @@ class HeadMesh:
     faces: np.ndarray  # (F,3)
     vt: np.ndarray
     ft: np.ndarray
-    part: np.ndarray  # (V,) 0 skin, 1 mouth bag, 2 eyeball +x, 3 eyeball −x, 4 lid lining
+    part: np.ndarray  # (V,) 0 skin, 1 mouth bag, 2 eyeball +x, 3 eyeball −x, 4 lid lining, 5 ear +x, 6 ear −x
     grid_rows: int  # skin rows below the pole
     grid_columns: int
     grid_index: np.ndarray  # (rows+1, columns) vertex id of each skin grid vertex (upper copy on slits)
@@ -91,7 +94,7 @@ def column_azimuths() -> tuple[np.ndarray, dict]:
     """Azimuths (radians, 0 = front, +π/2 = +x) of all columns, symmetric about the midline."""
     def density(phi):
         deg = np.degrees(phi)
-        return 0.55 + 2.0 * _bump(deg, 0.0, 75.0) ** 0.5 + 1.0 * _bump(deg, 0.0, 18.0) + 1.1 * _bump(deg, 92.0, 26.0)
+        return 0.4 + 2.0 * _bump(deg, 0.0, 75.0) ** 0.5 + 1.0 * _bump(deg, 0.0, 18.0) + 0.3 * _bump(deg, 92.0, 26.0)
 
     half = np.degrees(_density_samples(N_HALF_COLUMNS, 0.0, np.pi, density))
     half, picks = _snap(half, [EYE_CORNERS_DEG[0], EYE_CORNERS_DEG[1]])
@@ -114,7 +117,7 @@ def row_parameters() -> tuple[np.ndarray, int, int]:
     """Row parameters: s in [0,1] along the head rays (θ = s·θ_end), then 1+t for the neck rows."""
     def density(s):
         deg = 150.0 * s
-        return 1.0 + 2.4 * _bump(deg, 105.0, 60.0) ** 0.5
+        return 0.7 + 2.6 * _bump(deg, 105.0, 60.0) ** 0.5
 
     s = _density_samples(HEAD_ROWS, 0.0, 1.0, density)
     s, (eye_row, mouth_row) = _snap(s, [EYE_ROW_ANGLE / 150.0, MOUTH_ROW_ANGLE / 150.0])
@@ -124,7 +127,7 @@ def row_parameters() -> tuple[np.ndarray, int, int]:
 
 def head_ray_end(phi):
     """Polar angle (degrees) where the rays from the centre stop: lower in front (under the chin)."""
-    return 135.0 + 15.0 * np.clip(1.4 * np.cos(phi), -1.0, 1.0)
+    return 135.0 + 15.0 * np.tanh(2.2 * np.cos(phi)) / np.tanh(2.2)
 
 
 def skin_rays(row_param: np.ndarray, theta_offset: np.ndarray, phi: np.ndarray):
@@ -378,7 +381,8 @@ def build_eyeball(centre, uv_box):
     cu, cv = u0 + 0.5 * size, v0 + 0.5 * size
 
     def uv_of(th, a):
-        return (cu + half * th / np.pi * np.cos(a), cv + half * th / np.pi * np.sin(a))
+        r = half * (th / np.pi) ** EYE_UV_POWER  # the front (iris) gets the most texels
+        return (cu + r * np.cos(a), cv + r * np.sin(a))
 
     # Vertex UVs serve every face (the azimuthal map has no seam) except the back pole,
     # which gets one UV per fan triangle on the rim of the disc.
@@ -436,6 +440,16 @@ def _build_mesh_once() -> HeadMesh:
         part.append(np.full(len(ev), 2 + k, np.int64))
         n_v += len(ev)
         n_vt += len(evt)
+
+    for k, sign in enumerate((1.0, -1.0)):
+        av, af, avt, aft = build_ear(sign, n_v, n_vt, EAR_UV_BOXES[k])
+        vertices.append(av)
+        faces.append(af)
+        vts.append(avt)
+        fts.append(aft)
+        part.append(np.full(len(av), 5 + k, np.int64))
+        n_v += len(av)
+        n_vt += len(avt)
 
     skin_row, skin_col, lower_copy = grid_info
     n_all = n_v

@@ -68,10 +68,10 @@ def _nose(p):
     q = mirrored(p)
     bridge = tapered_capsule(p, np.array([0.0, 0.021, 0.082]), np.array([0.0, -0.022, 0.112]), 0.0052, 0.0075)
     tip = ellipsoid(p, np.array([0.0, -0.026, 0.1115]), np.array([0.0105, 0.0095, 0.0100]))
-    alae = ellipsoid(q, np.array([0.0135, -0.033, 0.0965]), np.array([0.0085, 0.0075, 0.0085]))
+    alae = ellipsoid(q, np.array([0.0130, -0.033, 0.0965]), np.array([0.0085, 0.0075, 0.0085]))
     base = ellipsoid(p, np.array([0.0, -0.030, 0.090]), np.array([0.016, 0.011, 0.014]))
     flank = ellipsoid(p, np.array([0.0, -0.012, 0.084]), np.array([0.017, 0.03, 0.016]))
-    nose = smooth_union(smooth_union(bridge, tip, 0.006), smooth_union(alae, base, 0.004), 0.005)
+    nose = smooth_union(smooth_union(bridge, tip, 0.006), smooth_union(alae, base, 0.006), 0.006)
     nose = smooth_union(nose, flank, 0.01)
     nostrils = ellipsoid(q, np.array([0.0068, -0.0405, 0.1035]), np.array([0.0036, 0.0022, 0.0060]))
     return smooth_subtract(nose, nostrils, 0.0015)
@@ -79,10 +79,11 @@ def _nose(p):
 
 def _jaw(p):
     q = mirrored(p)
-    body = tapered_capsule(q, np.array([0.050, -0.070, -0.012]), np.array([0.016, -0.097, 0.074]), 0.013, 0.014)
-    chin = ellipsoid(p, np.array([0.0, -0.094, 0.080]), np.array([0.021, 0.016, 0.015]))
-    lower_face = ellipsoid(p, np.array([0.0, -0.052, 0.036]), np.array([0.054, 0.048, 0.061]))
-    return smooth_union(smooth_union(body, chin, 0.012), lower_face, 0.02)
+    body = tapered_capsule(q, np.array([0.052, -0.068, -0.012]), np.array([0.017, -0.096, 0.077]), 0.013, 0.014)
+    chin = ellipsoid(p, np.array([0.0, -0.094, 0.083]), np.array([0.021, 0.016, 0.015]))
+    lower_face = ellipsoid(p, np.array([0.0, -0.052, 0.036]), np.array([0.056, 0.048, 0.0635]))
+    cheeks = ellipsoid(mirrored(p), np.array([0.037, -0.034, 0.054]), np.array([0.022, 0.024, 0.024]))
+    return smooth_union(smooth_union(smooth_union(body, chin, 0.012), lower_face, 0.02), cheeks, 0.015)
 
 
 def head_sdf(p: np.ndarray) -> np.ndarray:
@@ -90,7 +91,7 @@ def head_sdf(p: np.ndarray) -> np.ndarray:
     q = mirrored(p)
     cranium = ellipsoid(p, np.array([0.0, 0.028, -0.012]), np.array([0.0745, 0.094, 0.097]))
     midface = ellipsoid(p, np.array([0.0, -0.004, 0.030]), np.array([0.062, 0.050, 0.056]))
-    neck = tapered_capsule(p, np.array([0.0, -0.26, 0.0]), np.array([0.0, -0.05, -0.022]), 0.056, 0.052)
+    neck = tapered_capsule(p, np.array([0.0, -0.26, 0.0]), np.array([0.0, -0.05, -0.022]), 0.059, 0.053)
     cheekbone = ellipsoid(q, np.array([0.046, -0.002, 0.058]), np.array([0.021, 0.013, 0.021]))
     brow = ellipsoid(q, np.array([0.022, 0.036, 0.062]), np.array([0.032, 0.0115, 0.021]))
     d = smooth_union(cranium, midface, 0.02)
@@ -103,7 +104,7 @@ def head_sdf(p: np.ndarray) -> np.ndarray:
     lids = np.linalg.norm(q - EYE_CENTRE, axis=-1) - LID_RADIUS
     d = smooth_union(d, lids, 0.006)
     d = smooth_union(d, _nose(p), 0.011)
-    d = smooth_union(d, _ear(p), 0.005)
+    d = smooth_union(d, ellipsoid(q, EAR_CENTRE + np.array([-0.004, -0.004, 0.0]), np.array([0.006, 0.02, 0.012])), 0.006)
     return d
 
 

@@ -13,8 +13,9 @@ import dataclasses
 import numpy as np
 from scipy.ndimage import gaussian_filter
 
+from .procedural_ear import ear_relief
 from .procedural_mesh import (
-    EYE_UV_BOXES, IRIS_ANGLE, LID_LINING_UV_BOX, MOUTH_ROW_ANGLE, MOUTH_UV_BOX, SKIN_UV_BOTTOM, HeadMesh,
+    EAR_UV_BOXES, EYE_UV_BOXES, EYE_UV_POWER, IRIS_ANGLE, LID_LINING_UV_BOX, MOUTH_ROW_ANGLE, MOUTH_UV_BOX, SKIN_UV_BOTTOM, HeadMesh,
 )
 from .procedural_rig import smoothstep
 from .procedural_sdf import EAR_CENTRE
@@ -160,7 +161,7 @@ def paint_eye(look, rng, size):
     """An eyeball box: azimuthal map of the sphere around its front (iris at the centre)."""
     c = (np.arange(size) + 0.5) / size - 0.5
     yy, xx = np.meshgrid(-c, c, indexing="ij")
-    theta = np.hypot(xx, yy) / (0.5 * 0.96) * np.pi
+    theta = np.pi * (np.hypot(xx, yy) / (0.5 * 0.96)) ** (1.0 / EYE_UV_POWER)
     angle = np.arctan2(yy, xx)
     sclera = np.array([0.93, 0.91, 0.88]) * (1 + 0.02 * noise(rng, (size, size), 3.0))[..., None]
     veins = np.clip(noise(rng, (size, size), 0.8, (1.0, 1.0)) - 2.2, 0, 1) * smoothstep(theta, 0.9, 1.6)
@@ -201,6 +202,27 @@ def paint_mouth(mesh, look, rng, height, width):
     return np.clip(colour, 0, 1)
 
 
+def paint_ear(look, rng, height, width):
+    """An ear box: the front disc (with its bowl and rim shaded in) and the back disc."""
+    colour = np.broadcast_to(look.skin * np.array([1.0, 0.9, 0.88]), (height, width, 3)).copy()
+    radius = 0.46 * height
+    yy, xx = np.meshgrid(np.arange(height) + 0.5, np.arange(width) + 0.5, indexing="ij")
+    for centre_x, is_front in ((0.5 * height, True), (1.5 * height, False)):
+        du, dv = (xx - centre_x) / radius, (height - yy - 0.5 * height) / radius
+        rho = np.clip(np.hypot(du, dv), 0.0, 1.0)
+        psi = np.arctan2(dv, du)
+        if is_front:
+            relief = ear_relief(rho, psi) - 0.0022 * np.sqrt(np.clip(1.0 - rho**2, 0.0, None))
+            shade = np.clip(1.0 + 60.0 * relief, 0.6, 1.12)
+        else:
+            shade = 0.95 + 0.0 * rho
+        disc = np.hypot(du, dv) <= 1.02
+        colour[disc] *= shade[disc][:, None]
+    colour *= (1.0 + 0.04 * noise(rng, (height, width), 2.0))[..., None]
+    colour *= (1.0 + 0.04 * noise(rng, (height, width), 0.7))[..., None]
+    return np.clip(colour, 0, 1)
+
+
 def paint_texture(mesh: HeadMesh, vertices: np.ndarray, look: Look, rng: np.random.Generator,
                   size: int = TEXTURE_SIZE) -> np.ndarray:
     """The full (size, size, 3) uint8 texture atlas."""
@@ -216,8 +238,12 @@ def paint_texture(mesh: HeadMesh, vertices: np.ndarray, look: Look, rng: np.rand
     top, left = size - int(round((v0 + h) * size)), int(round(u0 * size))
     hh, ww = int(round(h * size)), int(round(w * size))
     image[top:top + hh, left:left + ww] = paint_mouth(mesh, look, rng, hh, ww)
+    for u0, v0, w in EAR_UV_BOXES:
+        hh, ww = int(round(0.5 * w * size)), int(round(w * size))
+        top, left = size - int(round(v0 * size)) - hh, int(round(u0 * size))
+        image[top:top + hh, left:left + ww] = paint_ear(look, rng, hh, ww)
     u0, v0, w, h = LID_LINING_UV_BOX
     top, left = size - int(round((v0 + h) * size)), int(round(u0 * size))
-    lining = np.array([0.82, 0.5, 0.5]) * look.skin / look.skin.max()
+    lining = look.skin * np.array([0.85, 0.62, 0.62])
     image[top:top + int(round(h * size)), left:left + int(round(w * size))] = lining
     return (np.clip(image, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
