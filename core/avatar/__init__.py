@@ -1,0 +1,1 @@
+"""Gaussian head avatars: Gaussians bound to the triangles of a FLAME-format mesh."""

@@ -1,0 +1,120 @@
+"""An avatar: a head model, Gaussians bound to its triangles, and the one render call.
+
+Training, evaluation, the command line and Blender all render through
+:meth:`Avatar.render`, so what is trained is what is shown.
+"""
+
+from __future__ import annotations
+
+import os
+import pathlib
+
+import numpy as np
+import torch
+
+from ..camera import Camera
+from ..errors import InputError
+from ..flame.model import FlameModel
+from ..io.atomic import atomic_path
+from ..splat import SplatOutput, rasterize
+from .gaussians import PARAMETER_NAMES, BoundGaussians
+
+AVATAR_FORMAT = "mogaface-avatar"
+AVATAR_VERSION = 1
+
+
+def camera_tensors(camera: Camera) -> tuple[torch.Tensor, torch.Tensor]:
+    """The splat engine's ``viewmat`` and ``K`` for a camera."""
+    return torch.as_tensor(camera.w2c, dtype=torch.float32), torch.as_tensor(camera.K, dtype=torch.float32)
+
+
+class Avatar(torch.nn.Module):
+    """A FLAME-format head model with bound Gaussians.
+
+    ``head_file`` is the model file the avatar was trained on (kept beside a saved avatar so
+    the avatar is self-contained).
+    """
+
+    def __init__(self, flame: FlameModel, gaussians: BoundGaussians, head_file: str | os.PathLike):
+        super().__init__()
+        if int(gaussians.binding.max()) >= len(flame.faces):
+            raise InputError(head_file, "binding", "Gaussians are bound to triangles the head model does not have")
+        self.flame = flame
+        self.gaussians = gaussians
+        self.head_file = pathlib.Path(head_file)
+
+    @classmethod
+    def initial(cls, head_file: str | os.PathLike, max_sh_degree: int = 3) -> "Avatar":
+        """A new avatar: one faint grey Gaussian per triangle of the head model."""
+        flame = FlameModel.load(head_file)
+        return cls(flame, BoundGaussians.one_per_triangle(len(flame.faces), max_sh_degree), head_file)
+
+    def posed_vertices(self, flame_params: dict[str, torch.Tensor]) -> torch.Tensor:
+        """Mesh vertices ``(V,3)`` for one timestep's FLAME parameters (each ``(1,n)``)."""
+        return self.flame(**flame_params)[0]
+
+    def world_gaussians(self, flame_params: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        return self.gaussians.world(self.posed_vertices(flame_params), self.flame.faces)
+
+    def render(
+        self, flame_params: dict[str, torch.Tensor], camera: Camera, background=(1.0, 1.0, 1.0)
+    ) -> SplatOutput:
+        """Render the avatar posed by ``flame_params`` as ``camera`` sees it."""
+        viewmat, K = camera_tensors(camera)
+        world = self.world_gaussians(flame_params)
+        return rasterize(
+            world["means"], world["quats"], world["scales"], world["opacities"], world["colors"],
+            viewmat, K, camera.width, camera.height, background=torch.as_tensor(background, dtype=torch.float32),
+        )
+
+    # -- files -------------------------------------------------------------------------------
+    def state(self) -> dict:
+        """Everything a saved avatar holds, as tensors and plain values (``weights_only`` safe)."""
+        return {
+            "format": AVATAR_FORMAT,
+            "version": AVATAR_VERSION,
+            "head_file": self.head_file.name,
+            "max_sh_degree": self.gaussians.max_sh_degree,
+            "active_sh_degree": self.gaussians.active_sh_degree,
+            "gaussians": {k: v.detach().clone() for k, v in self.gaussians.tensors().items()},
+        }
+
+    def save(self, path: str | os.PathLike) -> None:
+        """Write the avatar atomically; the head model file must sit beside it (same folder)."""
+        path = pathlib.Path(path)
+        with atomic_path(path) as tmp:
+            torch.save(self.state(), tmp)
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> "Avatar":
+        """Read an avatar saved by :meth:`save` (``weights_only``: nothing in it is executed)."""
+        path = pathlib.Path(path)
+        try:
+            state = torch.load(path, map_location="cpu", weights_only=True)
+        except FileNotFoundError:
+            raise InputError(path, None, "file not found") from None
+        except Exception as error:
+            raise InputError(path, None, f"not a readable avatar file ({error})") from None
+        return cls.from_state(state, path.parent, source=path)
+
+    @classmethod
+    def from_state(cls, state: dict, folder: pathlib.Path, source=None) -> "Avatar":
+        if not isinstance(state, dict) or state.get("format") != AVATAR_FORMAT:
+            raise InputError(source, "format", f"expected a {AVATAR_FORMAT} file")
+        if state.get("version") != AVATAR_VERSION:
+            raise InputError(source, "version", f"expected version {AVATAR_VERSION}, found {state.get('version')}")
+        tensors = state["gaussians"]
+        missing = [k for k in ("binding", *PARAMETER_NAMES) if k not in tensors]
+        if missing:
+            raise InputError(source, f"gaussians.{missing[0]}", "missing")
+        head_file = folder / state["head_file"]
+        gaussians = BoundGaussians(
+            tensors["binding"], int(state["max_sh_degree"]), **{k: tensors[k] for k in PARAMETER_NAMES}
+        )
+        gaussians.active_sh_degree = int(state["active_sh_degree"])
+        return cls(FlameModel.load(head_file), gaussians, head_file)
+
+
+def flame_params_to_torch(params: dict[str, np.ndarray]) -> dict[str, torch.Tensor]:
+    """One timestep's numpy FLAME parameters (``(n,)`` each, ``static_offset (V,3)``) → ``(1,…)`` tensors."""
+    return {k: torch.as_tensor(np.asarray(v, dtype=np.float32))[None] for k, v in params.items()}
