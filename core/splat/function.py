@@ -70,7 +70,7 @@ class Rasterize(torch.autograd.Function):
         rgb = np.empty((height, width, 3), np.float32)
         depth = np.empty((height, width), np.float32)
         trans = np.empty((height, width), np.float32)
-        last = np.empty((height, width), np.int64)
+        last = np.empty((height, width), np.int32)
         _run_balanced(raster.forward, packed, bins.ranks, bins.tile_offsets, queue, bins.tiles_x,
                       width, height, _np(background), rgb, depth, trans, last)
         ctx.state = (bins, packed, queue, rgb, depth, trans, last, width, height, means2d.shape[0])
