@@ -155,8 +155,8 @@ def lip_offset(theta_deg, phi, radius):
     v = np.radians(theta_deg - MOUTH_ROW_ANGLE) * radius  # metres below the seam
     x = radius * np.sin(np.radians(theta_deg)) * np.sin(phi)
     width = np.clip(1.0 - (x / 0.027) ** 2, 0.0, None) ** 0.6
-    upper = 0.0042 * _bump(v, -0.0042, 0.0058)
-    lower = 0.0048 * _bump(v, 0.0052, 0.0068)
+    upper = 0.0055 * _bump(v, -0.0042, 0.0060)
+    lower = 0.0058 * _bump(v, 0.0052, 0.0070)
     groove = 0.0022 * np.exp(-((v / 0.0016) ** 2))
     philtrum = 0.0008 * np.exp(-((x / 0.004) ** 2)) * _bump(v, -0.012, 0.006)
     return width * (upper + lower - groove) - philtrum * (np.abs(x) < 0.01)

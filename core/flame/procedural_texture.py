@@ -44,20 +44,23 @@ class Look:
     iris: np.ndarray
     freckles: float  # how many freckles, 0..1
     lips: np.ndarray
+    recession: float = 0.0  # how far the hairline is lifted at the temples (metres)
 
 
 def subject_look(subject: int) -> Look:
     """Skin tone, hair and iris colour, freckle amount for a subject (subject 0 is fixed)."""
     if subject == 0:
         skin = np.array([0.86, 0.66, 0.53])
-        return Look(skin, HAIR_COLOURS[2], IRIS_COLOURS[1], 0.4, np.array([0.70, 0.33, 0.32]))
+        return Look(skin, HAIR_COLOURS[2], IRIS_COLOURS[1], 0.4, np.array([0.70, 0.33, 0.32]), 0.004)
     rng = np.random.default_rng([7919, subject])
     skin = SKIN_TONES[rng.integers(len(SKIN_TONES))] * rng.uniform(0.95, 1.05, 3)
     hair = HAIR_COLOURS[rng.integers(len(HAIR_COLOURS))] * rng.uniform(0.85, 1.15)
     iris = IRIS_COLOURS[rng.integers(len(IRIS_COLOURS))] * rng.uniform(0.85, 1.15, 3)
     freckles = float(rng.uniform(0.0, 1.0) ** 2)
     lips = skin * np.array([0.85, 0.52, 0.55]) * rng.uniform(0.9, 1.05)
-    return Look(np.clip(skin, 0, 1), np.clip(hair, 0, 1), np.clip(iris, 0, 1), freckles, np.clip(lips, 0, 1))
+    recession = float(rng.uniform(-0.004, 0.018))
+    return Look(np.clip(skin, 0, 1), np.clip(hair, 0, 1), np.clip(iris, 0, 1), freckles, np.clip(lips, 0, 1),
+                recession)
 
 
 def noise(rng, shape, sigma, anisotropy=(1.0, 1.0)):
@@ -86,10 +89,30 @@ def skin_texel_positions(mesh: HeadMesh, vertices: np.ndarray, height: int, widt
     return p, gi, gj
 
 
-def hairline_height(p):
-    """Height of the hairline around the head (lower at the back, higher on the forehead)."""
+def around_head(field, mesh, vertices, gj):
+    """Resample a texture-space pattern so its columns are evenly spaced around the head.
+
+    Skin UV columns are denser on the face; patterns that must look the same size
+    everywhere (hair strands) are drawn in azimuth and looked up per texel column.
+    """
+    ring = vertices[mesh.grid_index[mesh.grid_rows // 3]]
+    azimuth = np.unwrap(np.arctan2(ring[:, 0], ring[:, 2]))
+    azimuth = np.concatenate([azimuth, [azimuth[0] + 2.0 * np.pi]])
+    along = np.interp(gj, np.arange(len(azimuth)), azimuth)
+    columns = ((along - azimuth[0]) / (2.0 * np.pi) * field.shape[1]).astype(int) % field.shape[1]
+    return field[:, columns]
+
+
+def hairline_height(p, recession=0.0):
+    """Height of the hairline around the head: forehead, temples, above the ears, nape.
+
+    ``recession`` lifts the front (receding temples most).
+    """
     azimuth = np.degrees(np.abs(np.arctan2(p[..., 0], p[..., 2])))
-    return np.interp(azimuth, [0, 25, 45, 70, 95, 125, 180], [0.076, 0.072, 0.052, 0.045, 0.045, -0.02, -0.07])
+    front = np.interp(azimuth, [0, 12, 28, 45, 62, 80, 100, 125, 150, 180],
+                      [0.079, 0.080, 0.084, 0.066, 0.048, 0.040, 0.036, -0.02, -0.06, -0.072])
+    lift = recession * np.interp(azimuth, [0, 28, 60, 90], [0.6, 1.0, 0.5, 0.0])
+    return front + lift
 
 
 def paint_skin(mesh, vertices, look, rng, height, width):
@@ -129,7 +152,7 @@ def paint_skin(mesh, vertices, look, rng, height, width):
     colour *= (1.0 - 0.35 * np.exp(-((below / 0.0009) ** 2)) * (width_lip > 0) * (z > 0.06))[..., None]
     # Nostrils.
     nostril = np.exp(-(((ax - 0.0068) / 0.004) ** 2) - ((y + 0.0405) / 0.003) ** 2 - ((z - 0.1035) / 0.006) ** 2)
-    colour *= (1.0 - 0.75 * np.clip(1.5 * nostril, 0, 1))[..., None]
+    colour *= (1.0 - 0.6 * np.clip(1.5 * nostril, 0, 1) * smoothstep(-y, 0.038, 0.041))[..., None]
     # Eyebrows: an arch of short hair strokes above each eye.
     arch = 0.031 + 0.007 * np.clip(1.0 - ((ax - 0.03) / 0.026) ** 2, 0, 1)
     thickness = 0.0055 * np.clip(1.2 - (ax - 0.012) / 0.05, 0.3, 1.0)
@@ -145,14 +168,16 @@ def paint_skin(mesh, vertices, look, rng, height, width):
         lower_lash = across & ((gi >= mesh.eye_row) & (gi < mesh.eye_row + 0.45))[:, None]
         colour[upper_lash] = colour[upper_lash] * 0.2 + 0.02
         colour[lower_lash] = colour[lower_lash] * 0.55
-    # Scalp hair: strands run along the grid columns, from the crown downwards.
-    strands = noise(rng, shape, 1.0, (14.0, 0.9))
-    clumps = noise(rng, shape, 6.0, (4.0, 1.0))
-    edge = hairline_height(p) + 0.004 * noise(rng, shape, 3.0)
-    hair = smoothstep(y - edge, -0.002, 0.006)
+    # Scalp hair: strands run along the grid columns, from the crown downwards; near the
+    # hairline the strands thin out one by one instead of stopping at a hard edge.
+    strands = around_head(noise(rng, shape, 1.0, (14.0, 0.9)), mesh, vertices, gj)
+    clumps = around_head(noise(rng, shape, 6.0, (4.0, 1.0)), mesh, vertices, gj)
+    edge = hairline_height(p, look.recession) + 0.002 * noise(rng, shape, 4.0)
+    coverage = (y - edge) / 0.008 + 0.5 * np.clip(strands, -2, 2)
+    hair = smoothstep(coverage, -0.6, 0.6)
     ear_gap = np.exp(-np.sum(((np.stack([ax, y, z], -1) - EAR_CENTRE) / np.array([0.03, 0.045, 0.032])) ** 2, axis=-1))
     hair = hair * (1.0 - ear_gap)
-    hair_colour = look.hair * (1.0 + 0.35 * np.clip(strands, -2, 2)[..., None] + 0.15 * clumps[..., None])
+    hair_colour = look.hair * (1.0 + 0.35 * np.clip(strands, -2, 2)[..., None] + 0.08 * clumps[..., None])
     colour = colour * (1 - hair[..., None]) + np.clip(hair_colour, 0, 1) * hair[..., None]
     return np.clip(colour, 0, 1)
 
