@@ -47,7 +47,7 @@ def jaw_weight(mesh: HeadMesh, vertices: np.ndarray) -> np.ndarray:
     throat = smoothstep(-0.112 - y, 0.0, 0.025) * (1.0 - smoothstep(z, 0.02, 0.055))
     weight = below * in_front_of_ear * (1.0 - throat)
     # Near the mouth the seam decides: the lower lip goes with the jaw, the upper lip stays.
-    mouth = np.exp(-((x / 0.032) ** 4) - ((y + 0.062) / 0.018) ** 2) * smoothstep(z, 0.04, 0.07)
+    mouth = np.clip(1.1 * np.exp(-((x / 0.032) ** 4) - ((y + 0.062) / 0.02) ** 4), 0.0, 1.0) * smoothstep(z, 0.04, 0.07)
     side = lower_lip_side(mesh)
     weight = weight + (1.0 - weight) * mouth * side
     weight = weight * (1.0 - mouth * (1.0 - side))
