@@ -110,35 +110,38 @@ def _count(order, means2d, cov2d, opacities, bounds, counts):
         counts[r] = c
 
 
-@njit(cache=True)
-def _fill(order, means2d, cov2d, opacities, bounds, tiles_x, tile_offsets, ranks, tile_of, isect_of):
-    """Append ranks in depth order to each tile's list; ``isect_of`` lists each rank's slots."""
-    fill = tile_offsets[:-1].copy()
-    m = 0
-    for r in range(order.shape[0]):
+@njit(cache=True, parallel=True)
+def _tiles_of_ranks(order, means2d, cov2d, opacities, bounds, tiles_x, rank_offsets, tile_ids):
+    """The tiles of each rank, rank-major: ``tile_ids[rank_offsets[r]:rank_offsets[r+1]]``."""
+    for r in prange(order.shape[0]):
         g = order[r]
+        m = rank_offsets[r]
         for ty in range(bounds[g, 2] // TILE, bounds[g, 3] // TILE + 1):
             t0, t1 = _tile_cols(g, ty, means2d, cov2d, opacities, bounds)
             for tx in range(t0, t1 + 1):
-                t = ty * tiles_x + tx
-                slot = fill[t]
-                fill[t] = slot + 1
-                ranks[slot] = r
-                tile_of[slot] = t
-                isect_of[m] = slot
+                tile_ids[m] = ty * tiles_x + tx
                 m += 1
 
 
 @njit(cache=True)
-def _tile_counts(order, means2d, cov2d, opacities, bounds, tiles_x, n_tiles):
-    per_tile = np.zeros(n_tiles + 1, np.int64)
-    for r in range(order.shape[0]):
-        g = order[r]
-        for ty in range(bounds[g, 2] // TILE, bounds[g, 3] // TILE + 1):
-            t0, t1 = _tile_cols(g, ty, means2d, cov2d, opacities, bounds)
-            for tx in range(t0, t1 + 1):
-                per_tile[ty * tiles_x + tx + 1] += 1
-    return np.cumsum(per_tile)
+def _group_by_tile(tile_ids, rank_offsets, n_tiles):
+    """Stable counting sort of the rank-major pairs by tile: per-tile lists stay in depth order."""
+    tile_offsets = np.zeros(n_tiles + 1, np.int64)
+    for m in range(tile_ids.shape[0]):
+        tile_offsets[tile_ids[m] + 1] += 1
+    for t in range(n_tiles):
+        tile_offsets[t + 1] += tile_offsets[t]
+    fill = tile_offsets[:-1].copy()
+    ranks = np.empty(tile_ids.shape[0], np.int32)
+    isect_of = np.empty(tile_ids.shape[0], np.int64)
+    for r in range(rank_offsets.shape[0] - 1):
+        for m in range(rank_offsets[r], rank_offsets[r + 1]):
+            t = tile_ids[m]
+            slot = fill[t]
+            fill[t] = slot + 1
+            ranks[slot] = r
+            isect_of[m] = slot
+    return tile_offsets, ranks, isect_of
 
 
 class Bins:
@@ -154,24 +157,29 @@ class Bins:
             setattr(self, k, v)
 
 
+def depth_order(depths, idx):
+    """``idx`` sorted by depth, ties by index. Depths of visible splats are positive float32,
+    whose bit patterns sort like integers: one int64 key sort (SIMD in numpy) does it."""
+    keys = (depths[idx].view(np.int32).astype(np.int64) << 32) | idx.astype(np.int64)
+    keys.sort()
+    return keys & 0xFFFFFFFF
+
+
 def bin_gaussians(means2d, cov2d, depths, opacities, radii, width, height) -> Bins:
     """Visibility, depth order and per-tile lists for float32/float64 numpy inputs."""
     n = means2d.shape[0]
     bounds = np.empty((n, 4), np.int32)
     visible = pixel_bounds(means2d, cov2d, opacities, radii, width, height, bounds)
     idx = np.flatnonzero(visible)
-    order = idx[np.argsort(depths[idx], kind="stable")].astype(np.int64)
+    order = depth_order(depths, idx)
     tiles_x = (width + TILE - 1) // TILE
     tiles_y = (height + TILE - 1) // TILE
     counts = np.empty(order.shape[0], np.int64)
     _count(order, means2d, cov2d, opacities, bounds, counts)
     rank_offsets = np.zeros(order.shape[0] + 1, np.int64)
     np.cumsum(counts, out=rank_offsets[1:])
-    m = int(rank_offsets[-1])
-    tile_offsets = _tile_counts(order, means2d, cov2d, opacities, bounds, tiles_x, tiles_x * tiles_y)
-    ranks = np.empty(m, np.int32)
-    tile_of = np.empty(m, np.int32)
-    isect_of = np.empty(m, np.int64)
-    _fill(order, means2d, cov2d, opacities, bounds, tiles_x, tile_offsets, ranks, tile_of, isect_of)
+    tile_ids = np.empty(int(rank_offsets[-1]), np.int32)
+    _tiles_of_ranks(order, means2d, cov2d, opacities, bounds, tiles_x, rank_offsets, tile_ids)
+    tile_offsets, ranks, isect_of = _group_by_tile(tile_ids, rank_offsets, tiles_x * tiles_y)
     return Bins(order=order, visible=visible, tiles_x=tiles_x, tiles_y=tiles_y,
                 tile_offsets=tile_offsets, ranks=ranks, rank_offsets=rank_offsets, isect_of=isect_of)
