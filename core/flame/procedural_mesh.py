@@ -154,7 +154,7 @@ def lip_offset(theta_deg, phi, radius):
     """Radial relief of the lips around the seam row: two rolls with a groove between them."""
     v = np.radians(theta_deg - MOUTH_ROW_ANGLE) * radius  # metres below the seam
     x = radius * np.sin(np.radians(theta_deg)) * np.sin(phi)
-    width = np.clip(1.0 - (x / 0.027) ** 2, 0.0, None) ** 0.6
+    width = np.clip(1.0 - (x / 0.027) ** 2, 0.0, None) ** 0.6 * (np.cos(phi) > 0.5)
     upper = 0.0055 * _bump(v, -0.0042, 0.0060)
     lower = 0.0058 * _bump(v, 0.0052, 0.0070)
     groove = 0.0022 * np.exp(-((v / 0.0016) ** 2))
@@ -210,7 +210,7 @@ def build_skin(phis, columns, rows, eye_row, mouth_row):
     for key, row, c0, c1, upper_open, lower_open, peaks in slits:
         in_cols = (col_of > c0) & (col_of < c1)
         tau = (phi - phis[c0]) / (phis[c1] - phis[c0])
-        row_theta = base_theta * 0 + rows[row] * head_ray_end(phi)
+        row_theta = rows[row] * head_ray_end(phi)
         up = upper_open * _slit_profile(tau, peaks[0])
         down = lower_open * _slit_profile(tau, peaks[1])
         on_row = row_of == row
@@ -279,8 +279,11 @@ def build_mouth_bag(vertices, upper_rim, lower_rim):
     side = np.where(is_lower, -1.0, 1.0)
     side[0] = side[len(upper_rim) - 1] = 0.0
     #            depth,  height, width scale
-    profile = [(0.003, 0.0035, 0.97), (0.007, 0.008, 0.96), (0.013, 0.012, 1.0),
-               (0.024, 0.015, 1.05), (0.036, 0.014, 0.95), (0.046, 0.009, 0.65)]
+    # Lip lining, the biting edge of the teeth, the teeth's front, then the cavity.
+    # The biting edges reach a little past the lip seam, so teeth show when the mouth opens
+    # (the two rows overlap, hidden, when it is closed).
+    profile = [(0.0025, 0.0008, 0.97), (0.005, -0.0018, 0.95), (0.009, 0.008, 0.97),
+               (0.02, 0.014, 1.05), (0.034, 0.014, 0.95), (0.045, 0.009, 0.65)]
     rings = [loop]
     new_points, ring_no, lower_flag = [], [], []
     next_id = len(vertices)

@@ -198,7 +198,7 @@ def paint_eye(look, rng, size):
     colour = mix(colour, np.clip(iris_colour, 0, 1), iris)
     limbus = np.exp(-(((theta - IRIS_ANGLE) / 0.04) ** 2))
     colour = mix(colour, [0.05, 0.04, 0.04], 0.6 * limbus)
-    pupil = 1.0 - smoothstep(theta, 0.17, 0.2)
+    pupil = 1.0 - smoothstep(theta, 0.14, 0.17)
     colour = mix(colour, [0.01, 0.01, 0.012], pupil)
     return np.clip(colour, 0, 1)
 
@@ -215,11 +215,11 @@ def paint_mouth(mesh, look, rng, height, width):
     lower = L > len(mesh.upper_lip_rim) - 1
     pink = np.array([0.75, 0.38, 0.38]) * look.lips / look.lips.max()
     colour = np.broadcast_to(pink, (height, width, 3)).copy()
-    teeth_band = smoothstep(R, 1.2, 1.5) * (1.0 - smoothstep(R, 2.6, 2.9))
+    teeth_band = smoothstep(R, 1.3, 1.6) * (1.0 - smoothstep(R, 2.8, 3.1))
     gaps = 1.0 - 0.5 * np.exp(-((((L * 1.6) % 1.0) - 0.5) / 0.06) ** 2)
     teeth = np.array([0.92, 0.89, 0.80]) * gaps[..., None]
     colour = mix(colour, np.clip(teeth, 0, 1), teeth_band)
-    cavity = smoothstep(R, 2.8, 3.6)
+    cavity = smoothstep(R, 3.0, 3.6)
     tongue = np.array([0.62, 0.25, 0.27])
     dark = np.where(lower[..., None], tongue, np.array([0.22, 0.07, 0.08]))
     colour = colour * (1 - cavity[..., None]) + dark * cavity[..., None]
