@@ -19,6 +19,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "preview-head": ("preview_head", "render preview images of a head model"),
     "make-capture": ("make_capture", "render a synthetic multi-view capture of the procedural head"),
     "check-capture": ("check_capture", "validate a capture folder and print a summary"),
+    "eval": ("eval", "score a trained run on the evaluation protocols (metrics.json, metrics.md)"),
+    "render": ("render", "render a trained run's avatar at chosen timesteps and cameras (PNG, EXR)"),
+    "export-ply": ("export_ply", "export a run's avatar as a Gaussian PLY (world or binding space)"),
+    "import-ply": ("import_ply", "turn a binding-space Gaussian PLY back into an avatar file"),
     "demo": ("demo", "run the main job on the embedded default head"),
     "bench": ("bench", "run a benchmark and print JSON"),
 }

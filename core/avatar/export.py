@@ -1,0 +1,145 @@
+"""An avatar as Gaussian PLY files, and back.
+
+- **World space**: the Gaussians of one timestep, posed, in the 3DGS layout any splat viewer
+  reads (log-scales, logit opacity, wxyz rotations, zero normals). What a viewer shows is what
+  :meth:`Avatar.render` shows for that timestep.
+- **Binding space**: the trained, triangle-local parameters plus ``binding_0`` (GaussianAvatars'
+  layout) and, beside the file, ``FILE.flame_param.npz`` with the FLAME parameters that pose it
+  (GaussianAvatars' layout: a leading time axis of one on every parameter but ``shape``).
+  :func:`import_binding_ply` turns such a file and its head model back into an Avatar.
+
+SH bands above the active degree are written as zeros (they take no part in a render), so a
+file always has degree-``max_sh_degree`` columns, as the 3DGS loader expects, and an imported
+avatar uses every band it holds.
+"""
+
+from __future__ import annotations
+
+import os
+import pathlib
+
+import numpy as np
+import torch
+
+from ..data import layout
+from ..errors import InputError
+from ..flame.model import FlameModel
+from ..io.npz import save_npz
+from ..io.ply import read_gaussian_ply, write_gaussian_ply
+from .avatar import Avatar, flame_params_to_torch
+from .gaussians import BoundGaussians
+
+FLAME_PARAM_SUFFIX = ".flame_param.npz"
+
+
+def rendered_sh(gaussians: BoundGaussians) -> torch.Tensor:
+    """All ``(max+1)²`` SH coefficients, with the bands above the active degree zeroed."""
+    used = (gaussians.active_sh_degree + 1) ** 2 - 1
+    rest = gaussians.sh_rest.detach().clone()
+    rest[:, used:] = 0.0
+    return torch.cat([gaussians.sh_dc.detach(), rest], dim=1)
+
+
+def flame_param_path(ply_path: str | os.PathLike) -> pathlib.Path:
+    """``FILE.flame_param.npz`` beside ``FILE.ply``."""
+    ply_path = pathlib.Path(ply_path)
+    return ply_path.with_name(ply_path.stem + FLAME_PARAM_SUFFIX)
+
+
+def world_ply_arrays(avatar: Avatar, flame_params: dict[str, np.ndarray]) -> dict[str, torch.Tensor]:
+    """The posed Gaussians of one timestep as PLY columns (``write_gaussian_ply``'s arguments)."""
+    with torch.no_grad():
+        world = avatar.world_gaussians(flame_params_to_torch(flame_params))
+        quats = world["quats"] / world["quats"].norm(dim=-1, keepdim=True)
+        return {
+            "means": world["means"],
+            "scales_log": torch.log(world["scales"]),
+            "quats": quats,
+            "opacity_logit": avatar.gaussians.opacity_logit.detach(),
+            "sh": rendered_sh(avatar.gaussians),
+        }
+
+
+def export_world_ply(avatar: Avatar, flame_params: dict[str, np.ndarray], path: str | os.PathLike) -> pathlib.Path:
+    """Write one timestep's posed Gaussians as a 3DGS PLY (atomically)."""
+    write_gaussian_ply(path, **world_ply_arrays(avatar, flame_params))
+    return pathlib.Path(path)
+
+
+def export_binding_ply(
+    avatar: Avatar, path: str | os.PathLike, flame_params: dict[str, np.ndarray] | None = None
+) -> list[pathlib.Path]:
+    """Write the triangle-bound Gaussians (GaussianAvatars' layout) and, given parameters, the
+    ``FILE.flame_param.npz`` beside it. Returns the files written."""
+    g = avatar.gaussians
+    write_gaussian_ply(
+        path, g.local_position, g.local_log_scale, g.local_rotation, g.opacity_logit, rendered_sh(g), binding=g.binding
+    )
+    written = [pathlib.Path(path)]
+    if flame_params is not None:
+        params = layout.normalize_flame_params(flame_params, path)
+        npz = flame_param_path(path)
+        save_npz(npz, layout.batched_flame_params(params))
+        written.append(npz)
+    return written
+
+
+def import_binding_ply(path: str | os.PathLike, head_file: str | os.PathLike) -> Avatar:
+    """An Avatar from a binding-space PLY and the head model its ``binding_0`` ids refer to."""
+    data = read_gaussian_ply(path)
+    if data["binding"] is None:
+        raise InputError(path, "binding_0", "missing: a world-space PLY cannot be bound to a head model")
+    flame = FlameModel.load(head_file)
+    if len(data["binding"]) and int(data["binding"].max()) >= len(flame.faces):
+        raise InputError(path, "binding_0", f"face ids reach {int(data['binding'].max())}, the head model has {len(flame.faces)} faces")
+    if data["sh_degree"] > 3:
+        raise InputError(path, "f_rest", f"SH degree {data['sh_degree']} is above 3")
+    sh = torch.from_numpy(data["sh"])
+    gaussians = BoundGaussians(
+        torch.from_numpy(data["binding"]),
+        data["sh_degree"],
+        local_position=torch.from_numpy(data["means"]),
+        local_log_scale=torch.from_numpy(data["scales_log"]),
+        local_rotation=torch.from_numpy(data["quats"]),
+        opacity_logit=torch.from_numpy(data["opacity_logit"]),
+        sh_dc=sh[:, :1],
+        sh_rest=sh[:, 1:],
+    )
+    gaussians.active_sh_degree = data["sh_degree"]
+    return Avatar(flame, gaussians, head_file)
+
+
+def load_flame_param_npz(path: str | os.PathLike) -> dict[str, np.ndarray]:
+    """The FLAME parameters written beside a binding-space PLY (one timestep)."""
+    from ..io.npz import load_npz
+
+    arrays = load_npz(path)
+    if "expr" in arrays and np.ndim(arrays["expr"]) == 2 and len(arrays["expr"]) != 1:
+        raise InputError(path, "expr", f"holds {len(arrays['expr'])} timesteps; expected one")
+    return layout.normalize_flame_params(arrays, path)
+
+
+def world_ply_gaussians(path: str | os.PathLike) -> dict[str, torch.Tensor]:
+    """A world-space PLY as the splat engine's inputs (activated: scales, opacities)."""
+    data = read_gaussian_ply(path)
+    return {
+        "means": torch.from_numpy(data["means"]),
+        "quats": torch.from_numpy(data["quats"]),
+        "scales": torch.exp(torch.from_numpy(data["scales_log"])),
+        "opacities": torch.sigmoid(torch.from_numpy(data["opacity_logit"])),
+        "colors": torch.from_numpy(data["sh"]),
+    }
+
+
+def render_world_ply(path: str | os.PathLike, camera, background=(1.0, 1.0, 1.0)):
+    """Render a world-space PLY as it stands (no head model): what a 3DGS viewer would show."""
+    from ..splat import rasterize
+    from .avatar import camera_tensors
+
+    g = world_ply_gaussians(path)
+    viewmat, K = camera_tensors(camera)
+    with torch.no_grad():
+        return rasterize(
+            g["means"], g["quats"], g["scales"], g["opacities"], g["colors"], viewmat, K,
+            camera.width, camera.height, background=torch.as_tensor(background, dtype=torch.float32),
+        )

@@ -1,0 +1,41 @@
+"""``eval RUN``: score a trained run on the evaluation protocols; write metrics.json and metrics.md."""
+
+from __future__ import annotations
+
+import pathlib
+
+
+def add_arguments(parser) -> None:
+    from ..evaluate.protocols import PROTOCOLS
+
+    parser.add_argument("run", type=pathlib.Path, metavar="RUN", help="run folder written by 'train'")
+    parser.add_argument(
+        "--protocols", nargs="+", choices=PROTOCOLS, default=list(PROTOCOLS),
+        help="protocols to score (default: all)",
+    )
+    parser.add_argument("--max-frames", type=int, help="score at most this many frames per protocol, evenly spread")
+    parser.add_argument("--no-lpips", action="store_true", help="skip LPIPS (PSNR and SSIM only)")
+    parser.add_argument(
+        "--driver", type=pathlib.Path, metavar="CAPTURE_B",
+        help="also render cross-identity reenactment driven by this capture's tracked motion",
+    )
+    parser.add_argument("--capture", type=pathlib.Path, help="the run's capture folder, when it has moved")
+    parser.add_argument("--out", type=pathlib.Path, metavar="DIR", help="where outputs go (default: the run folder)")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def run(args) -> int:
+    from ..errors import InputError
+    from ..evaluate.protocols import evaluate_run
+    from ..evaluate.report import markdown_table
+
+    if args.max_frames is not None and args.max_frames < 1:
+        raise InputError(None, "--max-frames", f"must be at least 1, got {args.max_frames}")
+    result = evaluate_run(
+        args.run, args.protocols, args.max_frames, lpips=not args.no_lpips, driver=args.driver,
+        out_dir=args.out, capture=args.capture, progress=not args.quiet,
+    )
+    print(markdown_table(result), end="")
+    out = args.out or args.run
+    print(f"wrote {out / 'metrics.json'} and {out / 'metrics.md'}")
+    return 0

@@ -1,0 +1,77 @@
+"""Render a run's avatar at chosen timesteps and cameras into image files.
+
+PNG: sRGB on the training background, what the evaluation scores. EXR: RGBA, linear light,
+premultiplied by alpha (the EXR convention compositors such as Blender's expect).
+"""
+
+from __future__ import annotations
+
+import os
+import pathlib
+
+import numpy as np
+
+from ..errors import InputError
+from ..io.image import srgb_to_linear, write_exr, write_png
+from .protocols import TrackedParams, render_frame
+from .run_folder import RunFolder, capture_info, load_flame_file
+
+RENDER_DIR = "renders"
+
+
+def default_camera(capture) -> str:
+    """The held-out (frontal) camera when the capture names one, else the first camera."""
+    held_out = capture_info(capture.root).get("val_camera")
+    if held_out in capture.cameras:
+        return held_out
+    val = capture.splits.get("val")
+    return val[0].camera_id if val else next(iter(capture.cameras))
+
+
+def exr_channels(rgb_black: np.ndarray, alpha: np.ndarray) -> np.ndarray:
+    """A render on black (premultiplied sRGB) → premultiplied linear RGB."""
+    safe = np.where(alpha > 1e-6, alpha, 1.0)[..., None]
+    straight = np.clip(rgb_black / safe, 0.0, 1.0)
+    return (srgb_to_linear(straight) * alpha[..., None]).astype(np.float32)
+
+
+def render_run(
+    run_dir: str | os.PathLike,
+    timesteps: list[int],
+    cameras: list[str] | None = None,
+    *,
+    out_dir: str | os.PathLike | None = None,
+    exr: bool = False,
+    params_dir: str | os.PathLike | None = None,
+    capture: str | os.PathLike | None = None,
+    avatar=None,
+) -> list[pathlib.Path]:
+    """Write ``{t:05d}_{camera}.png`` (and ``.exr``) per timestep and camera; returns the files."""
+    run = RunFolder(run_dir, capture)
+    cap = run.open_capture()
+    cameras = cameras or [default_camera(cap)]
+    for camera_id in cameras:
+        if camera_id not in cap.cameras:
+            raise InputError(cap.root, "camera", f"no camera {camera_id!r} (have {', '.join(cap.cameras)})")
+    avatar = run.load_avatar() if avatar is None else avatar
+    source = TrackedParams(cap, run)
+    out = pathlib.Path(out_dir) if out_dir is not None else run.root / RENDER_DIR
+    background = np.asarray(run.background, dtype=np.float32)
+    written = []
+    for timestep in timesteps:
+        if params_dir is not None:
+            path = pathlib.Path(params_dir) / f"{timestep:05d}.npz"
+            if not path.exists():
+                raise InputError(path, None, f"file not found (no FLAME parameters for timestep {timestep})")
+            params = load_flame_file(path)
+        else:
+            params = source.params_for(timestep)
+        for camera_id in cameras:
+            rgb_black, alpha = render_frame(avatar, params, cap.cameras[camera_id], (0.0, 0.0, 0.0))
+            stem = f"{timestep:05d}_{camera_id}"
+            write_png(out / f"{stem}.png", np.clip(rgb_black + (1.0 - alpha[..., None]) * background, 0.0, 1.0))
+            written.append(out / f"{stem}.png")
+            if exr:
+                write_exr(out / f"{stem}.exr", exr_channels(rgb_black, alpha), alpha)
+                written.append(out / f"{stem}.exr")
+    return written

@@ -1,0 +1,132 @@
+"""Evaluation protocols: which frames each scores, where parameters come from, honest scoring."""
+
+import json
+
+import numpy as np
+import pytest
+
+from mogaface.core.cli import main
+from mogaface.core.data.capture import Capture
+from mogaface.core.errors import InputError
+from mogaface.core.evaluate import metrics
+from mogaface.core.evaluate.protocols import (
+    DrivenParams,
+    TrackedParams,
+    evaluate_run,
+    protocol_frames,
+    render_frame,
+    run_protocol,
+    views_at,
+)
+from mogaface.core.evaluate.run_folder import RunFolder
+from test_evaluate_fixtures import EXPR_NUDGE, driver_capture, fake_run, tiny_capture
+
+
+@pytest.fixture(scope="module")
+def capture(tmp_path_factory):
+    return Capture.open(tiny_capture(tmp_path_factory))
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    return RunFolder(fake_run(tmp_path_factory))
+
+
+def test_protocol_frames(capture):
+    train_timesteps = {f.timestep_index for f in capture.frames("train")}
+    novel = protocol_frames(capture, "novel_view")
+    assert {f.camera_id for f in novel} == {"cam01"}  # the held-out camera
+    assert {f.timestep_index for f in novel} == train_timesteps
+    reenact = protocol_frames(capture, "self_reenactment")
+    assert {f.sequence for f in reenact} == {"FREE"}
+    assert {f.camera_id for f in reenact} == set(capture.cameras)
+    assert not {f.timestep_index for f in reenact} & train_timesteps
+    thinned = protocol_frames(capture, "novel_view", max_frames=3)
+    assert len(thinned) == 3 and thinned[0] == novel[0] and thinned[-1] == novel[-1]
+    with pytest.raises(InputError, match="unknown protocol"):
+        protocol_frames(capture, "cross")
+
+
+def test_tracked_params_run_first_then_capture_with_run_identity(capture, run):
+    source = TrackedParams(capture, run)
+    trained = source.params_for(0)
+    np.testing.assert_allclose(trained["expr"][0], capture.flame_params(0)["expr"][0] + EXPR_NUDGE, rtol=1e-6)
+    unseen = source.params_for(13)
+    assert 13 not in run.trained_timesteps
+    np.testing.assert_array_equal(unseen["expr"], capture.flame_params(13)["expr"])
+    np.testing.assert_allclose(unseen["shape"], capture.flame_params(13)["shape"] + 0.1, rtol=1e-6)
+
+
+def test_the_scored_view_is_never_a_source_input(capture, run):
+    """Every parameter request names the scored camera as excluded (the hook image-assisted
+    inference must honour), and an image-assisted source sees only the other views."""
+    calls = []
+
+    class Spy(TrackedParams):
+        def params_for(self, frame, exclude_view=None):
+            calls.append((frame, exclude_view, [v.camera_id for v in views_at(capture, frame.timestep_index, exclude_view)]))
+            return super().params_for(frame, exclude_view)
+
+    frames = protocol_frames(capture, "self_reenactment", max_frames=2)
+    items = list(run_protocol(run.load_avatar(), capture, Spy(capture, run), frames, run.background))
+    assert [i.frame for i in items] == frames
+    assert [c[0] for c in calls] == frames
+    for frame, excluded, seen in calls:
+        assert excluded == frame.camera_id
+        assert frame.camera_id not in seen and len(seen) == len(capture.cameras) - 1
+
+
+def test_driven_params_keep_identity_take_motion(capture, run, tmp_path_factory):
+    driver = Capture.open(driver_capture(tmp_path_factory))
+    identity = run.identity_params()
+    params = DrivenParams(identity, driver).params_for(5)
+    np.testing.assert_array_equal(params["shape"], identity["shape"])
+    for key in ("expr", "jaw_pose", "eyes_pose", "neck_pose", "rotation", "translation"):
+        np.testing.assert_array_equal(params[key], driver.flame_params(5)[key])
+    assert not np.allclose(params["shape"], driver.flame_params(5)["shape"])
+
+
+def test_evaluate_run_scores_full_images(capture, run, tmp_path):
+    result = evaluate_run(run.root, max_frames=2, out_dir=tmp_path, comparisons=1)
+    on_disk = json.loads((tmp_path / "metrics.json").read_text())
+    assert set(on_disk["protocols"]) == {"novel_view", "self_reenactment"}
+    novel = result["protocols"]["novel_view"]
+    assert novel["frames"] == 2 and set(novel["per_camera"]) == {"cam01"}
+    assert 0 < novel["lpips"] < 1 and -1 < novel["ssim"] < 1 and 5 < novel["psnr"] < 60
+    # The mean is the mean of per-frame scores of the full image against the stored frame.
+    frames = protocol_frames(capture, "novel_view", max_frames=2)
+    source = TrackedParams(capture, run)
+    avatar = run.load_avatar()
+    scores = []
+    for frame in frames:
+        prediction, _ = render_frame(avatar, source.params_for(frame, frame.camera_id), capture.camera(frame), run.background)
+        scores.append(metrics.psnr(prediction, capture.load_image(frame)[0]))
+    assert novel["psnr"] == pytest.approx(np.mean(scores), rel=1e-6)
+    table = (tmp_path / "metrics.md").read_text()
+    assert "| novel view | 2 |" in table and "| self reenactment | 2 |" in table
+    comparisons = sorted((tmp_path / "eval").glob("*.png"))
+    assert len(comparisons) == 2
+    from mogaface.core.io.image import read_image
+
+    assert read_image(comparisons[0]).shape == (48, 3 * 48, 3)
+
+
+def test_eval_cli_with_driver(run, tmp_path, tmp_path_factory, capsys):
+    driver = driver_capture(tmp_path_factory)
+    code = main(["eval", str(run.root), "--protocols", "novel_view", "--max-frames", "2", "--no-lpips",
+                 "--driver", str(driver), "--out", str(tmp_path), "--quiet"])
+    assert code == 0
+    result = json.loads((tmp_path / "metrics.json").read_text())
+    assert list(result["protocols"]) == ["novel_view"] and "lpips" not in result["protocols"]["novel_view"]
+    cross = result["cross_identity"]
+    assert cross["frames"] == 2 * 3 and "psnr" not in cross  # 2 driver timesteps x 3 cameras, no metrics
+    strip = tmp_path / "eval" / "cross_identity" / "strip.png"
+    from mogaface.core.io.image import read_image
+
+    assert read_image(strip).shape == (3 * 48, 2 * 48, 3)
+    assert "novel view" in capsys.readouterr().out
+
+
+def test_eval_cli_reports_a_missing_run(tmp_path, capsys):
+    assert main(["eval", str(tmp_path / "nowhere")]) == 2
+    assert "not a run folder" in capsys.readouterr().err
