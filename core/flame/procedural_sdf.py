@@ -35,6 +35,11 @@ def smooth_union(a, b, k):
     return b + (a - b) * h - k * h * (1.0 - h)
 
 
+def smooth_intersect(a, b, k):
+    """Keep what is inside both solids, with a rounded edge."""
+    return -smooth_union(-a, -b, k)
+
+
 def smooth_subtract(a, b, k):
     """Remove solid b from solid a with a rounded edge."""
     return -smooth_union(-a, b, k)
@@ -65,14 +70,20 @@ def _ear(p):
 
 
 def _nose(p):
+    """Nose: a rounded wedge for the bridge (sloping sides), a ball tip, wings and nostrils."""
     q = mirrored(p)
-    bridge = tapered_capsule(p, np.array([0.0, 0.021, 0.082]), np.array([0.0, -0.022, 0.112]), 0.0052, 0.0075)
+    x, y, z = p[..., 0], p[..., 1], p[..., 2]
+    t = np.clip((0.021 - y) / 0.047, 0.0, 1.0)  # 0 at the root between the eyes, 1 at the tip
+    dorsum = 0.086 + 0.030 * t + 0.002 * np.sin(np.pi * t)
+    half_angle = np.radians(30.0 + 16.0 * t)
+    soft_x = np.sqrt(x * x + 0.0035**2)
+    wedge = soft_x * np.cos(half_angle) + (z - dorsum) * np.sin(half_angle)
+    wedge = smooth_intersect(wedge, y - 0.025, 0.006)  # starts below the brow
+    wedge = smooth_intersect(wedge, -0.034 - y, 0.004)  # ends at the nose base
     tip = ellipsoid(p, np.array([0.0, -0.026, 0.1115]), np.array([0.0105, 0.0095, 0.0100]))
     alae = ellipsoid(q, np.array([0.0130, -0.033, 0.0965]), np.array([0.0085, 0.0075, 0.0085]))
     base = ellipsoid(p, np.array([0.0, -0.030, 0.090]), np.array([0.016, 0.011, 0.014]))
-    flank = ellipsoid(p, np.array([0.0, -0.012, 0.084]), np.array([0.017, 0.03, 0.016]))
-    nose = smooth_union(smooth_union(bridge, tip, 0.006), smooth_union(alae, base, 0.006), 0.006)
-    nose = smooth_union(nose, flank, 0.01)
+    nose = smooth_union(smooth_union(wedge, tip, 0.012), smooth_union(alae, base, 0.006), 0.006)
     nostrils = ellipsoid(q, np.array([0.0068, -0.0405, 0.1035]), np.array([0.0036, 0.0022, 0.0060]))
     return smooth_subtract(nose, nostrils, 0.0015)
 

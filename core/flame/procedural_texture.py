@@ -18,7 +18,7 @@ from .procedural_mesh import (
     EAR_UV_BOXES, EYE_UV_BOXES, EYE_UV_POWER, IRIS_ANGLE, LID_LINING_UV_BOX, MOUTH_ROW_ANGLE, MOUTH_UV_BOX, SKIN_UV_BOTTOM, HeadMesh,
 )
 from .procedural_rig import smoothstep
-from .procedural_sdf import EAR_CENTRE
+from .procedural_sdf import EAR_CENTRE, EYE_CENTRE
 
 TEXTURE_SIZE = 1024
 
@@ -103,6 +103,24 @@ def around_head(field, mesh, vertices, gj):
     return field[:, columns]
 
 
+def skin_folds(p):
+    """Soft darkening along the folds a face has at rest: lid creases, nasolabial folds,
+    faint forehead lines and the corners of the mouth."""
+    x, y, z = p[..., 0], p[..., 1], p[..., 2]
+    ax = np.abs(x)
+    eye = np.stack([ax, y, z], -1) - EYE_CENTRE
+    from_eye = np.linalg.norm(eye, axis=-1)
+    lid_crease = np.exp(-(((from_eye - 0.0163) / 0.0012) ** 2)) * (eye[..., 1] > 0.003) * (eye[..., 2] > 0.0)
+    under_eye = np.exp(-(((from_eye - 0.0175) / 0.003) ** 2)) * (eye[..., 1] < -0.004) * (eye[..., 2] > 0.0)
+    # The nasolabial fold runs from beside the nose wing down to past the mouth corner.
+    t = np.clip((-0.034 - y) / 0.036, 0.0, 1.0)
+    fold_x = 0.022 + 0.011 * t
+    nasolabial = np.exp(-(((ax - fold_x) / 0.0018) ** 2)) * (y < -0.032) * (y > -0.072) * (z > 0.06)
+    forehead = sum(np.exp(-(((y - h - 0.004 * (x / 0.03) ** 2) / 0.0012) ** 2)) for h in (0.056, 0.066, 0.076))
+    forehead = forehead * np.exp(-((x / 0.035) ** 4)) * (z > 0.05)
+    return 0.16 * lid_crease + 0.07 * under_eye + 0.12 * nasolabial + 0.05 * forehead
+
+
 def hairline_height(p, recession=0.0):
     """Height of the hairline around the head: forehead, temples, above the ears, nape.
 
@@ -158,9 +176,10 @@ def paint_skin(mesh, vertices, look, rng, height, width):
     thickness = 0.0055 * np.clip(1.2 - (ax - 0.012) / 0.05, 0.3, 1.0)
     brow = (np.exp(-(((y - arch) / thickness) ** 4)) * smoothstep(ax, 0.008, 0.014)
             * (1.0 - smoothstep(ax, 0.05, 0.058)) * (z > 0.05))
-    strokes = np.clip(0.5 + 0.6 * noise(rng, shape, 1.3, (0.6, 2.2)), 0, 1)
-    brow_colour = look.hair * 0.8
-    colour = mix(colour, brow_colour, np.clip(brow * (0.35 + 0.75 * strokes), 0, 1))
+    strokes = np.clip(1.6 * noise(rng, shape, 1.0, (0.5, 5.0)) - 0.2, 0, 1)
+    brow_colour = look.hair * 0.75
+    colour = mix(colour, brow_colour, np.clip(brow * (0.25 + 0.8 * strokes), 0, 1))
+    colour *= (1.0 - skin_folds(p))[..., None]
     # Eyelash lines along the lid rims (rows just above / below the eye slit).
     for c0, c1 in mesh.eye_columns:
         across = ((gj > c0 + 0.3) & (gj < c1 - 0.3))[None, :]
