@@ -80,6 +80,7 @@ def _nose(p):
     wedge = soft_x * np.cos(half_angle) + (z - dorsum) * np.sin(half_angle)
     wedge = smooth_intersect(wedge, y - 0.025, 0.006)  # starts below the brow
     wedge = smooth_intersect(wedge, -0.034 - y, 0.004)  # ends at the nose base
+    wedge = smooth_intersect(wedge, 0.05 - z, 0.01)  # and does not reach into the head
     tip = ellipsoid(p, np.array([0.0, -0.026, 0.1115]), np.array([0.0105, 0.0095, 0.0100]))
     alae = ellipsoid(q, np.array([0.0130, -0.033, 0.0965]), np.array([0.0085, 0.0075, 0.0085]))
     base = ellipsoid(p, np.array([0.0, -0.030, 0.090]), np.array([0.016, 0.011, 0.014]))
