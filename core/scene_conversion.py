@@ -1,0 +1,449 @@
+"""Blender-free conversions between the project's data and a Blender scene.
+
+The Blender layer (``operators/``) reads and writes Blender data; everything it needs to
+compute lives here, in numpy, so it is testable without Blender:
+
+- the one axis conversion (FLAME/OpenCV world, y up → Blender world, z up);
+- a capture camera → Blender camera settings (lens, shifts, pixel aspect, pose);
+- timesteps ↔ scene frames;
+- the head rig: basis and expression shape keys, and the "pose" shape key that makes
+  Blender's shape-key blend equal the core's FLAME evaluation (pose correctives, skinning);
+- tracked FLAME parameters of a ``flame_param`` folder as keyframe columns.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import pathlib
+import re
+import threading
+
+import numpy as np
+
+from .camera import Camera
+from .data.capture import Capture
+from .errors import InputError
+
+# -- axes ---------------------------------------------------------------------------------------
+
+#: FLAME world (y up, z toward the face's front) → Blender world (z up): +90° about x, so
+#: FLAME +y → Blender +z and FLAME +z (the face's front) → Blender −y (the usual front view).
+FLAME_TO_BLENDER = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+
+# OpenCV camera axes (x right, y down, z forward) ↔ Blender camera axes (x right, y up, z back).
+_CV_TO_BLENDER_CAMERA = np.diag([1.0, -1.0, -1.0, 1.0])
+
+
+def flame_to_blender(points) -> np.ndarray:
+    """Points or directions ``(…,3)`` in FLAME world axes → Blender world axes (float64).
+
+    The single place where the project's y-up world meets Blender's z-up world; every
+    position that crosses into Blender (mesh vertices, shape keys, cameras) goes through it.
+    """
+    return np.asarray(points, dtype=np.float64) @ FLAME_TO_BLENDER.T
+
+
+def blender_to_flame(points) -> np.ndarray:
+    """The inverse of :func:`flame_to_blender`."""
+    return np.asarray(points, dtype=np.float64) @ FLAME_TO_BLENDER
+
+
+def flame_to_blender_matrix(matrix) -> np.ndarray:
+    """A 4×4 transform whose output is in FLAME world → the same transform into Blender world."""
+    world = np.eye(4)
+    world[:3, :3] = FLAME_TO_BLENDER
+    return world @ np.asarray(matrix, dtype=np.float64)
+
+
+# -- timeline -----------------------------------------------------------------------------------
+
+#: Blender's timeline starts at frame 1: timestep ``t`` is shown on frame ``t + FRAME_OFFSET``.
+FRAME_OFFSET = 1
+
+
+def timestep_to_frame(timestep: int) -> int:
+    """The scene frame that shows capture/tracking timestep ``timestep``."""
+    return int(timestep) + FRAME_OFFSET
+
+
+def frame_to_timestep(frame: int) -> int:
+    """The timestep shown on scene frame ``frame``."""
+    return int(frame) - FRAME_OFFSET
+
+
+# -- cameras ------------------------------------------------------------------------------------
+
+SENSOR_WIDTH_MM = 36.0
+
+
+@dataclasses.dataclass
+class BlenderCamera:
+    """Everything a Blender camera needs to image exactly like one capture camera.
+
+    ``lens``/``sensor_width`` in mm with ``sensor_fit='HORIZONTAL'``; shifts in units of the
+    image width; ``pixel_aspect`` (x, y) for fx ≠ fy (both ≥ 1, as Blender requires);
+    ``matrix_world`` 4×4 in Blender world axes; ``image_path`` of its first view, if any.
+    """
+
+    name: str
+    camera_id: str
+    lens: float
+    sensor_width: float
+    shift_x: float
+    shift_y: float
+    resolution: tuple[int, int]
+    pixel_aspect: tuple[float, float]
+    matrix_world: np.ndarray
+    image_path: str | None = None
+    sensor_fit: str = "HORIZONTAL"
+
+
+def blender_camera(camera: Camera, name: str | None = None, image_path=None) -> BlenderCamera:
+    """A capture :class:`~mogaface.core.camera.Camera` (OpenCV ``K``, ``w2c``) as Blender settings.
+
+    Blender's view plane (horizontal sensor fit) spans ``sensor_width`` across the image
+    width, so ``fx = lens·W/sensor_width``; pixel rows are ``pixel_aspect_y/pixel_aspect_x``
+    times taller than columns are wide, so that ratio is ``fx/fy``; the shifts move the
+    frame's centre away from the optical axis in units of the width.
+    """
+    width, height = camera.width, camera.height
+    ratio = camera.fx / camera.fy  # pixel_aspect_y / pixel_aspect_x
+    aspect = (1.0, ratio) if ratio >= 1.0 else (1.0 / ratio, 1.0)
+    c2w_blender_camera = np.linalg.inv(camera.w2c) @ _CV_TO_BLENDER_CAMERA
+    return BlenderCamera(
+        name=name or f"Camera {camera.camera_id}",
+        camera_id=camera.camera_id,
+        lens=camera.fx * SENSOR_WIDTH_MM / width,
+        sensor_width=SENSOR_WIDTH_MM,
+        shift_x=-(camera.cx - 0.5 * width) / width,
+        shift_y=(camera.cy - 0.5 * height) / width * ratio,
+        resolution=(width, height),
+        pixel_aspect=aspect,
+        matrix_world=flame_to_blender_matrix(c2w_blender_camera),
+        image_path=None if image_path is None else os.fspath(image_path),
+    )
+
+
+@dataclasses.dataclass
+class CaptureScene:
+    """A capture as Blender sees it: its cameras (with first-view images) and its frame range."""
+
+    root: str
+    cameras: list[BlenderCamera]
+    frame_start: int
+    frame_end: int
+    n_timesteps: int
+
+
+def capture_scene(folder) -> CaptureScene:
+    """Open a capture folder and describe its Blender scene (cameras, images, timeline).
+
+    Each camera's background image is its view at the first timestep it was captured in.
+    Raises :class:`~mogaface.core.errors.CaptureError` naming the file of the first problem.
+    """
+    capture = Capture.open(folder)
+    first_frame = {}
+    for frame in sorted(capture.frames(), key=lambda f: (f.timestep_index, f.camera_index)):
+        first_frame.setdefault(frame.camera_id, frame)
+    cameras = []
+    for camera_id, camera in capture.cameras.items():
+        frame = first_frame.get(camera_id)
+        image = capture.path(frame, "file_path") if frame is not None else None
+        cameras.append(blender_camera(camera, f"Camera {camera_id}", image))
+    return CaptureScene(
+        root=os.fspath(capture.root),
+        cameras=cameras,
+        frame_start=timestep_to_frame(min(capture.timesteps)),
+        frame_end=timestep_to_frame(max(capture.timesteps)),
+        n_timesteps=len(capture.timesteps),
+    )
+
+
+# -- images -------------------------------------------------------------------------------------
+
+
+def image_pixels(image) -> np.ndarray:
+    """An ``(H,W,3|4)`` image (uint8, or float in [0,1]) → Blender's flat RGBA float32 pixels.
+
+    Blender stores rows bottom to top; our images are top to bottom.
+    """
+    array = np.asarray(image)
+    if array.ndim != 3 or array.shape[2] not in (3, 4):
+        raise InputError(None, "texture", f"expected an (H, W, 3|4) image, found shape {array.shape}")
+    values = array.astype(np.float32) / 255.0 if array.dtype == np.uint8 else array.astype(np.float32)
+    if values.shape[2] == 3:
+        values = np.concatenate([values, np.ones(values.shape[:2] + (1,), np.float32)], axis=2)
+    return np.ascontiguousarray(values[::-1]).reshape(-1)
+
+
+# -- the head rig -------------------------------------------------------------------------------
+
+#: Object custom properties that hold the pose, with their sizes (FLAME's parameter names).
+POSE_PROPERTIES = {
+    "rotation": ("mogaface_rotation", 3),
+    "neck_pose": ("mogaface_neck_pose", 3),
+    "jaw_pose": ("mogaface_jaw_pose", 3),
+    "eyes_pose": ("mogaface_eyes_pose", 6),
+    "translation": ("mogaface_translation", 3),
+}
+MODEL_PATH_PROPERTY = "mogaface_model_path"
+SHAPE_PROPERTY = "mogaface_shape"
+STATIC_OFFSET_PROPERTY = "mogaface_static_offset"
+POSE_KEY_NAME = "MoGaFace pose"
+EXPRESSION_SLIDER_RANGE = 10.0
+
+_model_cache: dict = {}
+_model_cache_lock = threading.Lock()
+
+
+def load_head_model(path):
+    """The float64 :class:`~mogaface.core.flame.model.FlameModel` of ``path``, cached per file.
+
+    The cache key includes the file's size and modification time, so an edited file reloads.
+    """
+    from .flame.model import FlameModel  # torch: imported when a head is used, not before
+    import torch
+
+    path = pathlib.Path(path).expanduser().resolve()
+    try:
+        stat = path.stat()
+    except OSError:
+        raise InputError(path, None, "head model file not found") from None
+    key = (os.fspath(path), stat.st_size, stat.st_mtime_ns)
+    with _model_cache_lock:
+        model = _model_cache.get(key)
+        if model is None:
+            model = FlameModel.load(path, dtype=torch.float64)
+            for old in [k for k in _model_cache if k[0] == key[0]]:
+                del _model_cache[old]
+            _model_cache[key] = model
+    return model
+
+
+def read_identity(path, n_shape: int, n_vertices: int) -> tuple[np.ndarray, np.ndarray | None]:
+    """``shape`` (fitted to ``n_shape``) and ``static_offset`` (or None) from a ``flame_param`` npz."""
+    from .data import layout
+    from .io.npz import load_npz
+
+    params = layout.normalize_flame_params(load_npz(path), path)
+    shape = fit_components(params["shape"], n_shape)
+    offset = params.get("static_offset")
+    if offset is not None and offset.shape != (n_vertices, 3):
+        raise InputError(path, "static_offset", f"expected shape ({n_vertices}, 3) for this head, found {offset.shape}")
+    return shape, None if offset is None else np.asarray(offset, np.float64)
+
+
+def fit_components(values, count: int) -> np.ndarray:
+    """Coefficients ``(…, n)`` padded with zeros or cut to ``count`` (FLAME uses the leading ones)."""
+    values = np.asarray(values, dtype=np.float64)
+    if values.shape[-1] >= count:
+        return values[..., :count].copy()
+    pad = [(0, 0)] * (values.ndim - 1) + [(0, count - values.shape[-1])]
+    return np.pad(values, pad)
+
+
+@dataclasses.dataclass
+class HeadRig:
+    """A FLAME head as Blender shows it: shape keys for expressions, a pose key for the rest.
+
+    Blender's relative shape keys give ``basis + Σ wₖ (keyₖ − basis)``. The basis is the
+    identity's neutral head, key k adds expression component k, and the pose key (weight 1)
+    adds ``posed − unposed``: the pose correctives, skinning and translation that FLAME
+    applies on top of the blend shapes. Blender's blend then equals the core's evaluation.
+    All positions are in Blender world axes (see :func:`flame_to_blender`).
+    """
+
+    model: object  # FlameModel (float64)
+    shape: np.ndarray
+    static_offset: np.ndarray | None = None
+
+    def __post_init__(self):
+        self.shape = fit_components(self.shape, self.model.n_shape)
+
+    def neutral(self) -> np.ndarray:
+        """The identity's head without expression or pose, FLAME axes ``(V,3)``."""
+        arrays = self.model.arrays
+        out = arrays.v_template + arrays.shapedirs @ self.shape
+        return out if self.static_offset is None else out + self.static_offset
+
+    def basis(self) -> np.ndarray:
+        return flame_to_blender(self.neutral())
+
+    def expression_keys(self) -> np.ndarray:
+        """``(n_expr, V, 3)``: the basis plus one expression component each (Blender axes)."""
+        exprdirs = np.moveaxis(self.model.arrays.exprdirs, 2, 0)
+        return self.basis()[None] + flame_to_blender(exprdirs)
+
+    def evaluate(self, expr, pose: dict) -> np.ndarray:
+        """The core's FLAME evaluation for this identity, FLAME axes ``(V,3)`` float64."""
+        import torch
+
+        params = {name: torch.as_tensor(np.asarray(value, np.float64).reshape(1, -1)) for name, value in pose.items()}
+        params["expr"] = torch.as_tensor(fit_components(expr, self.model.n_expr)[None])
+        params["shape"] = torch.as_tensor(self.shape[None])
+        if self.static_offset is not None:
+            params["static_offset"] = torch.as_tensor(self.static_offset[None])
+        with torch.no_grad():
+            return self.model(**params)[0].numpy()
+
+    def pose_key(self, expr, pose: dict) -> np.ndarray:
+        """The pose shape key for expression weights ``expr`` and ``pose`` (Blender axes)."""
+        expr = fit_components(expr, self.model.n_expr)
+        unposed = self.neutral() + self.model.arrays.exprdirs @ expr
+        return self.basis() + flame_to_blender(self.evaluate(expr, pose) - unposed)
+
+
+def zero_pose() -> dict:
+    """Every pose parameter at rest (FLAME names)."""
+    return {name: np.zeros(size) for name, (_, size) in POSE_PROPERTIES.items()}
+
+
+@dataclasses.dataclass
+class HeadImport:
+    """What Blender needs to build a head object: mesh, UVs, texture, shape keys, rig."""
+
+    name: str
+    model_path: str
+    rig: HeadRig
+    faces: np.ndarray  # (F,3) vertex indices, the model's triangle order
+    basis: np.ndarray  # (V,3) Blender axes
+    expression_keys: np.ndarray  # (n_expr,V,3)
+    expression_names: list
+    pose_key: np.ndarray  # (V,3) at the rest pose
+    loop_uvs: np.ndarray | None  # (3F,2) one UV per triangle corner
+    texture_pixels: np.ndarray | None  # flat RGBA float32, Blender row order
+    texture_size: tuple[int, int] | None  # (width, height)
+
+
+def head_import(path, shape_file=None) -> HeadImport:
+    """Load a FLAME-format head (and optionally the identity of a ``flame_param`` npz) for Blender."""
+    model = load_head_model(path)
+    arrays = model.arrays
+    if shape_file:
+        shape, offset = read_identity(shape_file, model.n_shape, model.n_vertices)
+    else:
+        shape, offset = np.zeros(model.n_shape), None
+    rig = HeadRig(model, shape, offset)
+    uvs = None if arrays.vt is None else arrays.vt[arrays.ft].reshape(-1, 2)
+    texture = arrays.texture
+    return HeadImport(
+        name=pathlib.Path(path).stem,
+        model_path=os.fspath(pathlib.Path(path).expanduser().resolve()),
+        rig=rig,
+        faces=np.asarray(arrays.faces, np.int64),
+        basis=rig.basis(),
+        expression_keys=rig.expression_keys(),
+        expression_names=list(model.expression_names),
+        pose_key=rig.pose_key(np.zeros(model.n_expr), zero_pose()),
+        loop_uvs=uvs,
+        texture_pixels=None if texture is None else image_pixels(texture),
+        texture_size=None if texture is None else (texture.shape[1], texture.shape[0]),
+    )
+
+
+# -- tracking -----------------------------------------------------------------------------------
+
+
+@dataclasses.dataclass
+class Tracking:
+    """Tracked FLAME parameters of a ``flame_param`` folder, one row per timestep."""
+
+    folder: str
+    timesteps: np.ndarray  # (T,) int
+    params: dict  # name -> (T, n) float64: expr and the POSE_PROPERTIES names
+
+    @property
+    def frames(self) -> np.ndarray:
+        return self.timesteps + FRAME_OFFSET
+
+
+_DIGITS = re.compile(r"(\d+)$")
+
+
+def read_tracking(folder) -> Tracking:
+    """Read every ``*.npz`` of a ``flame_param`` folder (VHAP/GaussianAvatars layout).
+
+    The timestep of ``00042.npz`` is 42 (the trailing digits of the name); files without
+    digits take their position in name order. Only expression and pose are read: the
+    identity (``shape``) belongs to the head they are applied to.
+    """
+    from .data import layout
+    from .io.npz import load_npz
+
+    folder = pathlib.Path(folder)
+    if not folder.is_dir():
+        raise InputError(folder, None, "not a folder (expected a flame_param folder of .npz files)")
+    files = sorted(folder.glob("*.npz"))
+    if not files:
+        raise InputError(folder, None, "no .npz files (expected a flame_param folder)")
+    numbered = [_DIGITS.search(f.stem) for f in files]
+    if all(numbered):
+        timesteps = np.array([int(m.group(1)) for m in numbered])
+        order = np.argsort(timesteps, kind="stable")
+        files, timesteps = [files[i] for i in order], timesteps[order]
+        if len(set(timesteps.tolist())) != len(timesteps):
+            raise InputError(folder, None, "two files name the same timestep")
+    else:
+        timesteps = np.arange(len(files))
+    names = ["expr", *POSE_PROPERTIES]
+    rows = {name: [] for name in names}
+    for path in files:
+        params = layout.normalize_flame_params(load_npz(path), path)
+        for name in names:
+            if name not in params:
+                raise InputError(path, name, "missing from the tracked parameters")
+            rows[name].append(np.asarray(params[name], np.float64).reshape(-1))
+    out = {}
+    for name, values in rows.items():
+        sizes = {len(v) for v in values}
+        if len(sizes) != 1:
+            raise InputError(folder, name, f"sizes differ between files: {sorted(sizes)}")
+        out[name] = np.stack(values)
+    return Tracking(os.fspath(folder), timesteps, out)
+
+
+def keyframe_columns(frames, values) -> list[np.ndarray]:
+    """``values (T,n)`` at ``frames (T,)`` → n flat ``[f0, v0, f1, v1, …]`` float32 arrays.
+
+    The layout of ``FCurve.keyframe_points.foreach_set("co", …)``: one array per channel.
+    """
+    frames = np.asarray(frames, dtype=np.float64)
+    values = np.asarray(values, dtype=np.float64).reshape(len(frames), -1)
+    return [np.ascontiguousarray(np.stack([frames, values[:, i]], axis=1), dtype=np.float32).reshape(-1)
+            for i in range(values.shape[1])]
+
+
+def expression_keyframes(tracking: Tracking, n_expr: int) -> tuple[np.ndarray, str | None]:
+    """The tracked expressions fitted to a head with ``n_expr`` keys, plus a warning if cut.
+
+    Coefficients beyond the head's count are dropped (reported); missing ones are zero. Values
+    outside the shape-key slider range are clamped by Blender, so they are reported too.
+    """
+    expr = tracking.params["expr"]
+    notes = []
+    if expr.shape[1] > n_expr:
+        notes.append(f"the tracking has {expr.shape[1]} expression components, the head {n_expr}: extra ones ignored")
+    fitted = fit_components(expr, n_expr)
+    if np.abs(fitted).max(initial=0.0) > EXPRESSION_SLIDER_RANGE:
+        notes.append(f"expression values beyond ±{EXPRESSION_SLIDER_RANGE:g} are clamped by Blender's sliders")
+    return fitted, "; ".join(notes) or None
+
+
+@dataclasses.dataclass
+class TrackingChannels:
+    """Keyframe columns for one head: per pose property its channels, per expression key one."""
+
+    frames: np.ndarray  # (T,) scene frames
+    pose: dict  # property name -> list of flat [f, v, …] arrays, one per vector index
+    expressions: list  # one flat [f, v, …] array per expression shape key
+    note: str | None = None
+
+
+def tracking_channels(folder, n_expr: int) -> TrackingChannels:
+    """A ``flame_param`` folder as keyframe columns for a head with ``n_expr`` expression keys."""
+    tracking = read_tracking(folder)
+    frames = tracking.frames
+    expr, note = expression_keyframes(tracking, n_expr)
+    pose = {prop: keyframe_columns(frames, tracking.params[name]) for name, (prop, _) in POSE_PROPERTIES.items()}
+    return TrackingChannels(frames, pose, keyframe_columns(frames, expr), note)
