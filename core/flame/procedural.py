@@ -4,8 +4,15 @@
 key names) plus UVs, a texture and component names. The licensed FLAME model
 cannot be distributed, so avatars, synthetic captures and Blender shape keys all
 run on this head. ``subject`` picks an identity (shape baked into the template,
-skin/hair/iris colours); ``seed`` varies the random texture detail. Equal
-arguments give bit-identical arrays.
+skin/hair/iris colours, hairline); ``seed`` varies the random texture detail.
+Equal arguments give bit-identical arrays.
+
+The parts, built in ``procedural_mesh``/``procedural_ear``: the skin (a grid shaped
+by the implicit head of ``procedural_sdf``, with slit eye and mouth openings), an
+inner mouth bag with teeth, a lining inside each eye opening, two eyeballs and two
+ears. ``procedural_rig`` holds weights, joints and pose correctives,
+``procedural_blendshapes`` the identity and expression components and
+``procedural_texture`` the painted texture.
 """
 
 from __future__ import annotations

@@ -37,14 +37,17 @@ def blob(p, centre, radii):
 
 
 def mirror(point):
+    """The point on the other side of the face."""
     return point * np.array([-1.0, 1.0, 1.0])
 
 
 def both_sides(p, centre, radii):
+    """A blob and its mirror image."""
     return blob(p, centre, radii) + blob(p, mirror(centre), radii)
 
 
 def _vec(field, direction):
+    """A scalar falloff times a fixed displacement vector → (V,3)."""
     return field[:, None] * np.asarray(direction, dtype=float)[None, :]
 
 
@@ -116,10 +119,11 @@ def shape_components(mesh: HeadMesh, v: np.ndarray) -> np.ndarray:
 # --- expressions -------------------------------------------------------------------------
 
 def _lid_rotation(mesh: HeadMesh, v: np.ndarray, eye: int, upper: bool, reach_rows: int = 7):
-    """Per-vertex rotation angles (about the eye's x axis) that carry a lid onto the other rim.
+    """Displacement that swings a lid about the eye's x axis onto the opposite rim.
 
-    Returns the displacement of rotating each lid vertex by its angle; the rim itself is
-    moved exactly onto the opposite rim so the eye closes at a coefficient of 1.
+    Each lid column turns by the angle between its two rim vertices, fading over
+    ``reach_rows`` rows away from the rim; the rim itself lands exactly on the other
+    rim, so the eye is closed at a coefficient of 1 (``upper``: the upper lid moves).
     """
     sign = 1.0 if eye == 0 else -1.0
     centre = EYE_CENTRE * np.array([sign, 1.0, 1.0])
@@ -140,9 +144,9 @@ def _lid_rotation(mesh: HeadMesh, v: np.ndarray, eye: int, upper: bool, reach_ro
     falloff = (1.0 - distance[ids] / reach_rows) ** 1.5
     angle = gap[col[ids] - c0] * falloff * (1.0 if upper else -1.0)
     q = v[ids] - centre
-    turn = angle  # a positive turn about +x lowers a point in front of the centre
-    rotated = np.stack([q[:, 0], q[:, 1] * np.cos(turn) - q[:, 2] * np.sin(turn),
-                        q[:, 1] * np.sin(turn) + q[:, 2] * np.cos(turn)], axis=1)
+    # A positive turn about +x lowers a point in front of the centre.
+    rotated = np.stack([q[:, 0], q[:, 1] * np.cos(angle) - q[:, 2] * np.sin(angle),
+                        q[:, 1] * np.sin(angle) + q[:, 2] * np.cos(angle)], axis=1)
     displacement[ids] = rotated - q
     # Rims meet exactly; corners are shared and do not move.
     rim_from, rim_to = (upper_rim, lower_rim) if upper else (lower_rim, upper_rim)
@@ -188,8 +192,8 @@ def expression_components(mesh: HeadMesh, v: np.ndarray) -> np.ndarray:
     comps = [
         smile(1.0),  # smile_left (+x is the subject's left)
         smile(-1.0),  # smile_right
-        np.stack([-0.35 * x * lips, zero_like(x), 0.006 * lips * (0.4 + 0.6 * near_seam)], 1),  # lip_pucker
-        np.stack([zero_like(x), -0.25 * (y - MOUTH_CENTRE[1]) * lips, -0.0025 * lips * near_seam], 1),  # lip_press
+        np.stack([-0.35 * x * lips, np.zeros_like(x), 0.006 * lips * (0.4 + 0.6 * near_seam)], 1),  # lip_pucker
+        np.stack([np.zeros_like(x), -0.25 * (y - MOUTH_CENTRE[1]) * lips, -0.0025 * lips * near_seam], 1),  # lip_press
         np.stack([-0.15 * x * lips, 0.0025 * across * near_seam * (upper - lower) * lips,
                   0.004 * lips], 1),  # lip_funnel
         np.stack([0.005 * sx * (corner(1) + corner(-1)), -0.002 * (corner(1) + corner(-1)) - 0.0015 * lower_lip,
@@ -218,6 +222,3 @@ def expression_components(mesh: HeadMesh, v: np.ndarray) -> np.ndarray:
     dirs[np.isin(mesh.part, (2, 3, 5, 6))] = 0.0  # eyeballs and ears
     return dirs
 
-
-def zero_like(x):
-    return np.zeros_like(x)

@@ -94,8 +94,12 @@ def build_ear(sign: float, first_id: int, first_uv: int, uv_box):
     front_uv = [disc_uv(u0 + 0.5 * half, 0.0, 0.0)] + [disc_uv(u0 + 0.5 * half, r, a) for r, a in zip(rho, ang)]
     back_uv = [disc_uv(u0 + 1.5 * half, 0.0, 0.0)] + [disc_uv(u0 + 1.5 * half, r, a) for r, a in zip(rho, ang)]
     uv = np.array(front_uv + back_uv)
-    fu = lambda r, s: first_uv + (0 if r < 0 else 1 + r * seg + s % seg)  # noqa: E731
-    bu = lambda r, s: first_uv + len(front_uv) + (0 if r < 0 else 1 + r * seg + s % seg)  # noqa: E731
+
+    def fu(r, s):  # front-disc UV id; ring −1 is the centre
+        return first_uv + (0 if r < 0 else 1 + r * seg + s % seg)
+
+    def bu(r, s):
+        return fu(r, s) + len(front_uv)
 
     for s in range(seg):
         faces.append(tri(f_centre, f_id(0, s + 1), f_id(0, s)))
