@@ -150,14 +150,17 @@ def target_image(capture: Capture, frame: Frame, background, capture_background=
     return (rgb * mask[..., None] + bg * (1.0 - mask[..., None])).astype(np.float32)
 
 
-def render_frame(avatar, params: dict[str, np.ndarray], camera, background) -> tuple[np.ndarray, np.ndarray]:
-    """``(rgb (H,W,3), alpha (H,W))`` of the avatar posed by ``params``, as numpy float32."""
+def render_frame(avatar, params: dict[str, np.ndarray], camera, background, clamp: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """``(rgb (H,W,3), alpha (H,W))`` of the avatar posed by ``params``, as numpy float32.
+
+    ``clamp=False`` keeps colours outside [0, 1] (SH can overshoot) for compositing later.
+    """
     from ..avatar.avatar import flame_params_to_torch
 
     with torch.no_grad():
         out = avatar.render(flame_params_to_torch(params), camera, background)
-    rgb = out.rgb.clamp(0.0, 1.0).numpy().astype(np.float32)
-    return rgb, out.alpha.clamp(0.0, 1.0).numpy().astype(np.float32)
+    rgb = out.rgb.clamp(0.0, 1.0) if clamp else out.rgb
+    return rgb.numpy().astype(np.float32), out.alpha.clamp(0.0, 1.0).numpy().astype(np.float32)
 
 
 def run_protocol(

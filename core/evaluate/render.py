@@ -67,7 +67,7 @@ def render_run(
         else:
             params = source.params_for(timestep)
         for camera_id in cameras:
-            rgb_black, alpha = render_frame(avatar, params, cap.cameras[camera_id], (0.0, 0.0, 0.0))
+            rgb_black, alpha = render_frame(avatar, params, cap.cameras[camera_id], (0.0, 0.0, 0.0), clamp=False)
             stem = f"{timestep:05d}_{camera_id}"
             write_png(out / f"{stem}.png", np.clip(rgb_black + (1.0 - alpha[..., None]) * background, 0.0, 1.0))
             written.append(out / f"{stem}.png")
