@@ -1,15 +1,59 @@
-"""What the extension registers with Blender, in order; unregistered in reverse."""
+"""What the extension registers with Blender, in order; unregistered in reverse.
 
-import bpy  # noqa: F401  (this module is only imported by Blender's register())
+Besides the classes: the ``Scene.mogaface`` settings and the ``frame_change_post`` handler
+that re-poses heads. :func:`unregister` removes every one of them.
+"""
 
-CLASSES: list = []
+import bpy
+
+from ..operators.head_rig import update_heads_on_frame_change
+from ..operators.import_capture import MOGAFACE_OT_import_capture, MOGAFACE_OT_use_capture_camera
+from ..operators.import_head import MOGAFACE_OT_import_head
+from ..operators.import_tracking import MOGAFACE_OT_import_tracking
+from . import panels
+from .preferences import MoGaFacePreferences
+from .properties import MoGaFaceSceneSettings
+
+CLASSES: list = [
+    MoGaFaceSceneSettings,
+    MoGaFacePreferences,
+    MOGAFACE_OT_import_capture,
+    MOGAFACE_OT_use_capture_camera,
+    MOGAFACE_OT_import_head,
+    MOGAFACE_OT_import_tracking,
+    panels.MOGAFACE_PT_main,
+    panels.MOGAFACE_PT_capture,
+    panels.MOGAFACE_PT_head,
+    panels.MOGAFACE_PT_training,
+    panels.MOGAFACE_PT_avatar,
+    panels.MOGAFACE_PT_reenactment,
+]
+
+HANDLERS = (
+    (bpy.app.handlers.frame_change_post, update_heads_on_frame_change),
+)
 
 
 def register():
     for cls in CLASSES:
         bpy.utils.register_class(cls)
+    bpy.types.Scene.mogaface = bpy.props.PointerProperty(type=MoGaFaceSceneSettings)
+    for handlers, function in HANDLERS:
+        if function not in handlers:
+            handlers.append(function)
+
+
+def _same_function(a, b) -> bool:
+    """Equal, or the same function of a reloaded copy of this module (add-on reload)."""
+    return a is b or (getattr(a, "__qualname__", None) == b.__qualname__ and getattr(a, "__module__", None) == b.__module__)
 
 
 def unregister():
+    for handlers, function in HANDLERS:
+        for registered in [h for h in handlers if _same_function(h, function)]:
+            handlers.remove(registered)
+    if hasattr(bpy.types.Scene, "mogaface"):
+        del bpy.types.Scene.mogaface
     for cls in reversed(CLASSES):
-        bpy.utils.unregister_class(cls)
+        if getattr(cls, "is_registered", False):
+            bpy.utils.unregister_class(cls)

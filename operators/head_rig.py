@@ -1,0 +1,95 @@
+"""Head objects in Blender: finding them, reading their rig, and re-posing them on frame change.
+
+A head object keeps its model file, identity and pose as custom properties (names in
+:mod:`..core.scene_conversion`), one shape key per expression component and a last shape key,
+"MoGaFace pose", that the ``frame_change_post`` handler rewrites from the core's FLAME
+evaluation. The mesh then shows exactly what the core computes for the current expression
+values and pose properties, while the expression sliders stay ordinary shape keys.
+"""
+
+from __future__ import annotations
+
+import bpy
+import numpy as np
+
+from .dependencies import missing_modules
+
+MODEL_PATH_PROPERTY = "mogaface_model_path"  # same value as core.scene_conversion's constant
+POSE_KEY_NAME = "MoGaFace pose"
+
+
+def is_head(obj) -> bool:
+    """Whether ``obj`` is a MoGaFace head (a mesh with a model path and its shape keys)."""
+    return (
+        obj is not None
+        and obj.type == "MESH"
+        and MODEL_PATH_PROPERTY in obj
+        and obj.data.shape_keys is not None
+        and POSE_KEY_NAME in obj.data.shape_keys.key_blocks
+    )
+
+
+def head_objects(scene) -> list:
+    return [obj for obj in scene.objects if is_head(obj)]
+
+
+def rig_of(obj):
+    """The core :class:`HeadRig` of a head object (model loaded once per file)."""
+    from ..core import scene_conversion as sc
+
+    model = sc.load_head_model(obj[MODEL_PATH_PROPERTY])
+    shape = np.asarray(obj.get(sc.SHAPE_PROPERTY, []), np.float64)
+    offset = obj.get(sc.STATIC_OFFSET_PROPERTY)
+    if offset is not None:
+        offset = np.asarray(offset, np.float64).reshape(-1, 3)
+    return sc.HeadRig(model, shape, offset)
+
+
+def expression_values(obj, n_expr: int) -> np.ndarray:
+    """The current values of the expression shape keys (key blocks 1…n_expr, in model order)."""
+    blocks = obj.data.shape_keys.key_blocks
+    values = np.zeros(len(blocks), np.float32)
+    blocks.foreach_get("value", values)
+    return values[1 : 1 + n_expr].astype(np.float64)
+
+
+def pose_values(obj) -> dict:
+    """The pose custom properties as FLAME parameters."""
+    from ..core.scene_conversion import POSE_PROPERTIES
+
+    return {name: np.asarray(obj.get(prop, [0.0] * size), np.float64) for name, (prop, size) in POSE_PROPERTIES.items()}
+
+
+def update_head(obj) -> None:
+    """Rewrite the pose shape key of one head for its current expression values and pose."""
+    rig = rig_of(obj)
+    co = rig.pose_key(expression_values(obj, rig.model.n_expr), pose_values(obj))
+    key = obj.data.shape_keys
+    key.key_blocks[POSE_KEY_NAME].data.foreach_set("co", co.astype(np.float32).reshape(-1))
+    key.update_tag()
+    obj.data.update_tag()
+
+
+_reported: set = set()
+
+
+@bpy.app.handlers.persistent
+def update_heads_on_frame_change(scene, depsgraph=None):
+    """``frame_change_post`` handler: re-pose every head of the scene. Never raises.
+
+    A head that cannot be evaluated (missing model file, missing packages) keeps its last
+    pose; the problem is printed once per object and message.
+    """
+    heads = head_objects(scene)
+    if not heads or missing_modules():
+        return
+    from ..core.errors import MogafaceError
+
+    for obj in heads:
+        try:
+            update_head(obj)
+        except (MogafaceError, OSError, ValueError, KeyError) as error:
+            message = f"MoGaFace: cannot pose {obj.name!r}: {error}"
+            if message not in _reported:
+                _reported.add(message)
+                print(message)

@@ -1,0 +1,130 @@
+"""``mogaface.import_capture``: a capture folder's cameras, first-view images and timeline."""
+
+from __future__ import annotations
+
+import os
+
+import bpy
+from bpy.props import StringProperty
+from mathutils import Matrix
+
+from .common import core_or_report, run_core
+
+COLLECTION_NAME = "MoGaFace Capture"
+
+
+def ensure_collection(scene, name: str):
+    """The collection ``name`` linked under the scene's root, created if missing."""
+    collection = bpy.data.collections.get(name)
+    if collection is None:
+        collection = bpy.data.collections.new(name)
+    if collection.name not in scene.collection.children:
+        scene.collection.children.link(collection)
+    return collection
+
+
+def apply_render_settings(scene, camera_object) -> bool:
+    """Make the scene's resolution and pixel aspect those of a capture camera; False if not one.
+
+    Blender keeps resolution and pixel aspect per scene, not per camera, so each capture
+    camera remembers its own and this puts them back when it becomes the active camera.
+    """
+    size = camera_object.get("mogaface_resolution")
+    aspect = camera_object.get("mogaface_pixel_aspect")
+    if camera_object.type != "CAMERA" or size is None or aspect is None:
+        return False
+    render = scene.render
+    render.resolution_x, render.resolution_y = int(size[0]), int(size[1])
+    render.resolution_percentage = 100
+    render.pixel_aspect_x, render.pixel_aspect_y = float(aspect[0]), float(aspect[1])
+    scene.camera = camera_object
+    return True
+
+
+def _load_image(path):
+    if path is None or not os.path.isfile(path):
+        return None
+    try:
+        return bpy.data.images.load(path, check_existing=True)
+    except RuntimeError:
+        return None
+
+
+def build_camera(settings, collection):
+    """One Blender camera object from core ``BlenderCamera`` settings."""
+    data = bpy.data.cameras.new(settings.name)
+    data.type = "PERSP"
+    data.sensor_fit = settings.sensor_fit
+    data.sensor_width = settings.sensor_width
+    data.lens = settings.lens
+    data.shift_x = settings.shift_x
+    data.shift_y = settings.shift_y
+    data.clip_start = 0.01
+    data.clip_end = 1000.0
+    image = _load_image(settings.image_path)
+    if image is not None:
+        background = data.background_images.new()
+        background.image = image
+        background.frame_method = "STRETCH"
+        background.alpha = 1.0
+        data.show_background_images = True
+    obj = bpy.data.objects.new(settings.name, data)
+    obj.matrix_world = Matrix(settings.matrix_world.tolist())
+    obj["mogaface_camera_id"] = settings.camera_id
+    obj["mogaface_resolution"] = list(settings.resolution)
+    obj["mogaface_pixel_aspect"] = list(settings.pixel_aspect)
+    collection.objects.link(obj)
+    return obj
+
+
+class MOGAFACE_OT_import_capture(bpy.types.Operator):
+    """Import a capture's cameras (exact intrinsics and poses), first-view images and timeline"""
+
+    bl_idname = "mogaface.import_capture"
+    bl_label = "Import Capture"
+    bl_options = {"REGISTER", "UNDO"}
+
+    filepath: StringProperty(name="Capture Folder", subtype="DIR_PATH", description="Folder with transforms_train.json")
+
+    def invoke(self, context, event):
+        if self.filepath:
+            return self.execute(context)
+        context.window_manager.fileselect_add(self)
+        return {"RUNNING_MODAL"}
+
+    def execute(self, context):
+        core = core_or_report(self, context)
+        if core is None:
+            return {"CANCELLED"}
+        folder = bpy.path.abspath(self.filepath)
+        description = run_core(self, core.capture_scene, folder)
+        if description is None:
+            return {"CANCELLED"}
+        scene = context.scene
+        collection = ensure_collection(scene, COLLECTION_NAME)
+        cameras = [build_camera(settings, collection) for settings in description.cameras]
+        if cameras:
+            apply_render_settings(scene, cameras[0])
+        scene.frame_start = description.frame_start
+        scene.frame_end = description.frame_end
+        scene.frame_set(description.frame_start)
+        scene.mogaface.capture_folder = description.root
+        self.report({"INFO"}, f"Imported {len(cameras)} cameras, {description.n_timesteps} timesteps")
+        return {"FINISHED"}
+
+
+class MOGAFACE_OT_use_capture_camera(bpy.types.Operator):
+    """Make the active capture camera the scene camera, with its own resolution and pixel aspect"""
+
+    bl_idname = "mogaface.use_capture_camera"
+    bl_label = "Use Capture Camera"
+    bl_options = {"REGISTER", "UNDO"}
+
+    @classmethod
+    def poll(cls, context):
+        obj = context.active_object
+        return obj is not None and obj.type == "CAMERA" and "mogaface_resolution" in obj
+
+    def execute(self, context):
+        apply_render_settings(context.scene, context.active_object)
+        return {"FINISHED"}

@@ -1,0 +1,116 @@
+"""``mogaface.import_head``: a FLAME-format head as a mesh with expression shape keys and a pose rig."""
+
+from __future__ import annotations
+
+import bpy
+import numpy as np
+from bpy.props import StringProperty
+
+from .common import core_or_report, run_core
+from .head_rig import MODEL_PATH_PROPERTY, POSE_KEY_NAME
+
+
+def build_mesh(name: str, head):
+    """A mesh with the model's vertices and triangles in their order, and its UVs if any."""
+    mesh = bpy.data.meshes.new(name)
+    n_faces = len(head.faces)
+    mesh.vertices.add(len(head.basis))
+    mesh.vertices.foreach_set("co", head.basis.astype(np.float32).reshape(-1))
+    mesh.loops.add(3 * n_faces)
+    mesh.loops.foreach_set("vertex_index", head.faces.astype(np.int32).reshape(-1))
+    mesh.polygons.add(n_faces)
+    mesh.polygons.foreach_set("loop_start", np.arange(0, 3 * n_faces, 3, dtype=np.int32))
+    mesh.update(calc_edges=True)
+    if head.loop_uvs is not None:
+        layer = mesh.uv_layers.new(name="UVMap")
+        layer.data.foreach_set("uv", head.loop_uvs.astype(np.float32).reshape(-1))
+    return mesh
+
+
+def build_material(name: str, head):
+    """A material whose base colour is the model's texture (packed into the .blend)."""
+    width, height = head.texture_size
+    image = bpy.data.images.new(f"{name} texture", width, height, alpha=False)
+    image.pixels.foreach_set(head.texture_pixels)
+    image.pack()
+    material = bpy.data.materials.new(name)
+    if material.node_tree is None:  # Blender < 5: materials start without nodes
+        material.use_nodes = True
+    nodes = material.node_tree.nodes
+    shader = next((n for n in nodes if n.type == "BSDF_PRINCIPLED"), None) or nodes.new("ShaderNodeBsdfPrincipled")
+    texture = nodes.new("ShaderNodeTexImage")
+    texture.image = image
+    texture.location = (shader.location.x - 300, shader.location.y)
+    material.node_tree.links.new(texture.outputs["Color"], shader.inputs["Base Color"])
+    return material
+
+
+def add_pose_properties(obj, core) -> None:
+    """The pose as animatable custom vectors on the object (FLAME axis-angle, translation in m)."""
+    for name, (prop, size) in core.POSE_PROPERTIES.items():
+        obj[prop] = [0.0] * size
+        unit = "metres" if name == "translation" else "axis-angle, radians, FLAME axes"
+        obj.id_properties_ui(prop).update(description=f"FLAME {name} ({unit})", soft_min=-3.0, soft_max=3.0)
+
+
+def build_head(context, head, core):
+    """The head object: mesh, material, shape keys (basis, expressions, pose) and properties."""
+    mesh = build_mesh(head.name, head)
+    if head.texture_pixels is not None:
+        mesh.materials.append(build_material(head.name, head))
+    obj = bpy.data.objects.new(head.name, mesh)
+    context.collection.objects.link(obj)
+    obj.shape_key_add(name="Basis", from_mix=False)
+    for name, co in zip(head.expression_names, head.expression_keys):
+        block = obj.shape_key_add(name=name, from_mix=False)
+        block.slider_min = -core.EXPRESSION_SLIDER_RANGE
+        block.slider_max = core.EXPRESSION_SLIDER_RANGE
+        block.data.foreach_set("co", co.astype(np.float32).reshape(-1))
+    pose = obj.shape_key_add(name=POSE_KEY_NAME, from_mix=False)
+    pose.data.foreach_set("co", head.pose_key.astype(np.float32).reshape(-1))
+    pose.value = 1.0
+    obj[MODEL_PATH_PROPERTY] = head.model_path
+    obj[core.SHAPE_PROPERTY] = head.rig.shape.tolist()
+    if head.rig.static_offset is not None:
+        obj[core.STATIC_OFFSET_PROPERTY] = head.rig.static_offset.reshape(-1).tolist()
+    add_pose_properties(obj, core)
+    for other in context.view_layer.objects:
+        other.select_set(False)
+    obj.select_set(True)
+    context.view_layer.objects.active = obj
+    return obj
+
+
+class MOGAFACE_OT_import_head(bpy.types.Operator):
+    """Import a FLAME-format head (.pkl/.npz) with one shape key per expression and a pose rig"""
+
+    bl_idname = "mogaface.import_head"
+    bl_label = "Import Head"
+    bl_options = {"REGISTER", "UNDO"}
+
+    filepath: StringProperty(name="Head File", subtype="FILE_PATH", description="FLAME-format model (.pkl or .npz)")
+    filter_glob: StringProperty(default="*.pkl;*.npz", options={"HIDDEN"})
+    shape_file: StringProperty(
+        name="Identity File",
+        subtype="FILE_PATH",
+        description="Optional flame_param .npz whose shape (and static offset) sets the identity",
+    )
+
+    def invoke(self, context, event):
+        if self.filepath:
+            return self.execute(context)
+        context.window_manager.fileselect_add(self)
+        return {"RUNNING_MODAL"}
+
+    def execute(self, context):
+        core = core_or_report(self, context)
+        if core is None:
+            return {"CANCELLED"}
+        shape_file = bpy.path.abspath(self.shape_file) if self.shape_file else None
+        head = run_core(self, core.head_import, bpy.path.abspath(self.filepath), shape_file)
+        if head is None:
+            return {"CANCELLED"}
+        obj = build_head(context, head, core)
+        context.scene.mogaface.head_file = head.model_path
+        self.report({"INFO"}, f"Imported {obj.name}: {len(head.basis)} vertices, {len(head.expression_names)} expressions")
+        return {"FINISHED"}

@@ -1,0 +1,65 @@
+"""``mogaface.import_tracking``: tracked FLAME parameters as keyframes on a head.
+
+Keys the expression shape keys and the pose properties, never the identity, so importing
+subject B's tracking onto subject A's head is cross-identity reenactment.
+"""
+
+from __future__ import annotations
+
+import bpy
+from bpy.props import StringProperty
+
+from .animation import fcurve_container, write_fcurve
+from .common import core_or_report, run_core
+from .head_rig import is_head, update_head
+
+
+class MOGAFACE_OT_import_tracking(bpy.types.Operator):
+    """Keyframe a head's expressions and pose from a flame_param folder, one key per timestep"""
+
+    bl_idname = "mogaface.import_tracking"
+    bl_label = "Import Tracking"
+    bl_options = {"REGISTER", "UNDO"}
+
+    directory: StringProperty(name="Tracking Folder", subtype="DIR_PATH", description="A flame_param folder of .npz files")
+    target: StringProperty(name="Head", description="Head object to animate (empty: the active object)")
+
+    def _target(self, context):
+        return bpy.data.objects.get(self.target) if self.target else context.active_object
+
+    def invoke(self, context, event):
+        if self.directory:
+            return self.execute(context)
+        context.window_manager.fileselect_add(self)
+        return {"RUNNING_MODAL"}
+
+    def execute(self, context):
+        obj = self._target(context)
+        if not is_head(obj):
+            name = self.target or getattr(obj, "name", "nothing")
+            self.report({"ERROR"}, f"{name} is not a MoGaFace head: import one with Import Head first")
+            return {"CANCELLED"}
+        core = core_or_report(self, context)
+        if core is None:
+            return {"CANCELLED"}
+        key = obj.data.shape_keys
+        n_expr = len(key.key_blocks) - 2  # Basis and the pose key around the expressions
+        channels = run_core(self, core.tracking_channels, bpy.path.abspath(self.directory), n_expr)
+        if channels is None:
+            return {"CANCELLED"}
+        container = fcurve_container(obj, f"{obj.name} MoGaFace pose")
+        for prop, columns in channels.pose.items():
+            for index, co in enumerate(columns):
+                write_fcurve(container, f'["{prop}"]', index, co, group="MoGaFace pose")
+        container = fcurve_container(key, f"{obj.name} MoGaFace expressions")
+        for block, co in zip(key.key_blocks[1 : 1 + n_expr], channels.expressions):
+            write_fcurve(container, block.path_from_id("value"), 0, co, group="MoGaFace expressions")
+        scene = context.scene
+        scene.frame_start, scene.frame_end = int(channels.frames.min()), int(channels.frames.max())
+        scene.frame_set(scene.frame_current)  # the frame handler re-poses the head
+        run_core(self, update_head, obj)
+        scene.mogaface.tracking_folder = bpy.path.abspath(self.directory)
+        if channels.note:
+            self.report({"WARNING"}, channels.note)
+        self.report({"INFO"}, f"Keyed {len(channels.frames)} timesteps on {obj.name}")
+        return {"FINISHED"}

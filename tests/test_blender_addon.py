@@ -1,0 +1,271 @@
+"""The extension in the real Blender (bpy module): build, install, operators, handler, save, disable.
+
+Blender's user folders point to a temporary folder before ``bpy`` is imported, so nothing
+touches a real user configuration. The scenario runs once per module (install, import a
+capture, a head and another subject's tracking); the tests then check its parts, and the last
+one disables the extension.
+"""
+
+import importlib
+import importlib.util
+import os
+import pathlib
+import subprocess
+import sys
+import tempfile
+
+_USER_DIR = tempfile.mkdtemp(prefix="mogaface-blender-user-")
+_USER_VARS = ("BLENDER_USER_RESOURCES", "BLENDER_USER_CONFIG", "BLENDER_USER_SCRIPTS")
+if "bpy" in sys.modules:  # imported before us: only safe if it already used a temporary folder
+    assert all(os.environ.get(v, "").startswith(tempfile.gettempdir()) for v in _USER_VARS), "bpy uses real user folders"
+else:
+    for _name in _USER_VARS:
+        os.environ[_name] = _USER_DIR
+
+import bpy  # noqa: E402
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+import torch  # noqa: E402
+from bpy_extras.object_utils import world_to_camera_view  # noqa: E402
+from mathutils import Vector  # noqa: E402
+
+from conftest import make_toy_model  # noqa: E402
+from mogaface.core import scene_conversion as sc  # noqa: E402
+from mogaface.core.camera import Camera  # noqa: E402
+from mogaface.core.data.capture import Capture  # noqa: E402
+from mogaface.core.data.writer import CaptureWriter  # noqa: E402
+from mogaface.core.flame.model import FlameModel  # noqa: E402
+from mogaface.core.flame.model_file import write_model_file  # noqa: E402
+from mogaface.core.io.npz import save_npz  # noqa: E402
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+MODULE = "bl_ext.user_default.mogaface"
+CLASS_NAMES = (
+    "MOGAFACE_OT_import_capture", "MOGAFACE_OT_use_capture_camera", "MOGAFACE_OT_import_head",
+    "MOGAFACE_OT_import_tracking", "MOGAFACE_PT_main", "MOGAFACE_PT_capture", "MOGAFACE_PT_head",
+    "MOGAFACE_PT_training", "MOGAFACE_PT_avatar", "MOGAFACE_PT_reenactment",
+)
+N_EXPR_A, N_EXPR_B = 3, 5
+
+
+def blender_ext_tool():
+    spec = importlib.util.find_spec("bpy")
+    return pathlib.Path(spec.origin).parent / "5.0/scripts/addons_core/bl_pkg/cli/blender_ext.py"
+
+
+def random_params(rng, n_shape, n_expr, scale=0.3):
+    params = {"shape": rng.normal(size=n_shape), "expr": rng.normal(size=n_expr)}
+    params.update({k: rng.normal(scale=scale * 0.3, size=size) for k, (_, size) in sc.POSE_PROPERTIES.items()})
+    return params
+
+
+def write_fixtures(root: pathlib.Path) -> dict:
+    """A textured toy head (subject A), a 3-camera capture of it, and subject B's tracking."""
+    rng = np.random.default_rng(0)
+    model = make_toy_model(n_vertices=60, n_shape=4, n_expr=N_EXPR_A)
+    faces = model["f"]
+    model.update(
+        vt=rng.random((30, 2)),
+        ft=rng.integers(0, 30, size=faces.shape).astype(np.int64),
+        texture=rng.integers(0, 256, size=(8, 16, 3)).astype(np.uint8),
+        expression_names=np.array(["smile", "jaw_drop", "brow_up"]),
+    )
+    head = root / "head_a.npz"
+    write_model_file(head, model)
+    capture = root / "capture_a"
+    cameras = [
+        Camera.look_at([0.2, 0.1, 1.0], [0, 0, 0], width=40, height=30, fx=50.0, fy=55.0, cx=18.3, cy=16.9, camera_id="c0"),
+        Camera.look_at([-0.6, 0.0, 0.8], [0, 0, 0], width=40, height=30, fx=48.0, fy=48.0, cx=21.0, cy=14.0, camera_id="c1"),
+        Camera.look_at([0.0, 0.7, 0.7], [0, 0, 0], width=40, height=30, fx=60.0, fy=52.0, cx=20.0, cy=15.0, camera_id="c2"),
+    ]
+    with CaptureWriter(capture) as writer:
+        for t in range(3):
+            writer.write_flame_params(t, random_params(rng, 4, N_EXPR_A))
+            for camera in cameras:
+                writer.add_frame(t, camera, rng.random((30, 40, 3)), np.ones((30, 40)), split="train")
+    identity = capture / "flame_param" / "00000.npz"
+    tracking = root / "subject_b" / "flame_param"
+    tracking.mkdir(parents=True)
+    rows = []
+    for t in range(4):
+        row = random_params(rng, 7, N_EXPR_B)
+        save_npz(tracking / f"{t:05d}.npz", {k: (v if k == "shape" else v[None]) for k, v in row.items()})
+        rows.append(row)
+    return {"head": head, "capture": capture, "identity": identity, "tracking": tracking, "rows": rows}
+
+
+def build_and_install(out: pathlib.Path) -> pathlib.Path:
+    out.mkdir()
+    result = subprocess.run(
+        [sys.executable, str(blender_ext_tool()), "build", "--source-dir", str(ROOT), "--output-dir", str(out)],
+        capture_output=True, text=True, timeout=120,
+    )
+    assert result.returncode == 0, result.stdout + result.stderr
+    (archive,) = out.glob("mogaface-*.zip")
+    bpy.ops.extensions.package_install_files(filepath=str(archive), repo="user_default", enable_on_install=True)
+    return archive
+
+
+@pytest.fixture(scope="module")
+def scenario(tmp_path_factory):
+    root = tmp_path_factory.mktemp("blender")
+    data = write_fixtures(root)
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    build_and_install(root / "dist")
+    data["addon"] = importlib.import_module(MODULE)
+    assert bpy.ops.mogaface.import_capture(filepath=str(data["capture"])) == {"FINISHED"}
+    assert bpy.ops.mogaface.import_head(filepath=str(data["head"]), shape_file=str(data["identity"])) == {"FINISHED"}
+    data["head_object"] = bpy.context.active_object
+    assert bpy.ops.mogaface.import_tracking(directory=str(data["tracking"])) == {"FINISHED"}
+    data["root"] = root
+    return data
+
+
+def evaluated_vertices(obj) -> np.ndarray:
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    mesh = obj.evaluated_get(depsgraph).data
+    co = np.zeros(len(mesh.vertices) * 3, np.float32)
+    mesh.vertices.foreach_get("co", co)
+    return co.reshape(-1, 3).astype(np.float64)
+
+
+def core_vertices(data, t: int) -> np.ndarray:
+    """Subject A's head (identity from the capture) with subject B's expression and pose at timestep t."""
+    model = FlameModel.load(data["head"], dtype=torch.float64)
+    identity = np.load(data["identity"])["shape"].reshape(1, -1)
+    row = data["rows"][t]
+    params = {k: torch.as_tensor(np.asarray(v, np.float64).reshape(1, -1)) for k, v in row.items() if k != "shape"}
+    params["expr"] = params["expr"][:, :N_EXPR_A]
+    params["shape"] = torch.as_tensor(identity, dtype=torch.float64)
+    with torch.no_grad():
+        return model(**params)[0].numpy()
+
+
+def test_installing_registers_the_operators_panels_settings_and_handler(scenario):
+    for name in CLASS_NAMES:
+        assert hasattr(bpy.types, name), name
+    classes = importlib.import_module(MODULE + ".mogaface_addon.registration").CLASSES
+    assert {c.__name__ for c in classes} == {*CLASS_NAMES, "MoGaFaceSceneSettings", "MoGaFacePreferences"}
+    assert all(c.is_registered for c in classes)
+    assert hasattr(bpy.types.Scene, "mogaface")
+    assert any(h.__name__ == "update_heads_on_frame_change" for h in bpy.app.handlers.frame_change_post)
+    prefs = bpy.context.preferences.addons[MODULE].preferences
+    assert prefs.python_path == sys.executable and prefs.threads == 0
+    assert bpy.types.MOGAFACE_PT_main.bl_category == "MoGaFace"
+
+
+def test_imported_cameras_project_the_head_like_the_core(scenario):
+    bpy.context.scene.frame_set(2)
+    head = evaluated_vertices(scenario["head_object"])
+    flame_points = sc.blender_to_flame(head)
+    capture = Capture.open(scenario["capture"])
+    collection = bpy.data.collections["MoGaFace Capture"]
+    cameras = {obj["mogaface_camera_id"]: obj for obj in collection.objects}
+    assert sorted(cameras) == ["c0", "c1", "c2"]
+    use_camera = importlib.import_module(MODULE + ".operators.import_capture").apply_render_settings
+    scene = bpy.context.scene
+    for camera_id, camera in capture.cameras.items():
+        obj = cameras[camera_id]
+        assert use_camera(scene, obj)
+        expected, depth = camera.project(flame_points)
+        assert (depth > 0).all()
+        got = []
+        for point in head:
+            ndc = world_to_camera_view(scene, obj, Vector(point))
+            got.append((ndc.x * camera.width, (1.0 - ndc.y) * camera.height))
+        assert np.abs(np.array(got) - expected).max() < 0.5 * 1e-2, camera_id
+        background = obj.data.background_images[0].image
+        assert pathlib.Path(bpy.path.abspath(background.filepath)).name == f"00000_{int(camera_id[1:]):02d}.png"
+
+
+def test_timeline_covers_the_tracked_timesteps(scenario):
+    scene = bpy.context.scene
+    assert (scene.frame_start, scene.frame_end) == (1, 4)  # timestep t on frame t + 1
+    assert scene.mogaface.capture_folder.rstrip("/") == str(scenario["capture"])
+
+
+def test_head_has_the_model_triangles_uvs_texture_and_shape_keys(scenario):
+    obj = scenario["head_object"]
+    model = FlameModel.load(scenario["head"])
+    faces = np.zeros(len(obj.data.polygons) * 3, np.int32)
+    obj.data.polygons.foreach_get("vertices", faces)
+    assert np.array_equal(faces.reshape(-1, 3), model.arrays.faces)
+    assert obj.data.uv_layers and obj.data.materials[0].node_tree.nodes.get("Image Texture").image.packed_file
+    blocks = obj.data.shape_keys.key_blocks
+    assert [b.name for b in blocks] == ["Basis", "smile", "jaw_drop", "brow_up", "MoGaFace pose"]
+    assert all(b.slider_min == -10 and b.slider_max == 10 for b in blocks[1:4])
+    for prop, size in (("mogaface_rotation", 3), ("mogaface_eyes_pose", 6), ("mogaface_translation", 3)):
+        assert len(obj[prop]) == size
+
+
+def test_keyframes_evaluate_to_the_imported_values(scenario):
+    obj = scenario["head_object"]
+    rows = scenario["rows"]
+    bag = obj.animation_data.action.layers[0].strips[0].channelbag(obj.animation_data.action_slot)
+    for name, (prop, size) in sc.POSE_PROPERTIES.items():
+        for index in range(size):
+            curve = bag.fcurves.find(f'["{prop}"]', index=index)
+            values = [curve.evaluate(t + 1) for t in range(len(rows))]
+            assert np.allclose(values, [r[name][index] for r in rows], atol=1e-6), (prop, index)
+    key = obj.data.shape_keys
+    bag = key.animation_data.action.layers[0].strips[0].channelbag(key.animation_data.action_slot)
+    for k, block in enumerate(key.key_blocks[1:4]):
+        curve = bag.fcurves.find(block.path_from_id("value"))
+        assert np.allclose([curve.evaluate(t + 1) for t in range(len(rows))], [r["expr"][k] for r in rows], atol=1e-6)
+
+
+@pytest.mark.parametrize("t", [0, 2, 3])
+def test_handler_posed_mesh_equals_the_core_flame_evaluation(scenario, t):
+    bpy.context.scene.frame_set(t + 1)
+    got = evaluated_vertices(scenario["head_object"])
+    expected = sc.flame_to_blender(core_vertices(scenario, t))
+    assert np.abs(got - expected).max() < 1e-5
+
+
+def test_operator_errors_are_reports_that_name_the_file(scenario, tmp_path):
+    with pytest.raises(RuntimeError, match="transforms_train.json"):
+        bpy.ops.mogaface.import_capture(filepath=str(tmp_path))
+    with pytest.raises(RuntimeError, match="missing.pkl"):
+        bpy.ops.mogaface.import_head(filepath=str(tmp_path / "missing.pkl"))
+    with pytest.raises(RuntimeError, match="no .npz files"):
+        bpy.ops.mogaface.import_tracking(directory=str(tmp_path), target=scenario["head_object"].name)
+    bpy.data.objects.new("plain", None)
+    with pytest.raises(RuntimeError, match="not a MoGaFace head"):
+        bpy.ops.mogaface.import_tracking(directory=str(scenario["tracking"]), target="plain")
+
+
+def test_missing_packages_are_reported_with_the_pip_command(scenario, monkeypatch):
+    common = importlib.import_module(MODULE + ".operators.common")
+    monkeypatch.setattr(common, "missing_modules", lambda: ["torch"])
+    with pytest.raises(RuntimeError, match=r"Missing Python packages: torch\. .* -m pip install torch"):
+        bpy.ops.mogaface.import_head(filepath=str(scenario["head"]))
+    dependencies = importlib.import_module(MODULE + ".operators.dependencies")
+    assert dependencies.missing_modules(("numpy", "no_such_module_for_mogaface")) == ["no_such_module_for_mogaface"]
+
+
+def test_saved_blend_reopens_with_everything(scenario):
+    path = scenario["root"] / "scene.blend"
+    name = scenario["head_object"].name
+    bpy.ops.wm.save_as_mainfile(filepath=str(path))
+    bpy.ops.wm.open_mainfile(filepath=str(path))
+    obj = bpy.data.objects[name]
+    scenario["head_object"] = obj
+    assert len(bpy.data.collections["MoGaFace Capture"].objects) == 3
+    assert bpy.context.scene.mogaface.capture_folder
+    assert obj.data.shape_keys.animation_data.action and obj.animation_data.action
+    bpy.context.scene.frame_set(3)
+    assert np.abs(evaluated_vertices(obj) - sc.flame_to_blender(core_vertices(scenario, 2))).max() < 1e-5
+
+
+def test_disabling_leaves_nothing_registered(scenario):
+    import addon_utils
+
+    classes = importlib.import_module(MODULE + ".mogaface_addon.registration").CLASSES
+    addon_utils.disable(MODULE, default_set=True)
+    assert MODULE not in bpy.context.preferences.addons
+    assert not any(c.is_registered for c in classes)
+    for name in CLASS_NAMES:
+        assert not hasattr(bpy.types, name), name
+    assert not hasattr(bpy.types.Scene, "mogaface")
+    assert not any(h.__name__ == "update_heads_on_frame_change" for h in bpy.app.handlers.frame_change_post)
+    assert "mogaface" not in dir(bpy.ops)
