@@ -123,3 +123,12 @@ def test_sh_basis_is_orthonormal():
 
 def test_sh_degree():
     assert [sh_degree(k) for k in (1, 4, 9, 16, 2, 25)] == [0, 1, 2, 3, -1, -1]
+
+
+def test_polynomial_exp_is_accurate_where_splats_count():
+    from mogaface.core.splat.raster import _exp_neg
+
+    xs = np.linspace(-4.6, 0.0, 20001).astype(np.float32)
+    approx = np.array([_exp_neg(x) for x in xs], np.float64)
+    rel = np.abs(approx / np.exp(xs.astype(np.float64)) - 1)
+    assert rel.max() < 1e-6
