@@ -1,12 +1,12 @@
 """What the extension registers with Blender, in order; unregistered in reverse.
 
-Besides the classes: the ``Scene.mogaface`` settings and the ``frame_change_post`` handler
-that re-poses heads. :func:`unregister` removes every one of them.
+Besides the classes: the ``Scene.mogaface`` settings and the handlers that re-pose heads
+(``frame_change_post``, ``depsgraph_update_post``). :func:`unregister` removes every one of them.
 """
 
 import bpy
 
-from ..operators.head_rig import update_heads_on_frame_change
+from ..operators.head_rig import update_heads_on_edit, update_heads_on_frame_change
 from ..operators.import_capture import MOGAFACE_OT_import_capture, MOGAFACE_OT_use_capture_camera
 from ..operators.import_head import MOGAFACE_OT_import_head
 from ..operators.import_tracking import MOGAFACE_OT_import_tracking
@@ -31,6 +31,7 @@ CLASSES: list = [
 
 HANDLERS = (
     (bpy.app.handlers.frame_change_post, update_heads_on_frame_change),
+    (bpy.app.handlers.depsgraph_update_post, update_heads_on_edit),
 )
 
 

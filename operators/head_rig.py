@@ -60,17 +60,51 @@ def pose_values(obj) -> dict:
     return {name: np.asarray(obj.get(prop, [0.0] * size), np.float64) for name, (prop, size) in POSE_PROPERTIES.items()}
 
 
-def update_head(obj) -> None:
-    """Rewrite the pose shape key of one head for its current expression values and pose."""
+# The inputs each head was last posed with (by session id), so edits re-pose only what changed.
+_posed_inputs: dict = {}
+
+
+def _inputs(obj, n_expr: int) -> tuple:
+    pose = pose_values(obj)
+    return (obj[MODEL_PATH_PROPERTY], *expression_values(obj, n_expr).tolist(), *np.concatenate(list(pose.values())).tolist())
+
+
+def update_head(obj, only_if_changed: bool = False) -> bool:
+    """Rewrite the pose shape key of one head for its current expression values and pose.
+
+    With ``only_if_changed``, nothing is written when the inputs equal those of the last
+    update; returns whether the key was written.
+    """
     rig = rig_of(obj)
+    inputs = _inputs(obj, rig.model.n_expr)
+    if only_if_changed and _posed_inputs.get(obj.session_uid) == inputs:
+        return False
     co = rig.pose_key(expression_values(obj, rig.model.n_expr), pose_values(obj))
     key = obj.data.shape_keys
     key.key_blocks[POSE_KEY_NAME].data.foreach_set("co", co.astype(np.float32).reshape(-1))
     key.update_tag()
     obj.data.update_tag()
+    _posed_inputs[obj.session_uid] = inputs
+    return True
 
 
 _reported: set = set()
+
+
+def _update_heads(scene, only_if_changed: bool) -> None:
+    heads = head_objects(scene)
+    if not heads or missing_modules():
+        return
+    from ..core.errors import MogafaceError
+
+    for obj in heads:
+        try:
+            update_head(obj, only_if_changed)
+        except (MogafaceError, OSError, ValueError, KeyError) as error:
+            message = f"MoGaFace: cannot pose {obj.name!r}: {error}"
+            if message not in _reported:
+                _reported.add(message)
+                print(message)
 
 
 @bpy.app.handlers.persistent
@@ -80,16 +114,14 @@ def update_heads_on_frame_change(scene, depsgraph=None):
     A head that cannot be evaluated (missing model file, missing packages) keeps its last
     pose; the problem is printed once per object and message.
     """
-    heads = head_objects(scene)
-    if not heads or missing_modules():
-        return
-    from ..core.errors import MogafaceError
+    _update_heads(scene, only_if_changed=False)
 
-    for obj in heads:
-        try:
-            update_head(obj)
-        except (MogafaceError, OSError, ValueError, KeyError) as error:
-            message = f"MoGaFace: cannot pose {obj.name!r}: {error}"
-            if message not in _reported:
-                _reported.add(message)
-                print(message)
+
+@bpy.app.handlers.persistent
+def update_heads_on_edit(scene, depsgraph=None):
+    """``depsgraph_update_post`` handler: re-pose heads whose sliders or pose were edited.
+
+    Compares each head's inputs with those it was last posed with, so its own write (which
+    triggers another depsgraph update) ends the cycle instead of repeating it.
+    """
+    _update_heads(scene, only_if_changed=True)

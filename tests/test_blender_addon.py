@@ -149,6 +149,7 @@ def test_installing_registers_the_operators_panels_settings_and_handler(scenario
     assert all(c.is_registered for c in classes)
     assert hasattr(bpy.types.Scene, "mogaface")
     assert any(h.__name__ == "update_heads_on_frame_change" for h in bpy.app.handlers.frame_change_post)
+    assert any(h.__name__ == "update_heads_on_edit" for h in bpy.app.handlers.depsgraph_update_post)
     prefs = bpy.context.preferences.addons[MODULE].preferences
     assert prefs.python_path == sys.executable and prefs.threads == 0
     assert bpy.types.MOGAFACE_PT_main.bl_category == "MoGaFace"
@@ -222,6 +223,26 @@ def test_handler_posed_mesh_equals_the_core_flame_evaluation(scenario, t):
     assert np.abs(got - expected).max() < 1e-5
 
 
+def test_editing_sliders_and_pose_reposes_the_head(scenario):
+    obj = scenario["head_object"]
+    bpy.context.scene.frame_set(2)
+    key = obj.data.shape_keys
+    saved = key.animation_data.action, obj.animation_data.action
+    key.animation_data.action = obj.animation_data.action = None  # edits, not keyframes, drive the head
+    try:
+        key.key_blocks["jaw_drop"].value = 2.5
+        obj["mogaface_jaw_pose"] = [0.4, 0.0, 0.1]
+        bpy.context.view_layer.update()
+        head = sc.HeadRig(sc.load_head_model(scenario["head"]), np.load(scenario["identity"])["shape"])
+        expr = [b.value for b in key.key_blocks[1:4]]
+        pose = {name: list(obj[prop]) for name, (prop, _) in sc.POSE_PROPERTIES.items()}
+        expected = sc.flame_to_blender(head.evaluate(expr, pose))
+        assert np.abs(evaluated_vertices(obj) - expected).max() < 1e-5
+    finally:
+        key.animation_data.action, obj.animation_data.action = saved
+        bpy.context.scene.frame_set(1)
+
+
 def test_operator_errors_are_reports_that_name_the_file(scenario, tmp_path):
     with pytest.raises(RuntimeError, match="transforms_train.json"):
         bpy.ops.mogaface.import_capture(filepath=str(tmp_path))
@@ -267,5 +288,6 @@ def test_disabling_leaves_nothing_registered(scenario):
     for name in CLASS_NAMES:
         assert not hasattr(bpy.types, name), name
     assert not hasattr(bpy.types.Scene, "mogaface")
-    assert not any(h.__name__ == "update_heads_on_frame_change" for h in bpy.app.handlers.frame_change_post)
+    for handlers in (bpy.app.handlers.frame_change_post, bpy.app.handlers.depsgraph_update_post):
+        assert not any(h.__module__.startswith(MODULE) for h in handlers)
     assert "mogaface" not in dir(bpy.ops)
