@@ -57,12 +57,14 @@ def test_tracked_params_run_first_then_capture_with_run_identity(capture, run):
     np.testing.assert_allclose(unseen["shape"], capture.flame_params(13)["shape"] + 0.1, rtol=1e-6)
 
 
-def test_the_scored_view_is_never_a_source_input(capture, run):
+def test_the_scored_view_is_never_a_source_input(capture, run, tmp_path):
     """Every parameter request names the scored camera as excluded (the hook image-assisted
     inference must honour), and an image-assisted source sees only the other views."""
     calls = []
 
     class Spy(TrackedParams):
+        description = "spy"
+
         def params_for(self, frame, exclude_view=None):
             calls.append((frame, exclude_view, [v.camera_id for v in views_at(capture, frame.timestep_index, exclude_view)]))
             return super().params_for(frame, exclude_view)
@@ -74,6 +76,10 @@ def test_the_scored_view_is_never_a_source_input(capture, run):
     for frame, excluded, seen in calls:
         assert excluded == frame.camera_id
         assert frame.camera_id not in seen and len(seen) == len(capture.cameras) - 1
+    calls.clear()
+    result = evaluate_run(run.root, ["novel_view"], 1, lpips=False, out_dir=tmp_path, source=Spy(capture, run))
+    assert result["inference"] == "spy" and "spy" in (tmp_path / "metrics.md").read_text()
+    assert [(c[0].camera_id, c[1]) for c in calls] == [("cam01", "cam01")]
 
 
 def test_driven_params_keep_identity_take_motion(capture, run, tmp_path_factory):
@@ -114,16 +120,17 @@ def test_evaluate_run_scores_full_images(capture, run, tmp_path):
 def test_eval_cli_with_driver(run, tmp_path, tmp_path_factory, capsys):
     driver = driver_capture(tmp_path_factory)
     code = main(["eval", str(run.root), "--protocols", "novel_view", "--max-frames", "2", "--no-lpips",
-                 "--driver", str(driver), "--out", str(tmp_path), "--quiet"])
+                 "--driver", str(driver), "--driver-cameras", "cam00,cam02", "--out", str(tmp_path), "--quiet"])
     assert code == 0
     result = json.loads((tmp_path / "metrics.json").read_text())
     assert list(result["protocols"]) == ["novel_view"] and "lpips" not in result["protocols"]["novel_view"]
     cross = result["cross_identity"]
-    assert cross["frames"] == 2 * 3 and "psnr" not in cross  # 2 driver timesteps x 3 cameras, no metrics
+    assert cross["frames"] == 2 * 2 and "psnr" not in cross  # 2 driver timesteps x 2 cameras, no metrics
     strip = tmp_path / "eval" / "cross_identity" / "strip.png"
     from mogaface.core.io.image import read_image
 
-    assert read_image(strip).shape == (3 * 48, 2 * 48, 3)
+    assert read_image(strip).shape == (2 * 48, 2 * 48, 3)
+    assert sorted(p.name for p in strip.parent.glob("0*.png")) == ["00000_cam00.png", "00000_cam02.png", "00015_cam00.png", "00015_cam02.png"]
     assert "novel view" in capsys.readouterr().out
 
 

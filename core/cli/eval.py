@@ -19,6 +19,9 @@ def add_arguments(parser) -> None:
         "--driver", type=pathlib.Path, metavar="CAPTURE_B",
         help="also render cross-identity reenactment driven by this capture's tracked motion",
     )
+    parser.add_argument(
+        "--driver-cameras", metavar="IDS", help="comma-separated cameras of the run's capture for --driver (default: all)"
+    )
     parser.add_argument("--capture", type=pathlib.Path, help="the run's capture folder, when it has moved")
     parser.add_argument("--out", type=pathlib.Path, metavar="DIR", help="where outputs go (default: the run folder)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -34,6 +37,7 @@ def run(args) -> int:
     result = evaluate_run(
         args.run, args.protocols, args.max_frames, lpips=not args.no_lpips, driver=args.driver,
         out_dir=args.out, capture=args.capture, progress=not args.quiet,
+        driver_cameras=args.driver_cameras.split(",") if args.driver_cameras else None,
     )
     print(markdown_table(result), end="")
     out = args.out or args.run

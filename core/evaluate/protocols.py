@@ -48,6 +48,7 @@ class TrackedParams:
     """
 
     uses_images = False
+    description = "parameter-driven (tracked FLAME parameters; no image input)"
 
     def __init__(self, capture: Capture, run: RunFolder | None = None):
         self.capture = capture
@@ -233,12 +234,16 @@ def evaluate_run(
     comparisons: int = 3,
     progress: bool = False,
     avatar=None,
+    source: ParamSource | None = None,
+    driver_cameras: list[str] | None = None,
 ) -> dict:
     """Score a run on the protocols; write ``metrics.json``, ``metrics.md`` and ``eval/`` images.
 
     Returns the metrics: per protocol the mean ``psnr``, ``ssim`` (and ``lpips``) with
     breakdowns per camera and per sequence. With ``driver`` (another capture), also renders
-    the cross-identity reenactment (images only). Outputs go to ``out_dir`` (default: the run).
+    the cross-identity reenactment (images only; ``driver_cameras`` of the run's capture, default
+    all). Outputs go to ``out_dir`` (default: the run). ``avatar`` and ``source`` replace the
+    run's avatar and :class:`TrackedParams`, e.g. for image-assisted inference.
     """
     from ..io.atomic import write_json, write_text
     from ..progress import ProgressBar
@@ -252,7 +257,7 @@ def evaluate_run(
     out = pathlib.Path(out_dir) if out_dir is not None else run.root
     avatar = run.load_avatar() if avatar is None else avatar
     cap = run.open_capture()
-    source = TrackedParams(cap, run)
+    source = TrackedParams(cap, run) if source is None else source
     plans = {name: protocol_frames(cap, name, max_frames) for name in protocols}
     total = sum(len(f) for f in plans.values())
     bar = ProgressBar(total, "eval") if progress and total else None
@@ -261,7 +266,7 @@ def evaluate_run(
         "run": str(run.root.resolve()),
         "capture": str(cap.root.resolve()),
         "background": list(run.background),
-        "inference": "parameter-driven (tracked FLAME parameters; no image input)",
+        "inference": getattr(source, "description", type(source).__name__),
         "protocols": {},
     }
     for name, frames in plans.items():
@@ -281,7 +286,7 @@ def evaluate_run(
         result["protocols"][name] = summary
     if driver is not None:
         result["cross_identity"] = report.write_cross_identity(
-            avatar, cap, run, driver, out / report.EVAL_DIR / "cross_identity", max_frames, progress
+            avatar, cap, run, driver, out / report.EVAL_DIR / "cross_identity", max_frames, progress, driver_cameras
         )
     write_json(out / "metrics.json", report.json_safe(result))
     write_text(out / "metrics.md", report.markdown_table(result))

@@ -73,7 +73,7 @@ def strip_image(rows: list[list[np.ndarray]]) -> np.ndarray:
     return np.concatenate([np.concatenate(row, axis=1) for row in rows], axis=0)
 
 
-def write_cross_identity(avatar, capture, run, driver, out: pathlib.Path, max_frames, progress) -> dict:
+def write_cross_identity(avatar, capture, run, driver, out: pathlib.Path, max_frames, progress, cameras=None) -> dict:
     """Render subject A (the run) driven by ``driver``'s tracked motion: PNGs and a strip, no metrics."""
     from ..data.capture import Capture
     from ..progress import ProgressBar
@@ -84,10 +84,10 @@ def write_cross_identity(avatar, capture, run, driver, out: pathlib.Path, max_fr
         k: v for k, v in capture.flame_params(capture.timesteps[0]).items() if k in ("shape", "static_offset")
     }
     source = DrivenParams(identity, driving)
-    cameras = list(capture.cameras)
+    cameras = list(capture.cameras) if cameras is None else list(cameras)
     count = len(cameras) * min(len(driving.timesteps), max_frames or len(driving.timesteps))
     bar = ProgressBar(count, "cross-identity") if progress else None
-    images: dict[str, list[tuple[int, np.ndarray]]] = {c: [] for c in cameras}
+    images: dict[str, list[tuple[int, np.ndarray]]] = {c: [] for c in cameras}  # cross_identity checks the ids
     written = []
     for timestep, camera_id, rgb, _ in cross_identity(avatar, capture, source, run.background, cameras, max_frames):
         path = out / f"{timestep:05d}_{camera_id}.png"
