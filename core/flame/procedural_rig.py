@@ -80,8 +80,8 @@ def _fit_weights(points: np.ndarray, target: np.ndarray) -> np.ndarray:
     """
     n = len(points)
     uniform = np.full(n, 1.0 / n)
-    a = np.vstack([points.T * 100.0, np.full((1, n), 100.0), 0.05 * np.eye(n)])
-    b = np.concatenate([target * 100.0, [100.0], 0.05 * uniform])
+    a = np.vstack([points.T * 100.0, np.full((1, n), 100.0), 1.0 * np.eye(n)])
+    b = np.concatenate([target * 100.0, [100.0], 1.0 * uniform])
     w, _ = nnls(a, b, maxiter=5000)
     return w / w.sum()
 

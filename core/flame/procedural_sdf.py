@@ -109,6 +109,8 @@ def head_sdf(p: np.ndarray) -> np.ndarray:
     d = smooth_union(cranium, midface, 0.02)
     d = smooth_union(d, _jaw(p), 0.018)
     d = smooth_union(d, neck, 0.04)
+    shoulders = ellipsoid(p, np.array([0.0, -0.25, -0.025]), np.array([0.09, 0.06, 0.065]))
+    d = smooth_union(d, shoulders, 0.03)
     d = smooth_union(d, cheekbone, 0.012)
     d = smooth_union(d, brow, 0.014)
     socket = ellipsoid(q, EYE_CENTRE + np.array([0.0, -0.003, 0.019]), np.array([0.020, 0.0135, 0.0125]))
