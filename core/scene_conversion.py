@@ -284,8 +284,15 @@ class HeadRig:
         params["shape"] = torch.as_tensor(self.shape[None])
         if self.static_offset is not None:
             params["static_offset"] = torch.as_tensor(self.static_offset[None])
-        with torch.no_grad():
-            return self.model(**params)[0].numpy()
+        threads = torch.get_num_threads()
+        # One head is too small for threads to pay off: they cost ~50× on a busy machine,
+        # which is the difference between smooth playback and 10 frames a second.
+        torch.set_num_threads(1)
+        try:
+            with torch.no_grad():
+                return self.model(**params)[0].numpy()
+        finally:
+            torch.set_num_threads(threads)
 
     def pose_key(self, expr, pose: dict) -> np.ndarray:
         """The pose shape key for expression weights ``expr`` and ``pose`` (Blender axes)."""

@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 
 import bpy
-from bpy.props import StringProperty
+from bpy.props import BoolProperty, StringProperty
 from mathutils import Matrix
 
 from .common import core_or_report, run_core
@@ -85,6 +85,7 @@ class MOGAFACE_OT_import_capture(bpy.types.Operator):
     bl_options = {"REGISTER", "UNDO"}
 
     filepath: StringProperty(name="Capture Folder", subtype="DIR_PATH", description="Folder with transforms_train.json")
+    filter_folder: BoolProperty(default=True, options={"HIDDEN"})
 
     def invoke(self, context, event):
         if self.filepath:

@@ -7,7 +7,7 @@ subject B's tracking onto subject A's head is cross-identity reenactment.
 from __future__ import annotations
 
 import bpy
-from bpy.props import StringProperty
+from bpy.props import BoolProperty, StringProperty
 
 from .animation import fcurve_container, write_fcurve
 from .common import core_or_report, run_core
@@ -22,6 +22,7 @@ class MOGAFACE_OT_import_tracking(bpy.types.Operator):
     bl_options = {"REGISTER", "UNDO"}
 
     directory: StringProperty(name="Tracking Folder", subtype="DIR_PATH", description="A flame_param folder of .npz files")
+    filter_folder: BoolProperty(default=True, options={"HIDDEN"})
     target: StringProperty(name="Head", description="Head object to animate (empty: the active object)")
 
     def _target(self, context):

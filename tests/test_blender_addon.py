@@ -264,6 +264,57 @@ def test_missing_packages_are_reported_with_the_pip_command(scenario, monkeypatc
     assert dependencies.missing_modules(("numpy", "no_such_module_for_mogaface")) == ["no_such_module_for_mogaface"]
 
 
+class RecordingLayout:
+    """Stands in for a UILayout: records what a panel draws and checks each property exists."""
+
+    def __init__(self, log):
+        self.log, self.enabled, self.alert = log, True, False
+
+    def _child(self, *args, **kwargs):
+        return RecordingLayout(self.log)
+
+    row = column = box = _child
+
+    def label(self, text="", icon="NONE"):
+        self.log.append(("label", text, self.enabled))
+
+    def prop(self, data, name, text=None, **kwargs):
+        assert name in data.bl_rna.properties or (name.startswith('["') and name[2:-2] in data), name
+        self.log.append(("prop", name))
+
+    def operator(self, idname, text=None, icon="NONE"):
+        module, name = idname.split(".")
+        assert hasattr(bpy.types, f"{module.upper()}_OT_{name}"), idname
+        self.log.append(("operator", idname, self.enabled))
+        return type("Properties", (), {})()
+
+    def template_list(self, *args, **kwargs):
+        self.log.append(("template_list",))
+
+
+def draw_panels(names):
+    log = []
+    for name in names:
+        panel = getattr(bpy.types, name)
+        panel.draw(type("Self", (), {"layout": RecordingLayout(log)})(), bpy.context)
+    return log
+
+
+def test_panels_draw_every_section_and_name_missing_packages(scenario, monkeypatch):
+    bpy.context.view_layer.objects.active = scenario["head_object"]
+    log = draw_panels(CLASS_NAMES[4:])
+    assert ("label", "Python packages: ready", True) in log
+    for idname in ("mogaface.import_capture", "mogaface.import_head", "mogaface.import_tracking"):
+        assert ("operator", idname, True) in log
+    assert ("prop", '["mogaface_jaw_pose"]') in log and ("prop", "run_folder") in log
+    assert ("label", "Train: not available yet", False) in log
+    preferences = importlib.import_module(MODULE + ".mogaface_addon.preferences")
+    monkeypatch.setattr(preferences, "missing_modules", lambda: ["numba", "torch"])
+    labels = [entry[1] for entry in draw_panels(["MOGAFACE_PT_main"])]
+    assert "Missing Python packages: numba, torch" in labels
+    assert f'"{sys.executable}" -m pip install numba torch' in labels
+
+
 def test_saved_blend_reopens_with_everything(scenario):
     path = scenario["root"] / "scene.blend"
     name = scenario["head_object"].name
