@@ -222,16 +222,28 @@ def load_head_model(path):
 
 
 def read_identity(path, n_shape: int, n_vertices: int) -> tuple[np.ndarray, np.ndarray | None]:
-    """``shape`` (fitted to ``n_shape``) and ``static_offset`` (or None) from a ``flame_param`` npz."""
-    from .data import layout
+    """``shape`` (fitted to ``n_shape``) and ``static_offset`` (or None) from an ``.npz``.
+
+    Any file with a ``shape`` array works: a ``flame_param`` timestep, the canonical file, or
+    one holding only the identity.
+    """
     from .io.npz import load_npz
 
-    params = layout.normalize_flame_params(load_npz(path), path)
-    shape = fit_components(params["shape"], n_shape)
+    params = load_npz(path)
+    if "shape" not in params:
+        raise InputError(path, "shape", f"missing (the file has {sorted(params)})")
+    shape = np.asarray(params["shape"])
+    if shape.ndim == 2 and shape.shape[0] == 1:
+        shape = shape[0]
+    if shape.ndim != 1 or shape.dtype.kind not in "fiu" or not np.isfinite(shape).all():
+        raise InputError(path, "shape", f"expected a finite (n,) or (1, n) array, found {shape.shape} {shape.dtype}")
     offset = params.get("static_offset")
-    if offset is not None and offset.shape != (n_vertices, 3):
-        raise InputError(path, "static_offset", f"expected shape ({n_vertices}, 3) for this head, found {offset.shape}")
-    return shape, None if offset is None else np.asarray(offset, np.float64)
+    if offset is not None:
+        offset = np.asarray(offset, np.float64)
+        offset = offset[0] if offset.ndim == 3 and offset.shape[0] == 1 else offset
+        if offset.shape != (n_vertices, 3) or not np.isfinite(offset).all():
+            raise InputError(path, "static_offset", f"expected shape ({n_vertices}, 3) for this head, found {offset.shape}")
+    return fit_components(shape, n_shape), offset
 
 
 def fit_components(values, count: int) -> np.ndarray:

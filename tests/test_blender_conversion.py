@@ -85,8 +85,9 @@ def toy_head_file(tmp_path):
 
 
 def test_shape_key_blend_with_pose_key_equals_the_core_evaluation(toy_head_file):
-    rig = sc.HeadRig(sc.load_head_model(toy_head_file), np.array([0.5, -1.0, 0.2, 0.0]))
     rng = np.random.default_rng(2)
+    offset = rng.normal(scale=0.01, size=(40, 3))
+    rig = sc.HeadRig(sc.load_head_model(toy_head_file), np.array([0.5, -1.0, 0.2, 0.0]), offset)
     expr = rng.normal(size=3)
     pose = {name: rng.normal(scale=0.3, size=size) for name, (_, size) in sc.POSE_PROPERTIES.items()}
     keys = rig.expression_keys()
@@ -133,3 +134,17 @@ def test_tracking_errors_name_the_folder_or_file(tmp_path):
     save_npz(tmp_path / "00000.npz", {"expr": np.zeros((1, 3))})
     with pytest.raises(InputError, match="00000.npz"):
         sc.read_tracking(tmp_path)
+
+
+def test_identity_comes_from_any_npz_with_a_shape(tmp_path):
+    save_npz(tmp_path / "only.npz", {"shape": np.arange(6.0)[None]})
+    shape, offset = sc.read_identity(tmp_path / "only.npz", n_shape=4, n_vertices=40)
+    assert shape.tolist() == [0, 1, 2, 3] and offset is None
+    save_npz(tmp_path / "offset.npz", {"shape": np.ones(2), "static_offset": np.ones((1, 40, 3))})
+    shape, offset = sc.read_identity(tmp_path / "offset.npz", n_shape=4, n_vertices=40)
+    assert shape.tolist() == [1, 1, 0, 0] and offset.shape == (40, 3)
+    with pytest.raises(InputError, match="offset.npz.*static_offset"):
+        sc.read_identity(tmp_path / "offset.npz", n_shape=4, n_vertices=41)
+    save_npz(tmp_path / "none.npz", {"expr": np.ones(2)})
+    with pytest.raises(InputError, match="none.npz.*shape"):
+        sc.read_identity(tmp_path / "none.npz", n_shape=4, n_vertices=40)
