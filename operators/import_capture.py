@@ -50,9 +50,18 @@ def _load_image(path):
         return None
 
 
-def build_camera(settings, collection):
-    """One Blender camera object from core ``BlenderCamera`` settings."""
-    data = bpy.data.cameras.new(settings.name)
+def capture_cameras(collection) -> dict:
+    """The capture cameras already in ``collection``, by camera id."""
+    return {obj["mogaface_camera_id"]: obj for obj in collection.objects if "mogaface_camera_id" in obj and obj.type == "CAMERA"}
+
+
+def build_camera(settings, collection, existing=None):
+    """One Blender camera object from core ``BlenderCamera`` settings (``existing`` is updated)."""
+    if existing is not None:
+        data = existing.data
+        data.background_images.clear()
+    else:
+        data = bpy.data.cameras.new(settings.name)
     data.type = "PERSP"
     data.sensor_fit = settings.sensor_fit
     data.sensor_width = settings.sensor_width
@@ -68,12 +77,13 @@ def build_camera(settings, collection):
         background.frame_method = "STRETCH"
         background.alpha = 1.0
         data.show_background_images = True
-    obj = bpy.data.objects.new(settings.name, data)
+    obj = existing or bpy.data.objects.new(settings.name, data)
     obj.matrix_world = Matrix(settings.matrix_world.tolist())
     obj["mogaface_camera_id"] = settings.camera_id
     obj["mogaface_resolution"] = list(settings.resolution)
     obj["mogaface_pixel_aspect"] = list(settings.pixel_aspect)
-    collection.objects.link(obj)
+    if existing is None:
+        collection.objects.link(obj)
     return obj
 
 
@@ -98,12 +108,15 @@ class MOGAFACE_OT_import_capture(bpy.types.Operator):
         if core is None:
             return {"CANCELLED"}
         folder = bpy.path.abspath(self.filepath)
+        if os.path.isfile(folder):  # a file of the capture was picked: use its folder
+            folder = os.path.dirname(folder)
         description = run_core(self, core.capture_scene, folder)
         if description is None:
             return {"CANCELLED"}
         scene = context.scene
         collection = ensure_collection(scene, COLLECTION_NAME)
-        cameras = [build_camera(settings, collection) for settings in description.cameras]
+        known = capture_cameras(collection)  # importing again updates these in place
+        cameras = [build_camera(s, collection, known.get(s.camera_id)) for s in description.cameras]
         if cameras:
             apply_render_settings(scene, cameras[0])
         scene.frame_start = description.frame_start

@@ -6,15 +6,18 @@ capture, a head and another subject's tracking); the tests then check its parts,
 one disables the extension.
 """
 
+import atexit
 import importlib
 import importlib.util
 import os
 import pathlib
+import shutil
 import subprocess
 import sys
 import tempfile
 
 _USER_DIR = tempfile.mkdtemp(prefix="mogaface-blender-user-")
+atexit.register(shutil.rmtree, _USER_DIR, ignore_errors=True)
 _USER_VARS = ("BLENDER_USER_RESOURCES", "BLENDER_USER_CONFIG", "BLENDER_USER_SCRIPTS")
 if "bpy" in sys.modules:  # imported before us: only safe if it already used a temporary folder
     assert all(os.environ.get(v, "").startswith(tempfile.gettempdir()) for v in _USER_VARS), "bpy uses real user folders"
@@ -177,6 +180,16 @@ def test_imported_cameras_project_the_head_like_the_core(scenario):
         assert np.abs(np.array(got) - expected).max() < 0.5 * 1e-2, camera_id
         background = obj.data.background_images[0].image
         assert pathlib.Path(bpy.path.abspath(background.filepath)).name == f"00000_{int(camera_id[1:]):02d}.png"
+
+
+def test_importing_a_capture_again_updates_its_cameras(scenario):
+    cameras = bpy.data.collections["MoGaFace Capture"].objects
+    before = {obj.name: obj.matrix_world.copy() for obj in cameras}
+    json_file = scenario["capture"] / "transforms_train.json"
+    assert bpy.ops.mogaface.import_capture(filepath=str(json_file)) == {"FINISHED"}
+    assert {obj.name: obj.matrix_world for obj in cameras} == before
+    assert all(len(obj.data.background_images) == 1 for obj in cameras)
+    bpy.context.scene.frame_start, bpy.context.scene.frame_end = 1, 4
 
 
 def test_timeline_covers_the_tracked_timesteps(scenario):
