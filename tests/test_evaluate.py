@@ -137,3 +137,31 @@ def test_eval_cli_with_driver(run, tmp_path, tmp_path_factory, capsys):
 def test_eval_cli_reports_a_missing_run(tmp_path, capsys):
     assert main(["eval", str(tmp_path / "nowhere")]) == 2
     assert "not a run folder" in capsys.readouterr().err
+
+
+def test_target_is_composited_only_off_the_recorded_background(capture):
+    from mogaface.core.evaluate.protocols import target_image
+
+    frame = capture.frames("val")[0]
+    rgb, mask = capture.load_image(frame)
+    assert 0 < mask.mean() < 1
+    np.testing.assert_array_equal(target_image(capture, frame, (1, 1, 1), (1.0, 1.0, 1.0)), rgb)
+    black = target_image(capture, frame, (0, 0, 0), (1.0, 1.0, 1.0))
+    np.testing.assert_allclose(black, rgb * mask[..., None], atol=1e-6)
+    assert black[mask == 0].max() == 0
+
+
+def test_run_folder_reads_background_identity_and_relative_capture(run, tmp_path):
+    import shutil
+
+    assert run.trained_timesteps == list(range(12)) and run.background == (1.0, 1.0, 1.0)
+    assert set(run.identity_params()) == {"shape"}
+    moved = tmp_path / "run"
+    shutil.copytree(run.root, moved)
+    shutil.copytree(run.capture_root, tmp_path / "cap", ignore=shutil.ignore_patterns("images", "fg_masks"))
+    (moved / "run.json").write_text(json.dumps({"capture": "../cap", "background": [0, 0.5, 1]}))
+    other = RunFolder(moved)
+    assert other.capture_root.resolve() == (tmp_path / "cap").resolve() and other.background == (0, 0.5, 1)
+    (moved / "run.json").write_text(json.dumps({"capture": "../cap", "background": [2, 0, 0]}))
+    with pytest.raises(InputError, match="background"):
+        RunFolder(moved)

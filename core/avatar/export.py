@@ -27,9 +27,10 @@ from ..flame.model import FlameModel
 from ..io.npz import save_npz
 from ..io.ply import read_gaussian_ply, write_gaussian_ply
 from .avatar import Avatar, flame_params_to_torch
-from .gaussians import BoundGaussians
+from .gaussians import BoundGaussians, rgb_to_sh_dc
 
 FLAME_PARAM_SUFFIX = ".flame_param.npz"
+_OPACITY_EPS = 1e-7  # keeps the logit of a saturated opacity finite
 
 
 def rendered_sh(gaussians: BoundGaussians) -> torch.Tensor:
@@ -47,16 +48,25 @@ def flame_param_path(ply_path: str | os.PathLike) -> pathlib.Path:
 
 
 def world_ply_arrays(avatar: Avatar, flame_params: dict[str, np.ndarray]) -> dict[str, torch.Tensor]:
-    """The posed Gaussians of one timestep as PLY columns (``write_gaussian_ply``'s arguments)."""
+    """The posed Gaussians of one timestep as PLY columns (``write_gaussian_ply``'s arguments).
+
+    Taken from :meth:`Avatar.world_gaussians`, exactly what a render rasterizes.
+    """
     with torch.no_grad():
         world = avatar.world_gaussians(flame_params_to_torch(flame_params))
-        quats = world["quats"] / world["quats"].norm(dim=-1, keepdim=True)
+        colors = world["colors"]
+        if colors.dim() == 2:  # plain RGB: the DC term that gives it
+            colors = rgb_to_sh_dc(colors)[:, None]
+        coefficients = (avatar.gaussians.max_sh_degree + 1) ** 2
+        sh = torch.zeros(len(colors), max(coefficients, colors.shape[1]), 3)
+        sh[:, : colors.shape[1]] = colors
+        opacities = world["opacities"].clamp(_OPACITY_EPS, 1.0 - _OPACITY_EPS)
         return {
             "means": world["means"],
             "scales_log": torch.log(world["scales"]),
-            "quats": quats,
-            "opacity_logit": avatar.gaussians.opacity_logit.detach(),
-            "sh": rendered_sh(avatar.gaussians),
+            "quats": world["quats"] / world["quats"].norm(dim=-1, keepdim=True),
+            "opacity_logit": torch.log(opacities) - torch.log1p(-opacities),
+            "sh": sh,
         }
 
 

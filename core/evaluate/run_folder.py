@@ -79,6 +79,7 @@ class RunFolder:
             capture = self.info.get("capture")
             if not isinstance(capture, str) or not capture:
                 raise InputError(run_file, "capture", "missing: pass the capture folder explicitly")
+            capture = self.root / capture  # absolute as written; a relative one is read from the run folder
         self.capture_root = pathlib.Path(capture)
         if "background" in self.info:
             self.background = parse_background(self.info["background"], run_file)
