@@ -24,6 +24,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "export-ply": ("export_ply", "export a run's avatar as a Gaussian PLY (world or binding space)"),
     "import-ply": ("import_ply", "turn a binding-space Gaussian PLY back into an avatar file"),
     "demo": ("demo", "run the main job on the embedded default head"),
+    "train": ("train", "train an avatar on a capture (resumable run folder)"),
     "bench": ("bench", "run a benchmark and print JSON"),
 }
 

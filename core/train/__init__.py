@@ -1,0 +1,1 @@
+"""Training an avatar on a capture: config, losses, schedules, checkpoints, the trainer loop."""

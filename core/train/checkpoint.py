@@ -1,0 +1,77 @@
+"""Training checkpoints: atomic files of tensors and plain values, a ``latest`` pointer, rotation.
+
+``RUN/checkpoints/step_{step:06d}.pt`` holds everything a resumed run needs to continue exactly
+(see :meth:`mogaface.core.train.trainer.Trainer.state`); ``RUN/checkpoints/latest`` is a text
+file with the name of the newest one, replaced atomically after the checkpoint is complete, so a
+kill at any moment leaves a usable pair. Files load with ``torch.load(weights_only=True)``.
+"""
+
+from __future__ import annotations
+
+import os
+import pathlib
+import re
+
+import torch
+
+from ..errors import InputError
+from ..io.atomic import atomic_path, write_text
+
+CHECKPOINT_FORMAT = "mogaface-train-checkpoint"
+CHECKPOINT_VERSION = 1
+LATEST = "latest"
+_NAME = re.compile(r"^step_(\d{6,})\.pt$")
+
+
+def checkpoint_name(step: int) -> str:
+    return f"step_{step:06d}.pt"
+
+
+def save_checkpoint(folder: str | os.PathLike, step: int, state: dict, keep: int = 3) -> pathlib.Path:
+    """Write ``state`` as the checkpoint of ``step``, point ``latest`` at it, keep the newest ``keep``."""
+    folder = pathlib.Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / checkpoint_name(step)
+    with atomic_path(path) as tmp:
+        torch.save({"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION, "step": step, **state}, tmp)
+    write_text(folder / LATEST, path.name + "\n")
+    for old in list_checkpoints(folder)[:-keep]:
+        if old != path:
+            old.unlink(missing_ok=True)
+    return path
+
+
+def list_checkpoints(folder: str | os.PathLike) -> list[pathlib.Path]:
+    """Checkpoint files in ``folder``, oldest step first."""
+    folder = pathlib.Path(folder)
+    if not folder.is_dir():
+        return []
+    found = [(int(m.group(1)), p) for p in folder.iterdir() if (m := _NAME.match(p.name))]
+    return [p for _, p in sorted(found)]
+
+
+def latest_checkpoint(folder: str | os.PathLike) -> pathlib.Path | None:
+    """The checkpoint ``latest`` names (else the highest step found), or None."""
+    folder = pathlib.Path(folder)
+    pointer = folder / LATEST
+    if pointer.is_file():
+        name = pointer.read_text(encoding="utf-8").strip()
+        if _NAME.match(name) and (folder / name).is_file():
+            return folder / name
+    found = list_checkpoints(folder)
+    return found[-1] if found else None
+
+
+def load_checkpoint(path: str | os.PathLike) -> dict:
+    """Read a checkpoint (``weights_only``: nothing in it is executed) and check its format."""
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except FileNotFoundError:
+        raise InputError(path, None, "file not found") from None
+    except Exception as error:
+        raise InputError(path, None, f"not a readable checkpoint ({error})") from None
+    if not isinstance(state, dict) or state.get("format") != CHECKPOINT_FORMAT:
+        raise InputError(path, "format", f"expected a {CHECKPOINT_FORMAT} file")
+    if state.get("version") != CHECKPOINT_VERSION:
+        raise InputError(path, "version", f"expected version {CHECKPOINT_VERSION}, found {state.get('version')}")
+    return state

@@ -1,0 +1,238 @@
+"""Training settings: one TOML file, every key documented, with presets for quick runs.
+
+Precedence, lowest first: the defaults below, a ``--preset``, a ``--config`` file, command-line
+flags. A run folder keeps the resolved settings as ``config.toml`` (every key written out), so a
+run can be repeated or resumed from its folder alone.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import tomllib
+
+from ..errors import InputError
+
+
+def _setting(default, doc: str):
+    return dataclasses.field(default=default, metadata={"doc": doc})
+
+
+@dataclasses.dataclass
+class TrainSection:
+    steps: int = _setting(3000, "optimisation steps in all (one random training image per step)")
+    seed: int = _setting(0, "seed of every random choice (frame order, splits)")
+    threads: int = _setting(2, "CPU threads for torch and numba")
+    log_every: int = _setting(10, "steps between 'iter' progress events")
+    checkpoint_every: int = _setting(500, "steps between checkpoints (0: only at the end and on a signal)")
+    keep_checkpoints: int = _setting(3, "how many of the newest checkpoints to keep")
+
+
+@dataclasses.dataclass
+class LossSection:
+    ssim_weight: float = _setting(0.2, "λ in (1 − λ)·L1 + λ·(1 − SSIM)")
+    position_weight: float = _setting(0.01, "weight of relu(|μ_local| − position_threshold) on visible Gaussians")
+    position_threshold: float = _setting(1.0, "distance from the triangle centre (in triangle units) that is free")
+    scaling_weight: float = _setting(1.0, "weight of relu(exp(s_local) − scaling_threshold) on visible Gaussians")
+    scaling_threshold: float = _setting(0.6, "local scale (in triangle units) that is free")
+
+
+@dataclasses.dataclass
+class LrSection:
+    position: float = _setting(5e-3, "local position learning rate at step 0, times the scene extent")
+    position_final_ratio: float = _setting(0.01, "position learning rate at the last step, as a fraction of the first")
+    scaling: float = _setting(1.7e-2, "log-scale learning rate")
+    opacity: float = _setting(0.05, "opacity logit learning rate")
+    rotation: float = _setting(1e-3, "rotation quaternion learning rate")
+    color: float = _setting(2.5e-3, "learning rate of the degree-0 SH (base colour)")
+    color_rest_ratio: float = _setting(0.05, "learning rate of the higher SH bands, as a fraction of 'color'")
+    scene_extent: float = _setting(0.0, "scene extent in metres for the position rate; 0: from the cameras "
+                                        "(1.1 × the largest camera distance from their centre, as 3DGS)")
+
+
+@dataclasses.dataclass
+class DensifySection:
+    start: int = _setting(300, "first step that densifies")
+    stop: int = _setting(2400, "no densification after this step")
+    interval: int = _setting(150, "steps between densify-and-prune passes")
+    grad_threshold: float = _setting(2e-4, "mean screen-space gradient (NDC units, as 3DGS) that selects a Gaussian")
+    percent_dense: float = _setting(0.01, "world size (fraction of the extent) separating clone (smaller) from split")
+    split_count: int = _setting(2, "Gaussians a split Gaussian becomes")
+    min_opacity: float = _setting(0.005, "prune Gaussians fainter than this")
+    max_screen_size: float = _setting(20.0, "after the first opacity reset, prune Gaussians wider than this (pixels)")
+    max_world_size: float = _setting(0.1, "prune Gaussians larger than this fraction of the extent")
+    opacity_reset_interval: int = _setting(1200, "steps between opacity resets (0: never)")
+    reset_opacity: float = _setting(0.01, "opacities are clamped to at most this on a reset")
+    max_gaussians: int = _setting(60000, "no densification beyond this many Gaussians")
+    sh_degree_interval: int = _setting(400, "steps between raising the active SH degree by one")
+    max_sh_degree: int = _setting(3, "highest SH degree")
+
+
+@dataclasses.dataclass
+class FlameSection:
+    finetune: bool = _setting(False, "optimise the per-timestep FLAME parameters with the Gaussians")
+    expression_lr: float = _setting(1e-3, "learning rate of the expression coefficients")
+    joints_lr: float = _setting(1e-5, "learning rate of the joint rotations (global, neck, jaw, eyes)")
+    translation_lr: float = _setting(1e-6, "learning rate of the translation")
+
+
+@dataclasses.dataclass
+class EvalSection:
+    at_end: bool = _setting(True, "evaluate on the val split (held-out camera) after training")
+    max_frames: int = _setting(0, "val frames to evaluate, evenly spaced (0: all)")
+    lpips: bool = _setting(True, "include LPIPS (needs the AlexNet weights)")
+
+
+@dataclasses.dataclass
+class TrainConfig:
+    train: TrainSection = dataclasses.field(default_factory=TrainSection)
+    loss: LossSection = dataclasses.field(default_factory=LossSection)
+    lr: LrSection = dataclasses.field(default_factory=LrSection)
+    densify: DensifySection = dataclasses.field(default_factory=DensifySection)
+    flame: FlameSection = dataclasses.field(default_factory=FlameSection)
+    eval: EvalSection = dataclasses.field(default_factory=EvalSection)
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    def check(self, source=None) -> "TrainConfig":
+        """Refuse settings that cannot work, naming the key."""
+        positive = {"train.steps": self.train.steps, "train.threads": self.train.threads,
+                    "train.log_every": self.train.log_every, "train.keep_checkpoints": self.train.keep_checkpoints,
+                    "densify.interval": self.densify.interval, "densify.split_count": self.densify.split_count - 1,
+                    "densify.sh_degree_interval": self.densify.sh_degree_interval,
+                    "densify.max_gaussians": self.densify.max_gaussians}
+        for key, value in positive.items():
+            if value <= 0:
+                raise InputError(source, key, f"must be positive (got {_get(self, key)})")
+        for key in ("train.checkpoint_every", "densify.start", "densify.stop", "densify.opacity_reset_interval",
+                    "eval.max_frames", "lr.scene_extent", "train.seed"):
+            if _get(self, key) < 0:
+                raise InputError(source, key, f"must be >= 0 (got {_get(self, key)})")
+        if not 0 <= self.densify.max_sh_degree <= 3:
+            raise InputError(source, "densify.max_sh_degree", f"must lie in [0, 3] (got {self.densify.max_sh_degree})")
+        if not 0 < self.lr.position_final_ratio <= 1:
+            raise InputError(source, "lr.position_final_ratio", "must lie in (0, 1]")
+        if not 0 <= self.loss.ssim_weight <= 1:
+            raise InputError(source, "loss.ssim_weight", "must lie in [0, 1]")
+        return self
+
+
+def _get(config, dotted: str):
+    section, key = dotted.split(".")
+    return getattr(getattr(config, section), key)
+
+
+PRESETS: dict[str, dict] = {
+    # A smoke run: a minute or two, no densification worth the name.
+    "quick": {"train": {"steps": 200, "checkpoint_every": 100, "log_every": 5},
+              "densify": {"start": 50, "stop": 150, "interval": 50, "opacity_reset_interval": 0,
+                          "sh_degree_interval": 50},
+              "eval": {"max_frames": 8, "lpips": False}},
+    # A few minutes: enough to see a recognisable avatar.
+    "demo": {"train": {"steps": 1000, "checkpoint_every": 250},
+             "densify": {"start": 150, "stop": 800, "interval": 100, "opacity_reset_interval": 0,
+                         "sh_degree_interval": 200},
+             "eval": {"max_frames": 16}},
+    # The defaults: sized for about 15 minutes on two CPU cores at 256².
+    "full": {},
+}
+
+
+def _type_name(kind) -> str:
+    return {int: "an integer", float: "a number", bool: "true or false", str: "a string"}[kind]
+
+
+def _apply(config: TrainConfig, updates: dict, source) -> None:
+    """Set the keys of a ``{section: {key: value}}`` mapping, checking names and types."""
+    if not isinstance(updates, dict):
+        raise InputError(source, None, "expected a table of sections")
+    for section_name, values in updates.items():
+        section = getattr(config, section_name, None) if section_name in _SECTIONS else None
+        if section is None:
+            raise InputError(source, section_name, f"unknown section (known: {', '.join(_SECTIONS)})")
+        if not isinstance(values, dict):
+            raise InputError(source, section_name, "expected a table of settings")
+        fields = {f.name: f for f in dataclasses.fields(section)}
+        for key, value in values.items():
+            where = f"{section_name}.{key}"
+            if key not in fields:
+                raise InputError(source, where, f"unknown setting (known in [{section_name}]: {', '.join(fields)})")
+            kind = type(fields[key].default)
+            if kind is float and isinstance(value, int) and not isinstance(value, bool):
+                value = float(value)
+            if type(value) is not kind:
+                raise InputError(source, where, f"expected {_type_name(kind)}, got {value!r}")
+            if kind is float and not math.isfinite(value):
+                raise InputError(source, where, f"expected a finite number, got {value!r}")
+            setattr(section, key, value)
+
+
+_SECTIONS = tuple(f.name for f in dataclasses.fields(TrainConfig))
+
+
+def resolve(preset: str | None = None, path: str | os.PathLike | None = None,
+            overrides: dict | None = None) -> TrainConfig:
+    """Defaults, then ``preset``, then the TOML file at ``path``, then ``overrides``."""
+    config = TrainConfig()
+    if preset is not None:
+        if preset not in PRESETS:
+            raise InputError(None, "preset", f"unknown preset {preset!r} (known: {', '.join(PRESETS)})")
+        _apply(config, PRESETS[preset], f"preset {preset}")
+    if path is not None:
+        _apply(config, read_toml(path), path)
+    if overrides:
+        _apply(config, overrides, "command line")
+    return config.check(path)
+
+
+def read_toml(path: str | os.PathLike) -> dict:
+    try:
+        with open(path, "rb") as handle:
+            return tomllib.load(handle)
+    except FileNotFoundError:
+        raise InputError(path, None, "file not found") from None
+    except (OSError, tomllib.TOMLDecodeError, UnicodeDecodeError) as error:
+        raise InputError(path, None, f"not a readable TOML file ({error})") from None
+
+
+def load(path: str | os.PathLike) -> TrainConfig:
+    """A config file on its own (defaults for keys it leaves out)."""
+    config = TrainConfig()
+    _apply(config, read_toml(path), path)
+    return config.check(path)
+
+
+def _toml_value(value) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float):
+        return repr(value)
+    if isinstance(value, int):
+        return str(value)
+    escaped = str(value).replace("\\", "\\\\").replace('"', '\\"')
+    return f'"{escaped}"'
+
+
+def to_toml(config: TrainConfig) -> str:
+    """Every setting as TOML, each with its documentation as a comment."""
+    lines = ["# MoGaFace training settings (every key; see docs/training.md)."]
+    for section_field in dataclasses.fields(config):
+        section = getattr(config, section_field.name)
+        lines += ["", f"[{section_field.name}]"]
+        for f in dataclasses.fields(section):
+            lines.append(f"# {f.metadata['doc']}")
+            lines.append(f"{f.name} = {_toml_value(getattr(section, f.name))}")
+    return "\n".join(lines) + "\n"
+
+
+def documented_defaults() -> list[tuple[str, object, str]]:
+    """``(section.key, default, doc)`` for every setting (the docs' table)."""
+    config = TrainConfig()
+    rows = []
+    for section_field in dataclasses.fields(config):
+        section = getattr(config, section_field.name)
+        for f in dataclasses.fields(section):
+            rows.append((f"{section_field.name}.{f.name}", getattr(section, f.name), f.metadata["doc"]))
+    return rows

@@ -1,0 +1,127 @@
+"""What training reads from a capture: frames, images, background, FLAME parameters, extent."""
+
+from __future__ import annotations
+
+import json
+import os
+import pathlib
+
+import numpy as np
+import torch
+
+from ..data.capture import Capture, Frame
+from ..errors import CaptureError
+
+INFO_FILE = "capture_info.json"
+DEFAULT_BACKGROUND = (1.0, 1.0, 1.0)
+JOINTS = ("rotation", "neck_pose", "jaw_pose", "eyes_pose")
+
+
+def capture_info(root: pathlib.Path) -> dict:
+    """``capture_info.json`` of a capture, or ``{}`` when it has none."""
+    path = root / INFO_FILE
+    if not path.exists():
+        return {}
+    try:
+        info = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
+        raise CaptureError(path, None, f"unreadable JSON ({error})") from None
+    if not isinstance(info, dict):
+        raise CaptureError(path, None, "expected a JSON object")
+    return info
+
+
+def capture_background(root: pathlib.Path) -> tuple[float, float, float]:
+    """The colour the capture's images are composited on (``capture_info.json`` "background"; white)."""
+    value = capture_info(root).get("background", DEFAULT_BACKGROUND)
+    if not (isinstance(value, list | tuple) and len(value) == 3
+            and all(isinstance(v, int | float) and 0 <= v <= 1 for v in value)):
+        raise CaptureError(root / INFO_FILE, "background", f"expected three numbers in [0, 1], got {value!r}")
+    return tuple(float(v) for v in value)
+
+
+def capture_head_file(root: pathlib.Path) -> pathlib.Path:
+    """The head model file a capture names (``capture_info.json`` "model_file"), or ``head.pkl``."""
+    name = capture_info(root).get("model_file", "head.pkl")
+    path = root / str(name)
+    if not path.is_file():
+        raise CaptureError(root / INFO_FILE, "model_file",
+                           f"head model file {path} not found (pass --head FILE)")
+    return path
+
+
+def camera_extent(cameras) -> float:
+    """3DGS's scene extent: 1.1 × the largest distance of a camera centre from their mean."""
+    centres = np.stack([np.linalg.inv(c.w2c)[:3, 3] for c in cameras])
+    radius = float(np.linalg.norm(centres - centres.mean(0), axis=1).max())
+    return 1.1 * max(radius, 1e-6)
+
+
+class FlameTable(torch.nn.Module):
+    """FLAME parameters of every training timestep as ``(T, n)`` tensors (the trainable form).
+
+    Expressions, joint rotations and translation are parameters (optimised only when
+    fine-tuning); shape and the static offset are shared by all timesteps and fixed.
+    """
+
+    def __init__(self, timesteps: list[int], stacked: dict[str, np.ndarray]):
+        super().__init__()
+        self.timesteps = list(timesteps)
+        self.row = {t: i for i, t in enumerate(self.timesteps)}
+        self.register_buffer("shape", torch.as_tensor(stacked["shape"][0], dtype=torch.float32))
+        static = stacked.get("static_offset")
+        self.register_buffer("static_offset", None if static is None else torch.as_tensor(static, dtype=torch.float32))
+        for name in ("expr", *JOINTS, "translation"):
+            setattr(self, name, torch.nn.Parameter(torch.as_tensor(stacked[name], dtype=torch.float32),
+                                                   requires_grad=False))
+
+    def trainable(self) -> dict[str, torch.nn.Parameter]:
+        return {name: getattr(self, name) for name in ("expr", *JOINTS, "translation")}
+
+    def params(self, timestep: int | None = None) -> dict[str, torch.Tensor]:
+        """The model's keyword arguments for one timestep (batch 1), or for all (batch T)."""
+        rows = slice(None) if timestep is None else slice(self.row[timestep], self.row[timestep] + 1)
+        out = {name: value[rows] for name, value in self.trainable().items()}
+        batch = next(iter(out.values())).shape[0]
+        out["shape"] = self.shape[None].expand(batch, -1)
+        if self.static_offset is not None:
+            out["static_offset"] = self.static_offset[None].expand(batch, -1, -1)
+        return out
+
+    def numpy(self, timestep: int) -> dict[str, np.ndarray]:
+        """One timestep's parameters as the capture's ``(n,)`` float32 arrays."""
+        out = {name: value[self.row[timestep]].detach().numpy().copy() for name, value in self.trainable().items()}
+        out["shape"] = self.shape.numpy().copy()
+        if self.static_offset is not None:
+            out["static_offset"] = self.static_offset.numpy().copy()
+        return out
+
+
+class TrainingData:
+    """The training frames of a capture with their images and FLAME parameters."""
+
+    def __init__(self, root: str | os.PathLike, split: str = "train"):
+        self.root = pathlib.Path(root).resolve()
+        self.capture = Capture.open(self.root)
+        self.frames: list[Frame] = self.capture.frames(split)
+        self.timesteps = sorted({f.timestep_index for f in self.frames})
+        self.background = capture_background(self.root)
+        self.extent = camera_extent([self.capture.camera(f) for f in self.frames])
+
+    def flame_table(self) -> FlameTable:
+        return FlameTable(self.timesteps, self.capture.flame_params_stacked(self.timesteps))
+
+    def target(self, frame: Frame) -> torch.Tensor:
+        """The frame's image ``(H,W,3)``, already composited on :attr:`background`."""
+        rgb, _ = self.capture.load_image(frame)
+        return torch.from_numpy(np.array(rgb, dtype=np.float32))
+
+    def split_summary(self) -> dict:
+        out = {}
+        for split, frames in self.capture.splits.items():
+            out[split] = {
+                "frames": len(frames),
+                "timesteps": sorted({f.timestep_index for f in frames}),
+                "cameras": sorted({f.camera_id for f in frames}),
+            }
+        return out

@@ -1,0 +1,85 @@
+"""Training losses: ``0.8·L1 + 0.2·(1 − SSIM)`` on the image, plus the binding hinges.
+
+The SSIM here is differentiable torch code with the evaluation metric's definition (Gaussian
+window σ = 1.5, 11 taps, population covariances, data range 1, mean over the border-cropped
+"valid" area), so the loss optimises what :func:`mogaface.core.evaluate.metrics.ssim` reports.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn.functional as F
+
+SSIM_SIGMA = 1.5
+SSIM_RADIUS = 5  # int(3.5·σ + 0.5): scikit-image's truncation, 11 taps
+_C1 = 0.01**2
+_C2 = 0.03**2
+
+
+def _gaussian_taps(sigma: float = SSIM_SIGMA, radius: int = SSIM_RADIUS) -> torch.Tensor:
+    x = torch.arange(-radius, radius + 1, dtype=torch.float64)
+    taps = torch.exp(-0.5 * (x / sigma) ** 2)
+    return (taps / taps.sum()).float()
+
+
+_TAPS = _gaussian_taps()
+
+
+def _blur(x: torch.Tensor) -> torch.Tensor:
+    """Separable Gaussian filter of ``(B,C,H,W)`` over the valid area (no padding)."""
+    channels = x.shape[1]
+    taps = _TAPS.to(x.dtype)
+    horizontal = taps.view(1, 1, 1, -1).expand(channels, 1, 1, -1)
+    vertical = taps.view(1, 1, -1, 1).expand(channels, 1, -1, 1)
+    return F.conv2d(F.conv2d(x, horizontal, groups=channels), vertical, groups=channels)
+
+
+def ssim(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """Mean SSIM of two ``(H,W,3)`` (or ``(H,W)``) images in [0,1]; differentiable."""
+    if pred.dim() == 2:
+        pred, target = pred[..., None], target[..., None]
+    a = pred.permute(2, 0, 1)[None]
+    b = target.permute(2, 0, 1)[None]
+    stacked = _blur(torch.cat([a, b, a * a, b * b, a * b], dim=1))
+    c = a.shape[1]
+    mu_a, mu_b, aa, bb, ab = stacked.split(c, dim=1)
+    var_a = aa - mu_a * mu_a
+    var_b = bb - mu_b * mu_b
+    cov = ab - mu_a * mu_b
+    numerator = (2 * mu_a * mu_b + _C1) * (2 * cov + _C2)
+    denominator = (mu_a * mu_a + mu_b * mu_b + _C1) * (var_a + var_b + _C2)
+    return (numerator / denominator).mean()
+
+
+def l1(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    return (pred - target).abs().mean()
+
+
+def image_loss(pred: torch.Tensor, target: torch.Tensor, ssim_weight: float = 0.2) -> dict[str, torch.Tensor]:
+    """``(1 − λ)·L1 + λ·(1 − SSIM)`` and its parts (``l1``, ``ssim``, ``rgb``)."""
+    l1_value = l1(pred, target)
+    ssim_value = ssim(pred, target)
+    rgb = (1 - ssim_weight) * l1_value + ssim_weight * (1 - ssim_value)
+    return {"l1": l1_value, "ssim": ssim_value, "rgb": rgb}
+
+
+def position_hinge(local_position: torch.Tensor, threshold: float = 1.0) -> torch.Tensor:
+    """Mean ``relu(|μ_local| − threshold)``: keeps Gaussians near their triangle (in its units)."""
+    if local_position.shape[0] == 0:
+        return local_position.sum() * 0
+    return F.relu(local_position.norm(dim=-1) - threshold).mean()
+
+
+def scaling_hinge(local_log_scale: torch.Tensor, threshold: float = 0.6) -> torch.Tensor:
+    """Mean over Gaussians of ``|relu(exp(s_local) − threshold)|``: no Gaussian much larger than its triangle."""
+    if local_log_scale.shape[0] == 0:
+        return local_log_scale.sum() * 0
+    return F.relu(torch.exp(local_log_scale) - threshold).norm(dim=-1).mean()
+
+
+def psnr(pred: torch.Tensor, target: torch.Tensor) -> float:
+    """PSNR in dB (data range 1), for progress reports only."""
+    mse = float(((pred.detach() - target) ** 2).mean())
+    return float("inf") if mse == 0 else -10.0 * math.log10(mse)

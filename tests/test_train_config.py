@@ -1,0 +1,63 @@
+"""Training settings: TOML round trip, presets, errors that name the file and the key."""
+
+import dataclasses
+
+import pytest
+
+from mogaface.core.errors import InputError
+from mogaface.core.train import config as C
+
+
+def test_toml_round_trip_keeps_every_setting(tmp_path):
+    config = C.resolve("quick", overrides={"train": {"seed": 7}, "lr": {"scaling": 0.02}})
+    path = tmp_path / "config.toml"
+    path.write_text(C.to_toml(config))
+    again = C.load(path)
+    assert again == config
+    assert again.train.seed == 7 and again.lr.scaling == 0.02 and again.train.steps == C.PRESETS["quick"]["train"]["steps"]
+    text = path.read_text()
+    for key, _, doc in C.documented_defaults():
+        assert f"\n{key.split('.')[1]} = " in text and doc in text
+
+
+def test_precedence_defaults_preset_file_flags(tmp_path):
+    path = tmp_path / "mine.toml"
+    path.write_text("[train]\nsteps = 77\nseed = 3\n[densify]\ngrad_threshold = 1\n")
+    config = C.resolve("demo", path, {"train": {"seed": 5}})
+    assert config.train.steps == 77 and config.train.seed == 5
+    assert config.densify.grad_threshold == 1.0  # an integer is accepted for a number
+    assert config.densify.interval == C.PRESETS["demo"]["densify"]["interval"]
+    assert config.loss == C.LossSection()
+
+
+@pytest.mark.parametrize("text, field, words", [
+    ("[train]\nstepz = 3\n", "train.stepz", "unknown setting"),
+    ("[trian]\nsteps = 3\n", "trian", "unknown section"),
+    ("[train]\nsteps = 3.5\n", "train.steps", "expected an integer"),
+    ("[lr]\nposition = \"fast\"\n", "lr.position", "expected a number"),
+    ("[flame]\nfinetune = 1\n", "flame.finetune", "expected true or false"),
+    ("[train]\nsteps = 0\n", "train.steps", "must be positive"),
+    ("[train]\nsteps = \n", None, "not a readable TOML file"),
+])
+def test_bad_settings_name_the_file_and_key(tmp_path, text, field, words):
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    with pytest.raises(InputError) as error:
+        C.resolve(path=path)
+    assert error.value.path == str(path)
+    assert error.value.field == field
+    assert words in str(error.value) and str(path) in str(error.value)
+
+
+def test_presets_are_valid_and_quick_is_short():
+    for name in C.PRESETS:
+        C.resolve(name)
+    assert C.resolve("quick").train.steps < C.resolve("demo").train.steps <= C.resolve("full").train.steps
+    with pytest.raises(InputError, match="unknown preset"):
+        C.resolve("slow")
+
+
+def test_every_setting_is_documented():
+    for section in dataclasses.fields(C.TrainConfig):
+        for f in dataclasses.fields(section.type if not isinstance(section.type, str) else getattr(C, section.type)):
+            assert f.metadata.get("doc")

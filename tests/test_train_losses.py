@@ -1,0 +1,47 @@
+"""Training losses: SSIM against scikit-image, the hinges, the image loss mix."""
+
+import numpy as np
+import pytest
+import torch
+from skimage.metrics import structural_similarity
+
+from mogaface.core.train import losses
+
+
+@pytest.mark.parametrize("shape", [(32, 40, 3), (24, 24)])
+def test_ssim_matches_skimage(shape):
+    rng = np.random.default_rng(0)
+    a = rng.random(shape)
+    b = np.clip(a + rng.normal(scale=0.2, size=shape), 0, 1)
+    expected = structural_similarity(a, b, gaussian_weights=True, sigma=1.5, use_sample_covariance=False,
+                                     data_range=1.0, channel_axis=-1 if len(shape) == 3 else None)
+    got = losses.ssim(torch.tensor(a, dtype=torch.float32), torch.tensor(b, dtype=torch.float32))
+    assert abs(float(got) - expected) < 1e-4
+
+
+def test_ssim_of_identical_images_is_one_and_differentiable():
+    a = torch.rand(20, 20, 3)
+    assert float(losses.ssim(a, a)) == pytest.approx(1.0, abs=1e-5)
+    pred = torch.rand(20, 20, 3, requires_grad=True)
+    (1 - losses.ssim(pred, a)).backward()
+    assert torch.isfinite(pred.grad).all() and pred.grad.abs().sum() > 0
+
+
+def test_position_hinge_values():
+    local = torch.tensor([[0.5, 0.0, 0.0], [3.0, 4.0, 0.0], [0.0, 0.0, -2.0]])
+    # norms 0.5, 5, 2 -> relu(norm - 1) = 0, 4, 1
+    assert float(losses.position_hinge(local, 1.0)) == pytest.approx(5 / 3)
+    assert float(losses.position_hinge(local[:0], 1.0)) == 0.0
+
+
+def test_scaling_hinge_values():
+    log_scale = torch.log(torch.tensor([[0.5, 0.5, 0.5], [1.6, 0.6, 0.1], [0.6, 3.6, 4.6]]))
+    # rows: (0,0,0) -> 0; (1,0,0) -> 1; (0,3,4) -> 5
+    assert float(losses.scaling_hinge(log_scale, 0.6)) == pytest.approx(2.0, abs=1e-5)
+
+
+def test_image_loss_mix():
+    pred, target = torch.rand(16, 16, 3), torch.rand(16, 16, 3)
+    parts = losses.image_loss(pred, target, 0.2)
+    expected = 0.8 * (pred - target).abs().mean() + 0.2 * (1 - losses.ssim(pred, target))
+    assert float(parts["rgb"]) == pytest.approx(float(expected), rel=1e-6)

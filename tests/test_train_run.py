@@ -1,0 +1,167 @@
+"""The trainer on a tiny synthetic capture: learning, run folder, events, exact resume, signals."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+import torch
+
+from mogaface.core.avatar.avatar import Avatar
+from mogaface.core.data.capture import Capture
+from mogaface.core.train import config as C
+from mogaface.core.train.checkpoint import latest_checkpoint, load_checkpoint
+from mogaface.core.train.trainer import Trainer
+
+
+@pytest.fixture(scope="session")
+def tiny_capture(tmp_path_factory):
+    from mogaface.core.data.generator import CaptureSettings, make_capture
+
+    root = tmp_path_factory.mktemp("tiny_capture")
+    make_capture(root, CaptureSettings(views=3, timesteps=16, size=48, supersample=1), progress=False)
+    return root
+
+
+def tiny_config(**sections):
+    base = {
+        "train": {"steps": 12, "threads": 1, "log_every": 1, "checkpoint_every": 5, "keep_checkpoints": 2},
+        "densify": {"start": 2, "stop": 10, "interval": 3, "grad_threshold": 1e-6, "opacity_reset_interval": 6,
+                    "sh_degree_interval": 4, "max_gaussians": 20000, "percent_dense": 0.005},
+        "eval": {"at_end": False, "lpips": False},
+    }
+    for name, values in sections.items():
+        base.setdefault(name, {}).update(values)
+    return C.resolve(overrides=base)
+
+
+def read_events(run):
+    return [json.loads(line) for line in (run / "events.jsonl").read_text().splitlines()]
+
+
+@pytest.fixture(scope="session")
+def trained_run(tiny_capture, tmp_path_factory):
+    run = tmp_path_factory.mktemp("run") / "run"
+    config = tiny_config(train={"steps": 80, "checkpoint_every": 40},
+                         densify={"start": 20, "stop": 60, "interval": 20, "opacity_reset_interval": 0},
+                         eval={"at_end": True, "max_frames": 4})
+    result = Trainer(tiny_capture, run, config).run()
+    assert result == {"step": 80, "stopped": None, "complete": True}
+    return run
+
+
+def test_training_lowers_the_loss(trained_run):
+    losses = [e["loss"] for e in read_events(trained_run) if e["event"] == "iter"]
+    assert len(losses) == 80
+    first, last = sum(losses[:8]) / 8, sum(losses[-8:]) / 8
+    assert last < 0.6 * first
+
+
+def test_run_folder_holds_everything(trained_run, tiny_capture):
+    names = {p.name for p in trained_run.iterdir()}
+    assert {"config.toml", "head.pkl", "run.json", "events.jsonl", "checkpoints", "avatar.pt", "flame_param",
+            "metrics_train_end.json"} <= names
+    info = json.loads((trained_run / "run.json").read_text())
+    assert info["complete"] and info["final_step"] == 80 and info["capture"] == str(tiny_capture.resolve())
+    assert info["background"] == [1.0, 1.0, 1.0] and info["head_file"] == "head.pkl"
+    capture = Capture.open(tiny_capture)
+    train_timesteps = sorted({f.timestep_index for f in capture.frames("train")})
+    assert info["train_timesteps"] == train_timesteps
+    assert sorted(p.name for p in (trained_run / "flame_param").iterdir()) == [f"{t:05d}.npz" for t in train_timesteps]
+    tracked = capture.flame_params(train_timesteps[0])
+    written = Capture._load_flame(trained_run / "flame_param" / f"{train_timesteps[0]:05d}.npz", None)
+    assert all((written[k] == tracked[k]).all() for k in tracked)  # not fine-tuned: the tracked ones
+    avatar = Avatar.load(trained_run / "avatar.pt")
+    assert len(avatar.gaussians) == info["gaussians"]
+    assert C.load(trained_run / "config.toml").train.steps == 80
+    metrics = json.loads((trained_run / "metrics_train_end.json").read_text())
+    assert metrics["split"] == "val" and metrics["frames"] == 4 and metrics["psnr"] > 10
+    assert (trained_run / "checkpoints" / "latest").read_text().strip() == "step_000080.pt"
+
+
+def test_events_file_format(trained_run):
+    events = read_events(trained_run)
+    assert events[0]["event"] == "start" and events[-1]["event"] == "done"
+    for e in events:
+        assert isinstance(e["event"], str) and isinstance(e["time"], float)
+    iters = [e for e in events if e["event"] == "iter"]
+    assert [e["step"] for e in iters] == list(range(1, 81))
+    for key in ("loss", "l1", "ssim", "position", "scaling", "psnr", "gaussians", "it_s", "eta_s", "steps",
+                "sh_degree", "elapsed_s"):
+        assert key in iters[-1]
+    assert [e["step"] for e in events if e["event"] == "densify"] == [40, 60]
+    assert [e["step"] for e in events if e["event"] == "checkpoint"] == [40, 80]
+
+
+def test_checkpoints_load_weights_only_and_rotate(tiny_capture, tmp_path):
+    run = tmp_path / "run"
+    Trainer(tiny_capture, run, tiny_config(train={"checkpoint_every": 2})).run(until=9)
+    files = sorted(p.name for p in (run / "checkpoints").glob("*.pt"))
+    assert files == ["step_000008.pt", "step_000009.pt"]
+    state = torch.load(latest_checkpoint(run / "checkpoints"), weights_only=True)
+    assert state["step"] == 9 and state["format"] == "mogaface-train-checkpoint"
+
+
+def final_tensors(run):
+    state = load_checkpoint(latest_checkpoint(run / "checkpoints"))
+    return state["avatar"]["gaussians"], state["optimizer"]["state"], state
+
+
+def test_resume_continues_exactly(tiny_capture, tmp_path):
+    config = tiny_config()
+    straight, split = tmp_path / "straight", tmp_path / "split"
+    Trainer(tiny_capture, straight, config).run()
+    first = Trainer(tiny_capture, split, config).run(until=7)
+    assert first == {"step": 7, "stopped": None, "complete": False}
+    with pytest.raises(Exception, match="already holds a run"):
+        Trainer(tiny_capture, split, config)
+    Trainer(tiny_capture, split, resume=True).run()
+    a, a_moments, a_state = final_tensors(straight)
+    b, b_moments, b_state = final_tensors(split)
+    assert a_state["step"] == b_state["step"] == 12
+    assert len(a["binding"]) != 12620  # densification happened on the way
+    for name in a:
+        assert torch.equal(a[name], b[name]), name
+    for index in a_moments:
+        for key in ("exp_avg", "exp_avg_sq"):
+            assert torch.equal(a_moments[index][key], b_moments[index][key])
+    assert torch.equal(a_state["rng"]["torch"], b_state["rng"]["torch"])
+    assert a_state["densify"]["resets_done"] == b_state["densify"]["resets_done"] == 1
+    assert [e["event"] for e in read_events(split)].count("resume") == 1
+
+
+def test_sigterm_checkpoints_and_resume_finishes(tiny_capture, tmp_path):
+    run = tmp_path / "run"
+    config = tmp_path / "tiny.toml"
+    config.write_text(C.to_toml(tiny_config(train={"steps": 5000, "checkpoint_every": 0})))
+    command = [sys.executable, "-m", "mogaface", "train", str(tiny_capture), "--out", str(run),
+               "--config", str(config), "--quiet"]
+    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:
+            events = read_events(run) if (run / "events.jsonl").exists() else []
+            if any(e["event"] == "iter" and e["step"] >= 3 for e in events):
+                break
+            assert process.poll() is None, process.communicate()
+            time.sleep(0.2)
+        process.send_signal(signal.SIGTERM)
+        process.communicate(timeout=60)
+    finally:
+        if process.poll() is None:
+            process.kill()
+    assert process.returncode == 128 + signal.SIGTERM
+    events = read_events(run)
+    stopped = events[-1]
+    assert stopped["event"] == "stopped" and stopped["signal"] == "SIGTERM"
+    assert load_checkpoint(latest_checkpoint(run / "checkpoints"))["step"] == stopped["step"]
+    assert not (run / "avatar.pt").exists()
+    finish = subprocess.run(command[:7] + ["--resume", "--steps", str(stopped["step"] + 2), "--quiet"],
+                            capture_output=True, timeout=120)
+    assert finish.returncode == 0, finish.stderr.decode()
+    info = json.loads((run / "run.json").read_text())
+    assert info["complete"] and info["final_step"] == stopped["step"] + 2
+    assert (run / "avatar.pt").exists()
