@@ -3,10 +3,11 @@
 The skin is a latitude–longitude grid: each grid vertex is a ray (from the head's
 centre for the cranium and face, sliding down the neck axis below the chin) that
 is intersected with the implicit head of ``procedural_sdf``. Rows and columns are
-denser on the face and ears. The eye and mouth openings are slits along one grid
+denser on the face. The eye and mouth openings are slits along one grid
 row, cut by doubling the row's vertices and pulling the two copies apart, so lid
-and lip rims are clean grid lines. An inner mouth bag closes the mouth, and the
-eyeballs are separate UV spheres. UVs follow the grid, so texture work can be
+and lip rims are clean grid lines. An inner mouth bag closes the mouth, a short
+lining runs from each eye opening into the eyeball, and the eyeballs are separate
+UV spheres (the ears come from ``procedural_ear``). UVs follow the grid, so texture work can be
 done per grid cell.
 """
 
@@ -31,7 +32,7 @@ MOUTH_ROW_ANGLE = 123.0  # polar angle of the lip seam
 EYE_CORNERS_DEG = (14.0, 33.0)  # azimuths of the inner and outer eye corners (+x eye)
 MOUTH_CORNER_DEG = 16.0
 
-SKIN_UV_BOTTOM = 0.25  # the skin fills v in [0.25, 1]; eyes and mouth share the strip below
+SKIN_UV_BOTTOM = 0.25  # the skin fills v in [0.25, 1]; eyes, mouth, lid lining and ears share the strip below
 EYE_UV_BOXES = ((0.0, 0.0, 0.25), (0.25, 0.0, 0.25))  # (u0, v0, size): +x eye, −x eye
 MOUTH_UV_BOX = (0.5, 0.0, 0.25, 0.2)  # (u0, v0, width, height)
 LID_LINING_UV_BOX = (0.5, 0.2, 0.25, 0.05)  # the lining inside both eye openings
@@ -278,10 +279,10 @@ def build_mouth_bag(vertices, upper_rim, lower_rim):
     lateral = np.clip(1.0 - ((rim[:, 0] - centre[0]) / half_width) ** 2, 0.0, None) ** 0.5
     side = np.where(is_lower, -1.0, 1.0)
     side[0] = side[len(upper_rim) - 1] = 0.0
-    #            depth,  height, width scale
-    # Lip lining, the biting edge of the teeth, the teeth's front, then the cavity.
-    # The biting edges reach a little past the lip seam, so teeth show when the mouth opens
-    # (the two rows overlap, hidden, when it is closed).
+    # (depth, height, width scale) of each ring: lip lining, the biting edge of the teeth,
+    # the teeth's front, then the cavity. The biting edges reach a little past the lip
+    # seam, so teeth show when the mouth opens (the rows overlap, hidden, when it is closed).
+    # At the corners the rings only step back and inwards, so no triangle collapses.
     profile = [(0.0025, 0.0008, 0.97), (0.005, -0.0018, 0.95), (0.009, 0.008, 0.97),
                (0.02, 0.014, 1.05), (0.034, 0.014, 0.95), (0.045, 0.009, 0.65)]
     rings = [loop]
@@ -290,9 +291,8 @@ def build_mouth_bag(vertices, upper_rim, lower_rim):
     for k, (depth, height, scale) in enumerate(profile, start=1):
         point = rim.copy()
         point[:, 0] = centre[0] + (rim[:, 0] - centre[0]) * scale
-        point[:, 1] = rim[:, 1] + side * height * (0.35 + 0.65 * lateral) + (1.0 - lateral) * 0.0
-        point[:, 2] = rim[:, 2] - depth - 0.004 * (1.0 - lateral) * (k > 0)
-        # Corners: separate the ring points vertically a little so nothing collapses.
+        point[:, 1] = rim[:, 1] + side * height * (0.35 + 0.65 * lateral)
+        point[:, 2] = rim[:, 2] - depth - 0.004 * (1.0 - lateral)
         ids = np.arange(next_id, next_id + n)
         next_id += n
         rings.append(ids)
@@ -323,6 +323,7 @@ def build_mouth_bag(vertices, upper_rim, lower_rim):
     for k in range(n_rings + 1):
         for l in range(n + 1):
             vt.append((u0 + w * (0.02 + 0.96 * l / n), v0 + h * (0.98 - 0.96 * k / n_rings)))
+
     def uv(k, l):
         return k * (n + 1) + l
     for k in range(n_rings - 1):

@@ -122,7 +122,7 @@ def head_sdf(p: np.ndarray) -> np.ndarray:
     return d
 
 
-def march_rays(origins: np.ndarray, directions: np.ndarray, r_max: float = 0.3, steps: int = 120) -> np.ndarray:
+def march_rays(origins: np.ndarray, directions: np.ndarray, r_max: float = 0.3, steps: int = 64) -> np.ndarray:
     """Distance along each ray to the outermost surface crossing, found from outside in.
 
     Rays start inside the head; sampling from far away inwards finds the first

@@ -154,13 +154,11 @@ def paint_skin(mesh, vertices, look, rng, height, width):
     colour *= (1.0 + 0.05 * noise(rng, shape, 0.7))[..., None]
     pores = rng.random(shape) < 0.05
     colour[pores] *= 0.9
-    # Rosy cheeks, nose and ears.
+    # Rosy cheeks and nose (the ears, painted in their own boxes, are redder too).
     red = np.array([0.80, 0.38, 0.36])
     rosy = (np.exp(-(((ax - 0.045) / 0.018) ** 2) - ((y + 0.02) / 0.02) ** 2) * (z > 0.03) * 0.18
             + np.exp(-((x / 0.012) ** 2) - ((y + 0.025) / 0.012) ** 2) * (z > 0.09) * 0.15)
-    ear = np.exp(-np.sum(((np.stack([ax, y, z], -1) - EAR_CENTRE - np.array([0.01, 0, 0])) /
-                          np.array([0.02, 0.04, 0.03])) ** 2, axis=-1))
-    colour = mix(colour, look.skin * red / red.max() * 1.05, np.clip(rosy + 0.3 * ear, 0, 1))
+    colour = mix(colour, look.skin * red / red.max() * 1.05, np.clip(rosy, 0, 1))
     # Freckles on the nose and cheeks.
     dens = np.exp(-((y + 0.01) / 0.03) ** 2) * np.exp(-((ax - 0.02) / 0.04) ** 2) * (z > 0.04)
     spots = gaussian_filter((rng.random(shape) < 0.004 * look.freckles * dens).astype(float), 1.0) * 6.0
@@ -174,7 +172,7 @@ def paint_skin(mesh, vertices, look, rng, height, width):
     upper = smoothstep(below, -(0.0085 + cupid) * width_lip - 0.0008, -(0.0085 + cupid) * width_lip + 0.0008)
     lower = 1.0 - smoothstep(below, 0.0105 * width_lip - 0.001, 0.0105 * width_lip + 0.001)
     lip = upper * lower * (width_lip > 0) * (z > 0.06)
-    lip_colour = look.lips * (1.0 + 0.06 * noise(rng, shape, 1.2, (1.0, 0.3)))[..., None]
+    lip_colour = look.lips * (1.0 + 0.09 * noise(rng, shape, 1.0, (1.5, 0.3)))[..., None]  # fine vertical lines
     colour = colour * (1 - lip[..., None]) + lip_colour * lip[..., None]
     colour *= (1.0 - 0.35 * np.exp(-((below / 0.0009) ** 2)) * (width_lip > 0) * (z > 0.06))[..., None]
     # Nostrils.
@@ -257,7 +255,7 @@ def paint_mouth(mesh, look, rng, height, width):
 
 def paint_ear(look, rng, height, width):
     """An ear box: the front disc (with its bowl and rim shaded in) and the back disc."""
-    colour = np.broadcast_to(look.skin * np.array([1.0, 0.9, 0.88]), (height, width, 3)).copy()
+    colour = np.broadcast_to(look.skin * np.array([1.0, 0.86, 0.84]), (height, width, 3)).copy()
     radius = 0.46 * height
     yy, xx = np.meshgrid(np.arange(height) + 0.5, np.arange(width) + 0.5, indexing="ij")
     for centre_x, is_front in ((0.5 * height, True), (1.5 * height, False)):
