@@ -20,7 +20,7 @@ import functools
 import numpy as np
 
 from .procedural_ear import build_ear
-from .procedural_sdf import EYE_CENTRE, EYE_RADIUS, march_rays
+from .procedural_sdf import EYE_CENTRE, EYE_RADIUS, hair_volume, march_rays
 
 N_HALF_COLUMNS = 38  # columns from the front midline to the back midline
 HEAD_ROWS = 58  # rows from the crown to the last ray from the centre
@@ -226,6 +226,7 @@ def build_skin(phis, columns, rows, eye_row, mouth_row):
     distance = march_rays(origins, directions)
     face_rays = param <= 1.0
     distance = distance + np.where(face_rays, lip_offset(theta, phi, distance), 0.0)
+    distance = distance + hair_volume(origins + distance[:, None] * directions)
     vertices = origins + distance[:, None] * directions
 
     faces, face_uv = [], []

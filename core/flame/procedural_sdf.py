@@ -122,6 +122,24 @@ def head_sdf(p: np.ndarray) -> np.ndarray:
     return d
 
 
+def hairline_height(p, recession=0.0):
+    """Height of the hairline around the head: forehead, temples, above the ears, nape.
+
+    ``recession`` lifts the front (receding temples most).
+    """
+    azimuth = np.degrees(np.abs(np.arctan2(p[..., 0], p[..., 2])))
+    front = np.interp(azimuth, [0, 12, 28, 45, 62, 80, 100, 125, 150, 180],
+                      [0.079, 0.080, 0.084, 0.066, 0.048, 0.040, 0.036, -0.02, -0.06, -0.072])
+    lift = recession * np.interp(azimuth, [0, 28, 60, 90], [0.6, 1.0, 0.5, 0.0])
+    return front + lift
+
+
+def hair_volume(p):
+    """Outward offset of the scalp where hair grows, so the head has a haircut's outline."""
+    rise = np.clip((p[..., 1] - hairline_height(p)) / 0.03, 0.0, 1.0)
+    return 0.005 * rise * rise * (3.0 - 2.0 * rise)
+
+
 def march_rays(origins: np.ndarray, directions: np.ndarray, r_max: float = 0.3, steps: int = 64) -> np.ndarray:
     """Distance along each ray to the outermost surface crossing, found from outside in.
 

@@ -18,7 +18,7 @@ from .procedural_mesh import (
     EAR_UV_BOXES, EYE_UV_BOXES, EYE_UV_POWER, IRIS_ANGLE, LID_LINING_UV_BOX, MOUTH_ROW_ANGLE, MOUTH_UV_BOX, SKIN_UV_BOTTOM, HeadMesh,
 )
 from .procedural_rig import smoothstep
-from .procedural_sdf import EAR_CENTRE, EYE_CENTRE
+from .procedural_sdf import EAR_CENTRE, EYE_CENTRE, hairline_height
 
 TEXTURE_SIZE = 1024
 
@@ -128,18 +128,6 @@ def skin_folds(p):
     forehead = sum(np.exp(-(((y - h - 0.004 * (x / 0.03) ** 2) / 0.0012) ** 2)) for h in (0.056, 0.066, 0.076))
     forehead = forehead * np.exp(-((x / 0.035) ** 4)) * (z > 0.05)
     return 0.16 * lid_crease + 0.07 * under_eye + 0.12 * nasolabial + 0.05 * forehead
-
-
-def hairline_height(p, recession=0.0):
-    """Height of the hairline around the head: forehead, temples, above the ears, nape.
-
-    ``recession`` lifts the front (receding temples most).
-    """
-    azimuth = np.degrees(np.abs(np.arctan2(p[..., 0], p[..., 2])))
-    front = np.interp(azimuth, [0, 12, 28, 45, 62, 80, 100, 125, 150, 180],
-                      [0.079, 0.080, 0.084, 0.066, 0.048, 0.040, 0.036, -0.02, -0.06, -0.072])
-    lift = recession * np.interp(azimuth, [0, 28, 60, 90], [0.6, 1.0, 0.5, 0.0])
-    return front + lift
 
 
 def paint_skin(mesh, vertices, look, rng, height, width):
