@@ -12,6 +12,7 @@ import numpy as np
 import torch
 
 from mogaface.core.avatar.avatar import Avatar
+from mogaface.core.avatar.gaussians import BoundGaussians
 from mogaface.core.data import layout
 from mogaface.core.data.capture import Capture
 from mogaface.core.data.generator import CaptureSettings, make_capture
@@ -29,11 +30,15 @@ def tiny_capture(tmp_path_factory) -> pathlib.Path:
     return _CACHE["capture"]
 
 
-def random_avatar(head_file, seed: int = 0, active_sh_degree: int = 1) -> Avatar:
-    """An untrained avatar with seeded random Gaussians (every band of SH filled, some unused)."""
+def random_avatar(head_file, seed: int = 0, active_sh_degree: int = 1, count: int = 3000) -> Avatar:
+    """An untrained avatar: ``count`` seeded random Gaussians on random triangles (several share
+    some, many have none), every SH band filled but only ``active_sh_degree`` in use."""
     avatar = Avatar.initial(head_file)
-    g = avatar.gaussians
     gen = torch.Generator().manual_seed(seed)
+    faces = torch.randint(0, len(avatar.gaussians), (count,), generator=gen)
+    tensors = {k: v.detach()[faces] for k, v in avatar.gaussians.tensors().items()}
+    avatar.gaussians = BoundGaussians(tensors.pop("binding"), avatar.gaussians.max_sh_degree, **tensors)
+    g = avatar.gaussians
     n = len(g)
     with torch.no_grad():
         g.local_position += 0.3 * torch.randn(n, 3, generator=gen)
