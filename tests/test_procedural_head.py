@@ -66,7 +66,12 @@ def test_head_has_human_size_and_flame_axes(head):
 
 
 def test_triangles_are_not_degenerate(head):
-    assert _triangle_areas(head["v_template"], head["f"]).min() > 1e-9
+    v, f = head["v_template"], head["f"]
+    areas = _triangle_areas(v, f)
+    assert areas.min() > 1e-9
+    # No needles either (1 for an equilateral triangle): triangle frames stay well defined.
+    squared_edges = sum(np.sum((v[f[:, (i + 1) % 3]] - v[f[:, i]]) ** 2, axis=1) for i in range(3))
+    assert (4.0 * np.sqrt(3.0) * areas / squared_edges).min() > 0.03
 
 
 def test_winding_is_consistent_and_outward(head, mesh):

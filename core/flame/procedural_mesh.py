@@ -171,6 +171,19 @@ def _lid_warp(theta, row_angle, opening, above, reach=9.0):
     return (-1.0 if above else 1.0) * opening * falloff
 
 
+def _even_near_crown(phis, col_of, row_param):
+    """Column azimuths per vertex: face-dense columns spread out evenly towards the crown.
+
+    All columns meet at the crown; keeping them evenly spaced there avoids needle-thin
+    triangles where the dense face columns would otherwise converge.
+    """
+    even = -np.pi + 2.0 * np.pi * np.arange(len(phis)) / len(phis)
+    even = even - even[np.argmin(np.abs(phis))]  # the front midline stays a column
+    blend = 1.0 - np.clip((row_param * 150.0 - 12.0) / 30.0, 0.0, 1.0)
+    blend = blend * blend * (3.0 - 2.0 * blend)
+    return phis[col_of] * (1.0 - blend) + even[col_of] * blend
+
+
 def build_skin(phis, columns, rows, eye_row, mouth_row):
     """Skin vertices (with slit copies), faces and UVs."""
     n_cols = len(phis)
@@ -205,7 +218,7 @@ def build_skin(phis, columns, rows, eye_row, mouth_row):
     is_lower_copy[1 + n_rows * n_cols:] = True
 
     param = rows[row_of]
-    phi = phis[col_of]
+    phi = _even_near_crown(phis, col_of, rows[row_of])
     _, _, base_theta = skin_rays(param, np.zeros(len(param)), phi)
     offset = np.zeros(len(param))
     for key, row, c0, c1, upper_open, lower_open, peaks in slits:
