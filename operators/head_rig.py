@@ -1,8 +1,8 @@
-"""Head objects in Blender: finding them, reading their rig, and re-posing them on frame change.
+"""Head objects in Blender: finding them, reading their rig, and re-posing them.
 
 A head object keeps its model file, identity and pose as custom properties (names in
 :mod:`..core.scene_conversion`), one shape key per expression component and a last shape key,
-"MoGaFace pose", that the ``frame_change_post`` handler rewrites from the core's FLAME
+"MoGaFace pose", that the handlers (frame change, edits) rewrite from the core's FLAME
 evaluation. The mesh then shows exactly what the core computes for the current expression
 values and pose properties, while the expression sliders stay ordinary shape keys.
 """
@@ -14,7 +14,9 @@ import numpy as np
 
 from .dependencies import missing_modules
 
-MODEL_PATH_PROPERTY = "mogaface_model_path"  # same value as core.scene_conversion's constant
+# The same values as core.scene_conversion's constants, here so that registering and drawing
+# never import the core (whose packages may be missing).
+MODEL_PATH_PROPERTY = "mogaface_model_path"
 POSE_KEY_NAME = "MoGaFace pose"
 
 

@@ -156,6 +156,8 @@ def test_installing_registers_the_operators_panels_settings_and_handler(scenario
     prefs = bpy.context.preferences.addons[MODULE].preferences
     assert prefs.python_path == sys.executable and prefs.threads == 0
     assert bpy.types.MOGAFACE_PT_main.bl_category == "MoGaFace"
+    head_rig = importlib.import_module(MODULE + ".operators.head_rig")
+    assert (head_rig.MODEL_PATH_PROPERTY, head_rig.POSE_KEY_NAME) == (sc.MODEL_PATH_PROPERTY, sc.POSE_KEY_NAME)
 
 
 def test_imported_cameras_project_the_head_like_the_core(scenario):
