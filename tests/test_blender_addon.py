@@ -330,6 +330,36 @@ def test_panels_draw_every_section_and_name_missing_packages(scenario, monkeypat
     assert f'"{sys.executable}" -m pip install numba torch' in labels
 
 
+NO_TORCH_SCRIPT = """
+import os, sys, tempfile
+folder = tempfile.mkdtemp()
+for name in ("BLENDER_USER_RESOURCES", "BLENDER_USER_CONFIG", "BLENDER_USER_SCRIPTS"):
+    os.environ[name] = folder
+sys.modules["torch"] = None  # as if torch were not installed
+import bpy, mogaface
+mogaface.register()
+assert "torch" not in sys.modules or sys.modules["torch"] is None
+try:
+    bpy.ops.mogaface.import_head(filepath=sys.argv[1])
+except RuntimeError as error:
+    print("REPORTED:", error)
+bpy.context.scene.frame_set(2)
+mogaface.unregister()
+import shutil
+shutil.rmtree(folder, ignore_errors=True)
+print("DONE")
+"""
+
+
+def test_without_torch_the_extension_registers_and_reports(scenario):
+    result = subprocess.run(
+        [sys.executable, "-c", NO_TORCH_SCRIPT, str(scenario["head"])], capture_output=True, text=True, timeout=120
+    )
+    assert result.returncode == 0 and "DONE" in result.stdout, result.stdout + result.stderr
+    assert "Missing Python packages: torch. Install them with:" in result.stdout
+    assert "Traceback" not in result.stdout + result.stderr
+
+
 def test_saved_blend_reopens_with_everything(scenario):
     path = scenario["root"] / "scene.blend"
     name = scenario["head_object"].name
