@@ -11,7 +11,7 @@ from bpy.props import BoolProperty, StringProperty
 
 from .animation import fcurve_container, write_fcurve
 from .common import core_or_report, run_core
-from .head_rig import is_head, update_head
+from .head_rig import is_head, rig_of, update_head
 
 
 class MOGAFACE_OT_import_tracking(bpy.types.Operator):
@@ -44,7 +44,10 @@ class MOGAFACE_OT_import_tracking(bpy.types.Operator):
         if core is None:
             return {"CANCELLED"}
         key = obj.data.shape_keys
-        n_expr = len(key.key_blocks) - 2  # Basis and the pose key around the expressions
+        rig = run_core(self, rig_of, obj)
+        if rig is None:
+            return {"CANCELLED"}
+        n_expr = rig.model.n_expr  # expression keys are key blocks 1…n_expr, after Basis
         channels = run_core(self, core.tracking_channels, bpy.path.abspath(self.directory), n_expr)
         if channels is None:
             return {"CANCELLED"}
