@@ -242,7 +242,8 @@ def read_identity(path, n_shape: int, n_vertices: int) -> tuple[np.ndarray, np.n
         offset = np.asarray(offset, np.float64)
         offset = offset[0] if offset.ndim == 3 and offset.shape[0] == 1 else offset
         if offset.shape != (n_vertices, 3) or not np.isfinite(offset).all():
-            raise InputError(path, "static_offset", f"expected shape ({n_vertices}, 3) for this head, found {offset.shape}")
+            problem = f"expected shape ({n_vertices}, 3) for this head, found {offset.shape}"
+            raise InputError(path, "static_offset", problem)
     return fit_components(shape, n_shape), offset
 
 

@@ -14,7 +14,9 @@ class MoGaFaceSceneSettings(bpy.types.PropertyGroup):
     )
     head_file: StringProperty(name="Head", subtype="FILE_PATH", description="FLAME-format head model (.pkl or .npz)")
     identity_file: StringProperty(
-        name="Identity", subtype="FILE_PATH", description="Optional flame_param .npz whose shape sets the head's identity"
+        name="Identity",
+        subtype="FILE_PATH",
+        description="Optional flame_param .npz whose shape sets the head's identity",
     )
     tracking_folder: StringProperty(
         name="Tracking", subtype="DIR_PATH", description="flame_param folder whose expressions and poses drive the head"

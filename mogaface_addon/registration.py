@@ -46,7 +46,8 @@ def register():
 
 def _same_function(a, b) -> bool:
     """Equal, or the same function of a reloaded copy of this module (add-on reload)."""
-    return a is b or (getattr(a, "__qualname__", None) == b.__qualname__ and getattr(a, "__module__", None) == b.__module__)
+    same_name = getattr(a, "__qualname__", None) == b.__qualname__
+    return a is b or (same_name and getattr(a, "__module__", None) == b.__module__)
 
 
 def unregister():

@@ -68,7 +68,8 @@ _posed_inputs: dict = {}
 
 def _inputs(obj, n_expr: int) -> tuple:
     pose = pose_values(obj)
-    return (obj[MODEL_PATH_PROPERTY], *expression_values(obj, n_expr).tolist(), *np.concatenate(list(pose.values())).tolist())
+    values = np.concatenate([expression_values(obj, n_expr), *pose.values()])
+    return (obj[MODEL_PATH_PROPERTY], *values.tolist())
 
 
 def update_head(obj, only_if_changed: bool = False) -> bool:

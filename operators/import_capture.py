@@ -52,7 +52,8 @@ def _load_image(path):
 
 def capture_cameras(collection) -> dict:
     """The capture cameras already in ``collection``, by camera id."""
-    return {obj["mogaface_camera_id"]: obj for obj in collection.objects if "mogaface_camera_id" in obj and obj.type == "CAMERA"}
+    objects = collection.objects
+    return {obj["mogaface_camera_id"]: obj for obj in objects if obj.type == "CAMERA" and "mogaface_camera_id" in obj}
 
 
 def build_camera(settings, collection, existing=None):

@@ -112,5 +112,6 @@ class MOGAFACE_OT_import_head(bpy.types.Operator):
             return {"CANCELLED"}
         obj = build_head(context, head, core)
         context.scene.mogaface.head_file = head.model_path
-        self.report({"INFO"}, f"Imported {obj.name}: {len(head.basis)} vertices, {len(head.expression_names)} expressions")
+        counts = f"{len(head.basis)} vertices, {len(head.expression_names)} expressions"
+        self.report({"INFO"}, f"Imported {obj.name}: {counts}")
         return {"FINISHED"}

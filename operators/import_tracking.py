@@ -21,7 +21,9 @@ class MOGAFACE_OT_import_tracking(bpy.types.Operator):
     bl_label = "Import Tracking"
     bl_options = {"REGISTER", "UNDO"}
 
-    directory: StringProperty(name="Tracking Folder", subtype="DIR_PATH", description="A flame_param folder of .npz files")
+    directory: StringProperty(
+        name="Tracking Folder", subtype="DIR_PATH", description="A flame_param folder of .npz files"
+    )
     filter_folder: BoolProperty(default=True, options={"HIDDEN"})
     target: StringProperty(name="Head", description="Head object to animate (empty: the active object)")
 

@@ -20,7 +20,8 @@ _USER_DIR = tempfile.mkdtemp(prefix="mogaface-blender-user-")
 atexit.register(shutil.rmtree, _USER_DIR, ignore_errors=True)
 _USER_VARS = ("BLENDER_USER_RESOURCES", "BLENDER_USER_CONFIG", "BLENDER_USER_SCRIPTS")
 if "bpy" in sys.modules:  # imported before us: only safe if it already used a temporary folder
-    assert all(os.environ.get(v, "").startswith(tempfile.gettempdir()) for v in _USER_VARS), "bpy uses real user folders"
+    _safe = all(os.environ.get(v, "").startswith(tempfile.gettempdir()) for v in _USER_VARS)
+    assert _safe, "bpy was imported with the real user folders"
 else:
     for _name in _USER_VARS:
         os.environ[_name] = _USER_DIR
@@ -76,10 +77,15 @@ def write_fixtures(root: pathlib.Path) -> dict:
     head = root / "head_a.npz"
     write_model_file(head, model)
     capture = root / "capture_a"
+    # Off-centre principal points and fx != fy (both ways), so shifts and pixel aspect matter.
+    rig = [
+        ("c0", [0.2, 0.1, 1.0], 50.0, 55.0, 18.3, 16.9),
+        ("c1", [-0.6, 0.0, 0.8], 48.0, 48.0, 21.0, 14.0),
+        ("c2", [0.0, 0.7, 0.7], 60.0, 52.0, 20.0, 15.0),
+    ]
     cameras = [
-        Camera.look_at([0.2, 0.1, 1.0], [0, 0, 0], width=40, height=30, fx=50.0, fy=55.0, cx=18.3, cy=16.9, camera_id="c0"),
-        Camera.look_at([-0.6, 0.0, 0.8], [0, 0, 0], width=40, height=30, fx=48.0, fy=48.0, cx=21.0, cy=14.0, camera_id="c1"),
-        Camera.look_at([0.0, 0.7, 0.7], [0, 0, 0], width=40, height=30, fx=60.0, fy=52.0, cx=20.0, cy=15.0, camera_id="c2"),
+        Camera.look_at(eye, [0, 0, 0], width=40, height=30, fx=fx, fy=fy, cx=cx, cy=cy, camera_id=name)
+        for name, eye, fx, fy, cx, cy in rig
     ]
     with CaptureWriter(capture) as writer:
         for t in range(3):
