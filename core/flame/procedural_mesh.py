@@ -184,6 +184,28 @@ def _even_near_crown(phis, col_of, row_param):
     return phis[col_of] * (1.0 - blend) + even[col_of] * blend
 
 
+def _relax_jaw_angle(vertices, faces, iterations=2, rate=0.5):
+    """Smooth the skin below and behind the jaw angle.
+
+    The rays there graze the skin between jaw and neck, so neighbouring rays land a
+    little unevenly; a few local averaging steps remove the resulting sawtooth.
+    """
+    x, y, z = vertices.T
+    region = (np.clip((np.abs(x) - 0.03) / 0.015, 0.0, 1.0) * np.clip((-0.02 - y) / 0.015, 0.0, 1.0)
+              * np.clip((-0.15 - y) / -0.02, 0.0, 1.0) * np.clip((0.06 - z) / 0.02, 0.0, 1.0))
+    edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    edges = np.concatenate([edges, edges[:, ::-1]])
+    count = np.bincount(edges[:, 0], minlength=len(vertices))
+    out = vertices.copy()
+    step = (rate * region)[:, None]
+    for _ in range(iterations):
+        mean = np.zeros_like(out)
+        np.add.at(mean, edges[:, 0], out[edges[:, 1]])
+        mean /= np.maximum(count, 1)[:, None]
+        out += step * (mean - out)
+    return out
+
+
 def build_skin(phis, columns, rows, eye_row, mouth_row):
     """Skin vertices (with slit copies), faces and UVs."""
     n_cols = len(phis)
@@ -262,6 +284,7 @@ def build_skin(phis, columns, rows, eye_row, mouth_row):
             faces += [(a, d, c), (a, c, b)]
             ua, ub, uc, ud = uv_id(i, j), uv_id(i, j + 1), uv_id(i + 1, j + 1), uv_id(i + 1, j)
             face_uv += [(ua, ud, uc), (ua, uc, ub)]
+    vertices = _relax_jaw_angle(vertices, np.array(faces))
     uu, vv = np.meshgrid(np.arange(uv_cols) / n_cols, np.arange(n_rows + 1) / n_rows)
     uu[0] = np.minimum((np.arange(uv_cols) + 0.5) / n_cols, 1.0)
     vt = np.stack([uu.ravel(), 1.0 - (1.0 - SKIN_UV_BOTTOM) * vv.ravel()], axis=-1)
