@@ -98,6 +98,7 @@ def test_evaluate_run_scores_full_images(capture, run, tmp_path):
     assert set(on_disk["protocols"]) == {"novel_view", "self_reenactment"}
     novel = result["protocols"]["novel_view"]
     assert novel["frames"] == 2 and set(novel["per_camera"]) == {"cam01"}
+    assert len(on_disk["protocols"]["novel_view"]["per_frame"]) == 2
     assert 0 < novel["lpips"] < 1 and -1 < novel["ssim"] < 1 and 5 < novel["psnr"] < 60
     # The mean is the mean of per-frame scores of the full image against the stored frame.
     frames = protocol_frames(capture, "novel_view", max_frames=2)

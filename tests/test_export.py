@@ -2,7 +2,6 @@
 
 import numpy as np
 import pytest
-import torch
 
 from mogaface.core.avatar.avatar import Avatar
 from mogaface.core.avatar.export import (

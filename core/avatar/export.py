@@ -101,7 +101,8 @@ def import_binding_ply(path: str | os.PathLike, head_file: str | os.PathLike) ->
         raise InputError(path, "binding_0", "missing: a world-space PLY cannot be bound to a head model")
     flame = FlameModel.load(head_file)
     if len(data["binding"]) and int(data["binding"].max()) >= len(flame.faces):
-        raise InputError(path, "binding_0", f"face ids reach {int(data['binding'].max())}, the head model has {len(flame.faces)} faces")
+        problem = f"face ids reach {int(data['binding'].max())}, the head model has {len(flame.faces)} faces"
+        raise InputError(path, "binding_0", problem)
     if data["sh_degree"] > 3:
         raise InputError(path, "f_rest", f"SH degree {data['sh_degree']} is above 3")
     sh = torch.from_numpy(data["sh"])

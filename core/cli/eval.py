@@ -20,7 +20,8 @@ def add_arguments(parser) -> None:
         help="also render cross-identity reenactment driven by this capture's tracked motion",
     )
     parser.add_argument(
-        "--driver-cameras", metavar="IDS", help="comma-separated cameras of the run's capture for --driver (default: all)"
+        "--driver-cameras", metavar="IDS",
+        help="comma-separated cameras of the run's capture for --driver (default: all)",
     )
     parser.add_argument("--capture", type=pathlib.Path, help="the run's capture folder, when it has moved")
     parser.add_argument("--out", type=pathlib.Path, metavar="DIR", help="where outputs go (default: the run folder)")

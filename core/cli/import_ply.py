@@ -23,7 +23,8 @@ def run(args) -> int:
     beside = args.out.parent / args.head.name
     if beside.exists():
         if not filecmp.cmp(beside, args.head, shallow=False):
-            raise InputError(beside, None, f"a different head model is already there; {args.out} needs {args.head} beside it")
+            problem = f"a different head model is already there; {args.out} needs {args.head} beside it"
+            raise InputError(beside, None, problem)
     else:
         with atomic_path(beside) as tmp:
             shutil.copyfile(args.head, tmp)

@@ -13,7 +13,6 @@ module) must leave that view out. The scored image is never an input to anything
 from __future__ import annotations
 
 import dataclasses
-import math
 import os
 import pathlib
 from collections.abc import Iterable, Iterator
@@ -151,7 +150,9 @@ def target_image(capture: Capture, frame: Frame, background, capture_background=
     return (rgb * mask[..., None] + bg * (1.0 - mask[..., None])).astype(np.float32)
 
 
-def render_frame(avatar, params: dict[str, np.ndarray], camera, background, clamp: bool = True) -> tuple[np.ndarray, np.ndarray]:
+def render_frame(
+    avatar, params: dict[str, np.ndarray], camera, background, clamp: bool = True
+) -> tuple[np.ndarray, np.ndarray]:
     """``(rgb (H,W,3), alpha (H,W))`` of the avatar posed by ``params``, as numpy float32.
 
     ``clamp=False`` keeps colours outside [0, 1] (SH can overshoot) for compositing later.
@@ -273,16 +274,18 @@ def evaluate_run(
         rows = []
         for index, item in enumerate(run_protocol(avatar, cap, source, frames, run.background)):
             row = score(item, lpips)
-            rows.append({"timestep": item.frame.timestep_index, "camera": item.frame.camera_id,
-                         "sequence": item.frame.sequence, **row})
+            frame = item.frame
+            rows.append({"timestep": frame.timestep_index, "camera": frame.camera_id, "sequence": frame.sequence, **row})
             if index < comparisons:
-                report.write_comparison(out / report.EVAL_DIR / f"{name}_{item.frame.timestep_index:05d}_{item.frame.camera_id}.png", item)
+                stem = f"{name}_{frame.timestep_index:05d}_{frame.camera_id}"
+                report.write_comparison(out / report.EVAL_DIR / f"{stem}.png", item)
             if bar:
                 bar.update(note=name)
         summary = _summary(rows, keys)
-        summary["per_camera"] = {c: _summary([r for r in rows if r["camera"] == c], keys) for c in sorted({r["camera"] for r in rows})}
-        sequences = sorted({r["sequence"] for r in rows if r["sequence"] is not None})
-        summary["per_sequence"] = {s: _summary([r for r in rows if r["sequence"] == s], keys) for s in sequences}
+        for field, group in (("camera", "per_camera"), ("sequence", "per_sequence")):
+            values = sorted({r[field] for r in rows if r[field] is not None})
+            summary[group] = {v: _summary([r for r in rows if r[field] == v], keys) for v in values}
+        summary["per_frame"] = rows
         result["protocols"][name] = summary
     if driver is not None:
         result["cross_identity"] = report.write_cross_identity(

@@ -100,4 +100,5 @@ def write_cross_identity(avatar, capture, run, driver, out: pathlib.Path, max_fr
     picks = np.unique(np.round(np.linspace(0, columns - 1, min(columns, STRIP_COLUMNS))).astype(int))
     strip = out / "strip.png"
     write_png(strip, strip_image([[row[i][1] for i in picks] for row in images.values()]))
-    return {"driver": str(pathlib.Path(driver).resolve()), "frames": len(written), "strip": str(strip), "images": written}
+    driver = str(pathlib.Path(driver).resolve())
+    return {"driver": driver, "frames": len(written), "strip": str(strip), "images": written}

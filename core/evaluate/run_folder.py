@@ -84,7 +84,8 @@ class RunFolder:
         if "background" in self.info:
             self.background = parse_background(self.info["background"], run_file)
         else:
-            self.background = parse_background(capture_info(self.capture_root).get("background", DEFAULT_BACKGROUND), self.capture_root)
+            recorded = capture_info(self.capture_root).get("background", DEFAULT_BACKGROUND)
+            self.background = parse_background(recorded, self.capture_root)
         self.flame_param_dir = self.root / FLAME_PARAM_DIR
         self.trained_timesteps = sorted(
             int(p.stem) for p in self.flame_param_dir.glob("*.npz") if p.stem.isdigit()
