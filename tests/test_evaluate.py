@@ -19,7 +19,7 @@ from mogaface.core.evaluate.protocols import (
     views_at,
 )
 from mogaface.core.evaluate.run_folder import RunFolder
-from test_evaluate_fixtures import EXPR_NUDGE, driver_capture, fake_run, tiny_capture
+from test_evaluate_fixtures import EXPR_NUDGE, driver_capture, fake_run, render_np, tiny_capture
 
 
 @pytest.fixture(scope="module")
@@ -90,6 +90,10 @@ def test_driven_params_keep_identity_take_motion(capture, run, tmp_path_factory)
     for key in ("expr", "jaw_pose", "eyes_pose", "neck_pose", "rotation", "translation"):
         np.testing.assert_array_equal(params[key], driver.flame_params(5)[key])
     assert not np.allclose(params["shape"], driver.flame_params(5)["shape"])
+    n = len(params["expr"])
+    longer = DrivenParams(identity, driver, n_expr=n + 3).params_for(5)["expr"]
+    np.testing.assert_array_equal(longer, np.concatenate([params["expr"], np.zeros(3, np.float32)]))
+    np.testing.assert_array_equal(DrivenParams(identity, driver, n_expr=n - 2).params_for(5)["expr"], params["expr"][:-2])
 
 
 def test_evaluate_run_scores_full_images(capture, run, tmp_path):
@@ -133,6 +137,14 @@ def test_eval_cli_with_driver(run, tmp_path, tmp_path_factory, capsys):
     assert read_image(strip).shape == (2 * 48, 2 * 48, 3)
     assert sorted(p.name for p in strip.parent.glob("0*.png")) == ["00000_cam00.png", "00000_cam02.png", "00015_cam00.png", "00015_cam02.png"]
     assert "novel view" in capsys.readouterr().out
+    # What was written is subject A posed by B's motion, as the avatar renders it.
+    avatar, own_capture = run.load_avatar(), Capture.open(run.capture_root)
+    camera = own_capture.cameras["cam02"]
+    driven, _ = render_np(avatar, DrivenParams(run.identity_params(), Capture.open(driver)).params_for(15), camera)
+    written = read_image(strip.parent / "00015_cam02.png")
+    np.testing.assert_allclose(written, np.clip(driven, 0, 1), atol=1 / 255 + 1e-6)
+    own, _ = render_np(avatar, TrackedParams(own_capture, run).params_for(15), camera)
+    assert np.abs(np.clip(own, 0, 1) - written).max() > 0.05  # not A's own performance
 
 
 def test_eval_cli_reports_a_missing_run(tmp_path, capsys):

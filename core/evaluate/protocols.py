@@ -67,21 +67,30 @@ class TrackedParams:
 
 class DrivenParams:
     """Cross-identity: subject A's identity (shape, static offset) with subject B's tracked
-    motion (expression, jaw, eyes, neck, head rotation and translation) of one B timestep."""
+    motion (expression, jaw, eyes, neck, head rotation and translation) of one B timestep.
+
+    ``n_expr`` (A's model's count) trims B's expression or pads it with zeros when the two
+    were tracked with different numbers of components.
+    """
 
     uses_images = False
 
-    def __init__(self, identity: dict[str, np.ndarray], driver: Capture):
-        missing = [k for k in ("shape",) if k not in identity]
-        if missing:
-            raise InputError(None, missing[0], "the driven subject's identity parameters need a shape")
+    def __init__(self, identity: dict[str, np.ndarray], driver: Capture, n_expr: int | None = None):
+        if "shape" not in identity:
+            raise InputError(None, "shape", "the driven subject's identity parameters need a shape")
         self.identity = identity
         self.driver = driver
+        self.n_expr = n_expr
 
     def params_for(self, frame: Frame | int, exclude_view: str | None = None) -> dict[str, np.ndarray]:
         timestep = frame if isinstance(frame, int) else frame.timestep_index
         motion = self.driver.flame_params(timestep)
         params = {k: motion[k] for k in MOTION_KEYS}
+        if self.n_expr is not None and len(params["expr"]) != self.n_expr:
+            expr = np.zeros(self.n_expr, np.float32)
+            kept = min(self.n_expr, len(params["expr"]))
+            expr[:kept] = params["expr"][:kept]
+            params["expr"] = expr
         params.update({k: v for k, v in self.identity.items() if k in IDENTITY_KEYS})
         return params
 

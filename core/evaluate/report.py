@@ -83,7 +83,7 @@ def write_cross_identity(avatar, capture, run, driver, out: pathlib.Path, max_fr
     identity = run.identity_params() or {
         k: v for k, v in capture.flame_params(capture.timesteps[0]).items() if k in ("shape", "static_offset")
     }
-    source = DrivenParams(identity, driving)
+    source = DrivenParams(identity, driving, n_expr=avatar.flame.n_expr)
     cameras = list(capture.cameras) if cameras is None else list(cameras)
     count = len(cameras) * min(len(driving.timesteps), max_frames or len(driving.timesteps))
     bar = ProgressBar(count, "cross-identity") if progress else None
