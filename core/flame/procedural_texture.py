@@ -168,7 +168,7 @@ def paint_skin(mesh, vertices, look, rng, height, width):
     colour *= (1.0 - 0.6 * np.clip(1.5 * nostril, 0, 1) * smoothstep(-y, 0.038, 0.041))[..., None]
     # Eyebrows: an arch of short hair strokes above each eye.
     arch = 0.031 + 0.007 * np.clip(1.0 - ((ax - 0.03) / 0.026) ** 2, 0, 1)
-    thickness = 0.0055 * np.clip(1.2 - (ax - 0.012) / 0.05, 0.3, 1.0)
+    thickness = 0.0062 * np.clip(1.2 - (ax - 0.012) / 0.05, 0.3, 1.0)
     brow = (np.exp(-(((y - arch) / thickness) ** 4)) * smoothstep(ax, 0.008, 0.014)
             * (1.0 - smoothstep(ax, 0.05, 0.058)) * (z > 0.05))
     strokes = np.clip(1.6 * noise(rng, shape, 1.0, (0.5, 5.0)) - 0.2, 0, 1)
@@ -283,6 +283,6 @@ def paint_texture(mesh: HeadMesh, vertices: np.ndarray, look: Look, rng: np.rand
         image[top:top + hh, left:left + ww] = paint_ear(look, rng, hh, ww)
     u0, v0, w, h = LID_LINING_UV_BOX
     top, left = size - int(round((v0 + h) * size)), int(round(u0 * size))
-    lining = look.skin * np.array([0.85, 0.62, 0.62])
+    lining = look.skin * np.array([0.78, 0.64, 0.62])
     image[top:top + int(round(h * size)), left:left + int(round(w * size))] = lining
     return (np.clip(image, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
