@@ -68,12 +68,17 @@ def _reset_peak():
         return False
 
 
-def _median_ms(fn, repeats):
-    times = []
+def _median_ms(fn, repeats, cpu=None):
+    """Median and best wall time in ms; with ``cpu`` (a list), also appends the median process
+    CPU time, which other processes on the machine do not inflate (threads spinning do)."""
+    times, cpu_times = [], []
     for _ in range(repeats):
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         fn()
         times.append((time.perf_counter() - t0) * 1e3)
+        cpu_times.append((time.process_time() - c0) * 1e3)
+    if cpu is not None:
+        cpu.append(round(statistics.median(cpu_times), 2))
     return round(statistics.median(times), 2), round(min(times), 2)
 
 
@@ -101,7 +106,7 @@ def _child(config):
 
     small, sv, sk = head_scene(100, 32, 32)
     rasterize(*[p.clone().requires_grad_(True) for p in small], sv, sk, 32, 32).rgb.sum().backward()  # load kernels
-    result = {"n": n, "size": size}
+    result = {"n": n, "size": size, "load_average_1min": round(os.getloadavg()[0], 2)}
     base = _rss_kb("VmRSS")
     if _reset_peak():
         out = step(rasterize, True)
@@ -111,8 +116,10 @@ def _child(config):
         out = step(rasterize, True)
     result["coverage"] = round(float((out.alpha > 0.5).float().mean()), 3)
     result["visible"] = int((out.radii > 0).sum())
-    result["forward_ms"], result["forward_best_ms"] = _median_ms(lambda: step(rasterize, False), repeats)
-    result["fwd_bwd_ms"], result["fwd_bwd_best_ms"] = _median_ms(lambda: step(rasterize, True), repeats)
+    cpu = []
+    result["forward_ms"], result["forward_best_ms"] = _median_ms(lambda: step(rasterize, False), repeats, cpu)
+    result["fwd_bwd_ms"], result["fwd_bwd_best_ms"] = _median_ms(lambda: step(rasterize, True), repeats, cpu)
+    result["forward_cpu_ms"], result["fwd_bwd_cpu_ms"] = cpu
 
     # reference: bands of rows, each against the splats whose 3-sigma radius reaches it, under
     # gradient checkpointing; its cost is about (pixel, splat) pairs visited
@@ -163,7 +170,10 @@ def run(threads: int = 2, quick: bool = False) -> dict:
         "quick": quick,
         "machine": {"cpu_count": os.cpu_count(), "platform": platform.platform(),
                     "processor": platform.processor() or platform.machine()},
+        "note": "timings are wall-clock on a shared machine; load_average_1min above the thread count "
+                "means other processes competed for the cores, compare ratios and best-of times then",
         "units": {"time": "ms, median (and best) of repeats; one step = rasterize (+ L1 loss backward)",
+                  "cpu_ms": "median process CPU time of a step, all threads summed (spin-waits included)",
                   "peak_mem_mb": "peak RSS growth during one forward+backward over the RSS before it "
                                  "(scene tensors already allocated; Linux VmHWM after clear_refs)"},
         "results": results,
