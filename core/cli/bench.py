@@ -8,6 +8,7 @@ import sys
 
 BENCHMARKS = {
     "splat": "the CPU Gaussian splat engine against its torch reference",
+    "train": "the full training step (render, loss, backward, Adam) in steps per second",
 }
 
 

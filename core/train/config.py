@@ -82,6 +82,8 @@ class EvalSection:
     at_end: bool = _setting(True, "evaluate on the val split (held-out camera) after training")
     max_frames: int = _setting(0, "val frames to evaluate, evenly spaced (0: all)")
     lpips: bool = _setting(True, "include LPIPS (needs the AlexNet weights)")
+    every: int = _setting(0, "steps between quick val checks during training ('val' events; 0: none)")
+    every_frames: int = _setting(6, "val frames each quick check renders (evenly spaced, no LPIPS)")
 
 
 @dataclasses.dataclass
@@ -107,7 +109,7 @@ class TrainConfig:
             if value <= 0:
                 raise InputError(source, key, f"must be positive (got {_get(self, key)})")
         for key in ("train.checkpoint_every", "densify.start", "densify.stop", "densify.opacity_reset_interval",
-                    "eval.max_frames", "lr.scene_extent", "train.seed"):
+                    "eval.max_frames", "eval.every", "eval.every_frames", "lr.scene_extent", "train.seed"):
             if _get(self, key) < 0:
                 raise InputError(source, key, f"must be >= 0 (got {_get(self, key)})")
         if not 0 <= self.densify.max_sh_degree <= 3:

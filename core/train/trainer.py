@@ -276,6 +276,9 @@ class Trainer:
                                      it_s=rate, eta_s=(cfg.steps - self.step) / max(rate, 1e-9),
                                      elapsed_s=self.elapsed)
                     window_start, window_steps = now, 0
+                if self.config.eval.every and self.step % self.config.eval.every == 0:
+                    self._quick_check()
+                    last = time.monotonic()
                 if cfg.checkpoint_every and self.step % cfg.checkpoint_every == 0 and self.step < cfg.steps:
                     self.checkpoint()
             if self._stop_signal is not None or self.step < cfg.steps:
@@ -288,6 +291,19 @@ class Trainer:
             return {"step": self.step, "stopped": None, "complete": True}
         finally:
             self.events.close()
+
+    def _quick_check(self) -> None:
+        """A few val frames' PSNR/SSIM as a 'val' event (not counted in the training time)."""
+        if "val" not in self.data.capture.splits:
+            return
+        from .config import EvalSection
+        from .quick_eval import evaluate_val
+
+        self.avatar.gaussians.active_sh_degree = self.strategy.schedule.sh_degree(self.step)
+        settings = EvalSection(max_frames=self.config.eval.every_frames, lpips=False)
+        metrics = evaluate_val(self.avatar, self.data, self.table, settings)
+        self.events.emit("val", step=self.step, **{k: metrics[k] for k in ("frames", "psnr", "ssim", "psnr_masked",
+                                                                         "ssim_masked")})
 
     # -- results --------------------------------------------------------------------------------
     def finish(self) -> None:

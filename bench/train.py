@@ -1,0 +1,96 @@
+"""Benchmark of the full training step (render, loss, backward, Adam, densify bookkeeping).
+
+Makes a small synthetic capture (3 views, 256², default head) in a temporary folder, then times
+training steps of the default settings with densification off, at the avatar's starting size
+(one Gaussian per triangle) and, unless ``quick``, with every Gaussian tripled (jittered copies,
+the size a densified avatar reaches). Reports steps per second, the median step and the load
+average, since a busy machine slows every number here.
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+import statistics
+import tempfile
+import time
+
+
+def _make_capture(folder, size):
+    from mogaface.core.data.generator import CaptureSettings, make_capture
+
+    return make_capture(folder, CaptureSettings(views=3, timesteps=16, size=size, supersample=1), progress=False)
+
+
+def _grow(trainer, factor, seed=0):
+    """Give every Gaussian ``factor - 1`` jittered copies (same triangle), as densification would."""
+    import torch
+
+    from mogaface.core.avatar.densify import edit_rows
+
+    g = trainer.avatar.gaussians
+    generator = torch.Generator().manual_seed(seed)
+    copies = {name: t.detach().repeat(factor - 1, *[1] * (t.dim() - 1)) for name, t in g.tensors().items()}
+    copies["local_position"] = copies["local_position"] + 0.3 * torch.randn(
+        copies["local_position"].shape, generator=generator)
+    edit_rows(g, trainer.optimizer, None, copies)
+    trainer.strategy._reset_statistics(len(g))
+
+
+def _time_steps(trainer, warmup, steps):
+    for _ in range(warmup):
+        trainer.train_step()
+    times = []
+    for _ in range(steps):
+        start = time.perf_counter()
+        trainer.train_step()
+        times.append(time.perf_counter() - start)
+    return times
+
+
+def run(threads: int = 2, quick: bool = False) -> dict:
+    from mogaface.core.train import config as config_module
+    from mogaface.core.train.trainer import Trainer
+
+    size = 256
+    steps = 10 if quick else 40
+    factors = (1,) if quick else (1, 3)
+    results = []
+    with tempfile.TemporaryDirectory(prefix="mogaface-bench-train-") as folder:
+        start = time.perf_counter()
+        capture = _make_capture(os.path.join(folder, "capture"), size)
+        capture_s = time.perf_counter() - start
+        for factor in factors:
+            config = config_module.resolve(overrides={
+                "train": {"steps": 100000, "threads": threads, "checkpoint_every": 0},
+                "densify": {"start": 100000, "stop": 100000, "opacity_reset_interval": 0},
+                "eval": {"at_end": False},
+            })
+            trainer = Trainer(capture, os.path.join(folder, f"run{factor}"), config)
+            if factor > 1:
+                _grow(trainer, factor)
+            # Warm up (numba cache, first images) with opacities raised as a trained avatar has them.
+            import torch
+
+            with torch.no_grad():
+                trainer.avatar.gaussians.opacity_logit.fill_(2.0)
+            times = _time_steps(trainer, 3, steps)
+            results.append({
+                "gaussians": len(trainer.avatar.gaussians),
+                "steps": steps,
+                "it_s": round(len(times) / sum(times), 3),
+                "median_step_ms": round(1000 * statistics.median(times), 2),
+                "min_step_ms": round(1000 * min(times), 2),
+            })
+            trainer.events.close()
+    return {
+        "benchmark": "train",
+        "threads": threads,
+        "quick": quick,
+        "image": [size, size],
+        "capture_views": 3,
+        "capture_seconds": round(capture_s, 1),
+        "load_average": [round(x, 2) for x in os.getloadavg()],
+        "machine": {"cpu_count": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version()},
+        "results": results,
+    }
