@@ -15,7 +15,27 @@ from . import projection, raster, tiles
 
 
 def _np(t: torch.Tensor) -> np.ndarray:
-    return t.detach().contiguous().numpy()
+    # numpy makes it contiguous if needed (e.g. the stride-0 gradient of a sum) without a torch
+    # parallel region
+    return np.ascontiguousarray(t.detach().numpy())
+
+
+ITEMS_PER_THREAD = 65536
+
+
+class _threads:
+    """Run per-splat passes on fewer threads when they are short: waking a second thread costs
+    more than it saves there, and far more when other processes hold the cores."""
+
+    def __init__(self, items):
+        self.count = max(1, min(numba.get_num_threads(), items // ITEMS_PER_THREAD))
+
+    def __enter__(self):
+        self.old = numba.get_num_threads()
+        numba.set_num_threads(self.count)
+
+    def __exit__(self, *exc):
+        numba.set_num_threads(self.old)
 
 
 class Project(torch.autograd.Function):
@@ -30,7 +50,8 @@ class Project(torch.autograd.Function):
         depths = np.empty(n, np.float32)
         cov2d = np.empty((n, 3), np.float64)
         radii = np.empty(n, np.int32)
-        projection.project_forward(m, q, s, viewmat, K, width, height, means2d, conics, depths, cov2d, radii)
+        with _threads(n):
+            projection.project_forward(m, q, s, viewmat, K, width, height, means2d, conics, depths, cov2d, radii)
         ctx.state = (m, q, s, viewmat, K, width, height, radii)
         cov2d_t, radii_t = torch.from_numpy(cov2d), torch.from_numpy(radii)
         ctx.mark_non_differentiable(cov2d_t, radii_t)
@@ -43,8 +64,9 @@ class Project(torch.autograd.Function):
         v_m = np.empty((n, 3), np.float32)
         v_q = np.empty((n, 4), np.float32)
         v_s = np.empty((n, 3), np.float32)
-        projection.project_backward(m, q, s, viewmat, K, width, height, radii, _np(v_means2d),
-                                    _np(v_conics), _np(v_depths), v_m, v_q, v_s)
+        with _threads(n):
+            projection.project_backward(m, q, s, viewmat, K, width, height, radii, _np(v_means2d),
+                                        _np(v_conics), _np(v_depths), v_m, v_q, v_s)
         return torch.from_numpy(v_m), torch.from_numpy(v_q), torch.from_numpy(v_s), None, None, None, None
 
 
@@ -63,8 +85,9 @@ class Rasterize(torch.autograd.Function):
     @staticmethod
     def forward(ctx, means2d, conics, colors, opacities, depths, background, cov2d, radii, width, height):
         m2, con, col, op, dep = _np(means2d), _np(conics), _np(colors), _np(opacities), _np(depths)
-        bins = tiles.bin_gaussians(m2, _np(cov2d), dep, op, _np(radii), width, height)
-        packed = raster.pack(bins.order, m2, con, _np(cov2d), op, col, dep)
+        with _threads(m2.shape[0]):
+            bins = tiles.bin_gaussians(m2, _np(cov2d), dep, op, _np(radii), width, height)
+            packed = raster.pack(bins.order, m2, con, _np(cov2d), op, col, dep)
         work = np.diff(bins.tile_offsets)
         queue = np.argsort(-work, kind="stable").astype(np.int64)
         rgb = np.empty((height, width, 3), np.float32)
@@ -76,8 +99,7 @@ class Rasterize(torch.autograd.Function):
         ctx.state = (bins, packed, queue, rgb, depth, trans, last, width, height, means2d.shape[0])
         visible = torch.from_numpy(bins.visible)
         ctx.mark_non_differentiable(visible)
-        trans_t = torch.from_numpy(trans)
-        return torch.from_numpy(rgb), 1.0 - trans_t, torch.from_numpy(depth), visible
+        return torch.from_numpy(rgb), torch.from_numpy(1.0 - trans), torch.from_numpy(depth), visible
 
     @staticmethod
     def backward(ctx, v_rgb, v_alpha, v_depth, _visible):
@@ -90,10 +112,11 @@ class Rasterize(torch.autograd.Function):
         v_op = np.empty(n, np.float32)
         v_col = np.empty((n, 3), np.float32)
         v_dep = np.empty(n, np.float32)
-        raster.reduce_slots(bins.order, bins.rank_offsets, bins.isect_of, slot, n, v_m2, v_con, v_op,
-                            v_col, v_dep)
+        with _threads(n):
+            raster.reduce_slots(bins.order, bins.rank_offsets, bins.isect_of, slot, n, v_m2, v_con, v_op,
+                                v_col, v_dep)
         v_bg = None
         if ctx.needs_input_grad[5]:
-            v_bg = (torch.from_numpy(trans)[..., None] * v_rgb).sum((0, 1))
+            v_bg = torch.from_numpy(np.einsum("hw,hwc->c", trans, _np(v_rgb)).astype(np.float32))
         return (torch.from_numpy(v_m2), torch.from_numpy(v_con), torch.from_numpy(v_col),
                 torch.from_numpy(v_op), torch.from_numpy(v_dep), v_bg, None, None, None, None)
