@@ -165,3 +165,19 @@ def test_sigterm_checkpoints_and_resume_finishes(tiny_capture, tmp_path):
     info = json.loads((run / "run.json").read_text())
     assert info["complete"] and info["final_step"] == stopped["step"] + 2
     assert (run / "avatar.pt").exists()
+
+
+def test_flame_finetuning_moves_the_trained_timesteps(tiny_capture, tmp_path):
+    run = tmp_path / "run"
+    config = tiny_config(train={"steps": 6}, flame={"finetune": True, "joints_lr": 1e-3, "translation_lr": 1e-3})
+    Trainer(tiny_capture, run, config).run()
+    capture = Capture.open(tiny_capture)
+    timesteps = json.loads((run / "run.json").read_text())["train_timesteps"]
+    assert json.loads((run / "run.json").read_text())["flame_finetuned"]
+    changed = 0
+    for t in timesteps:
+        written = Capture._load_flame(run / "flame_param" / f"{t:05d}.npz", None)
+        tracked = capture.flame_params(t)
+        assert (written["shape"] == tracked["shape"]).all()
+        changed += any(not (written[k] == tracked[k]).all() for k in ("expr", "jaw_pose", "translation"))
+    assert changed >= 3
