@@ -154,12 +154,17 @@ def run(threads: int = 2, quick: bool = False) -> dict:
     sizes = [256] if quick else [256, 512]
     counts = [10_000] if quick else [10_000, 30_000, 100_000]
     repeats = 3 if quick else 11
+    # OpenMP threads that spin while waiting hold a core another thread needs; on a shared machine
+    # that costs 2-3x at 2 threads. torch and numba share torch's libgomp, which reads this when
+    # torch is imported, so it is set for the child processes (an explicit setting is kept).
+    env = dict(os.environ)
+    env.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     results = []
     for size in sizes:
         for n in counts:
             config = {"n": n, "size": size, "threads": threads, "repeats": repeats}
             code = f"import json; from mogaface.bench.splat import _child; print(json.dumps(_child({config!r})))"
-            proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+            proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
             if proc.returncode != 0:
                 results.append({"n": n, "size": size, "error": proc.stderr.strip().splitlines()[-1:]})
                 continue
@@ -168,6 +173,7 @@ def run(threads: int = 2, quick: bool = False) -> dict:
         "benchmark": "splat",
         "threads": threads,
         "quick": quick,
+        "omp_wait_policy": env["OMP_WAIT_POLICY"],
         "machine": {"cpu_count": os.cpu_count(), "platform": platform.platform(),
                     "processor": platform.processor() or platform.machine()},
         "note": "timings are wall-clock on a shared machine; load_average_1min above the thread count "
