@@ -181,3 +181,13 @@ def test_flame_finetuning_moves_the_trained_timesteps(tiny_capture, tmp_path):
         assert (written["shape"] == tracked["shape"]).all()
         changed += any(not (written[k] == tracked[k]).all() for k in ("expr", "jaw_pose", "translation"))
     assert changed >= 3
+
+
+def test_time_budget_finishes_early_with_results(tiny_capture, tmp_path):
+    run = tmp_path / "run"
+    result = Trainer(tiny_capture, run, tiny_config(train={"max_minutes": 1e-5})).run()
+    assert result["complete"] and 1 <= result["step"] < 12
+    info = json.loads((run / "run.json").read_text())
+    assert info["time_limited"] and info["final_step"] == result["step"]
+    assert (run / "avatar.pt").exists()
+    assert any(e["event"] == "time_limit" for e in read_events(run))

@@ -22,7 +22,7 @@ class DensifySchedule:
     """When and how Gaussians are added, removed and reset. Steps count completed steps (1-based)."""
 
     start: int = 300
-    stop: int = 2400
+    stop: int = 2000
     interval: int = 150
     grad_threshold: float = 2e-4
     percent_dense: float = 0.01

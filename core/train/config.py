@@ -21,12 +21,13 @@ def _setting(default, doc: str):
 
 @dataclasses.dataclass
 class TrainSection:
-    steps: int = _setting(3000, "optimisation steps in all (one random training image per step)")
+    steps: int = _setting(4000, "optimisation steps in all (one random training image per step)")
     seed: int = _setting(0, "seed of every random choice (frame order, splits)")
     threads: int = _setting(2, "CPU threads for torch and numba")
     log_every: int = _setting(10, "steps between 'iter' progress events")
     checkpoint_every: int = _setting(500, "steps between checkpoints (0: only at the end and on a signal)")
     keep_checkpoints: int = _setting(3, "how many of the newest checkpoints to keep")
+    max_minutes: float = _setting(0.0, "finish early (avatar, metrics) after this much training time; 0: no limit")
 
 
 @dataclasses.dataclass
@@ -54,7 +55,7 @@ class LrSection:
 @dataclasses.dataclass
 class DensifySection:
     start: int = _setting(300, "first step that densifies")
-    stop: int = _setting(2400, "no densification after this step")
+    stop: int = _setting(2000, "no densification (nor opacity reset) after this step")
     interval: int = _setting(150, "steps between densify-and-prune passes")
     grad_threshold: float = _setting(2e-4, "mean screen-space gradient (NDC units, as 3DGS) that selects a Gaussian")
     percent_dense: float = _setting(0.01, "world size (fraction of the extent) separating clone (smaller) from split")
@@ -109,7 +110,7 @@ class TrainConfig:
             if value <= 0:
                 raise InputError(source, key, f"must be positive (got {_get(self, key)})")
         for key in ("train.checkpoint_every", "densify.start", "densify.stop", "densify.opacity_reset_interval",
-                    "eval.max_frames", "eval.every", "eval.every_frames", "lr.scene_extent", "train.seed"):
+                    "train.max_minutes", "eval.max_frames", "eval.every", "eval.every_frames", "lr.scene_extent", "train.seed"):
             if _get(self, key) < 0:
                 raise InputError(source, key, f"must be >= 0 (got {_get(self, key)})")
         if not 0 <= self.densify.max_sh_degree <= 3:

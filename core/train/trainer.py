@@ -249,7 +249,8 @@ class Trainer:
 
         Returns ``{"step", "stopped" (signal number or None), "complete"}``. A run stopped by a
         signal or by ``until`` ends with a checkpoint; a complete one also writes the avatar,
-        FLAME parameters, run.json and (when configured) the val metrics.
+        FLAME parameters, run.json and (when configured) the val metrics. A run that uses up
+        ``train.max_minutes`` of training time finishes early as if complete.
         """
         cfg = self.config.train
         end = cfg.steps if until is None else min(until, cfg.steps)
@@ -258,8 +259,13 @@ class Trainer:
                          frames=len(self.data.frames), timesteps=len(self.data.timesteps))
         window_start, window_steps = time.monotonic(), 0
         last = time.monotonic()
+        budget = cfg.max_minutes * 60 if cfg.max_minutes > 0 else math.inf
+        out_of_time = False
         try:
             while self.step < end and self._stop_signal is None:
+                if self.elapsed >= budget:
+                    out_of_time = True
+                    break
                 result = self.train_step()
                 now = time.monotonic()
                 self.elapsed += now - last
@@ -281,11 +287,13 @@ class Trainer:
                     last = time.monotonic()
                 if cfg.checkpoint_every and self.step % cfg.checkpoint_every == 0 and self.step < cfg.steps:
                     self.checkpoint()
-            if self._stop_signal is not None or self.step < cfg.steps:
+            if self._stop_signal is not None or (self.step < cfg.steps and not out_of_time):
                 self.checkpoint()
                 if self._stop_signal is not None:
                     self.events.emit("stopped", step=self.step, signal=signal.Signals(self._stop_signal).name)
                 return {"step": self.step, "stopped": self._stop_signal, "complete": False}
+            if out_of_time:
+                self.events.emit("time_limit", step=self.step, elapsed_s=self.elapsed)
             self.checkpoint()
             self.finish()
             return {"step": self.step, "stopped": None, "complete": True}
@@ -342,5 +350,6 @@ class Trainer:
             "wall_time_s": round(self.elapsed, 3),
             "gaussians": len(self.avatar.gaussians),
             "complete": complete,
+            "time_limited": complete and self.step < self.config.train.steps,
         })
 
