@@ -1,7 +1,6 @@
 """Capture datasets: write, read back, validate, and refuse bad data with a clear message."""
 
 import json
-import pathlib
 
 import numpy as np
 import pytest

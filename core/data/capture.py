@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import collections
 import dataclasses
-import json
 import math
 import os
 import pathlib
@@ -23,6 +22,7 @@ import numpy as np
 from ..camera import Camera, intrinsics_matrix, opengl_c2w_to_opencv_w2c
 from ..errors import CaptureError, InputError
 from ..io.image import read_image
+from ..io.jsonfile import read_json_object
 from ..io.npz import load_npz
 from . import layout
 
@@ -91,16 +91,7 @@ class _ByteLRU:
 
 
 def _load_json(path: pathlib.Path) -> dict:
-    try:
-        with open(path, encoding="utf-8") as handle:
-            doc = json.load(handle)
-    except FileNotFoundError:
-        raise CaptureError(path, None, "file not found") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
-        raise CaptureError(path, None, f"unreadable JSON ({error})") from None
-    if not isinstance(doc, dict):
-        raise CaptureError(path, None, f"expected a JSON object at the top level, got {type(doc).__name__}")
-    return doc
+    return read_json_object(path, CaptureError)
 
 
 def _int_field(frame: dict, name: str, source, where: str) -> int:

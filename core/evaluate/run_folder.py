@@ -11,7 +11,6 @@ Only what evaluation needs is read; the trainer owns the rest of the folder.
 
 from __future__ import annotations
 
-import json
 import os
 import pathlib
 
@@ -20,6 +19,7 @@ import numpy as np
 from ..data import layout
 from ..data.generator import INFO_FILE
 from ..errors import InputError
+from ..io.jsonfile import read_json_object
 from ..io.npz import load_npz
 
 RUN_FILE = "run.json"
@@ -29,16 +29,7 @@ DEFAULT_BACKGROUND = (1.0, 1.0, 1.0)
 
 
 def _read_json(path: pathlib.Path) -> dict:
-    try:
-        with open(path, encoding="utf-8") as handle:
-            doc = json.load(handle)
-    except FileNotFoundError:
-        raise InputError(path, None, "file not found") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
-        raise InputError(path, None, f"unreadable JSON ({error})") from None
-    if not isinstance(doc, dict):
-        raise InputError(path, None, "expected a JSON object")
-    return doc
+    return read_json_object(path)
 
 
 def capture_info(capture_root: str | os.PathLike) -> dict:

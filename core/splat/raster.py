@@ -109,7 +109,7 @@ def forward(packed, ranks, tile_offsets, tile_queue, tiles_x, width, height, bac
     zero = np.float32(0.0)
     half = np.float32(0.5)
     n = np.uint64(TILE * TILE)
-    n2, n3, n4, n5, n6 = n + n, n + n + n, n * np.uint64(4), n * np.uint64(5), n * np.uint64(6)
+    n2, n3, n4, n5 = n + n, n + n + n, n * np.uint64(4), n * np.uint64(5)
     for qi in prange(tile_queue.shape[0]):
         t = tile_queue[qi]
         ty, tx = t // tiles_x, t % tiles_x
