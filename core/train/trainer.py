@@ -132,6 +132,7 @@ class Trainer:
         self._position = int(state["sampler"]["position"])
         self.step = int(state["step"])
         self.elapsed = float(state["elapsed_s"])
+        write_text(self.run_folder.config, config_module.to_toml(self.config))  # e.g. a new --steps
 
     def _build_optimizer(self) -> None:
         lr = self.config.lr
