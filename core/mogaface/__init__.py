@@ -1,0 +1,1 @@
+"""MoGaFace's modules: expression correction, the momentum expression bank, latent texture attention."""

@@ -1,0 +1,131 @@
+"""The MoGaFace modules of one avatar in one place: encoder, fusion, correction head, bank, texture.
+
+``spec`` (plain values) says which modules exist and their sizes, so a saved model rebuilds
+without the training settings. Modes: ``off`` (Freeze: no correction), ``single`` (one view
+per correction), ``multi`` (all given views, fused by cross-attention).
+"""
+
+from __future__ import annotations
+
+import os
+import pathlib
+
+import torch
+from torch import nn
+
+from ..errors import InputError
+from ..io.atomic import atomic_path
+from .bank import ExpressionBank
+from .correction import CorrectionHead
+from .encoder import ViewEncoder
+from .fusion import MultiViewFusion
+from .posing import canonical_points
+from .texture_attention import LatentTextureAttention
+
+MODEL_FORMAT = "mogaface-modules"
+MODEL_VERSION = 1
+MODES = ("off", "single", "multi")
+SPEC_KEYS = ("mode", "bank", "texture", "input_size", "feature_dim", "encoder_width", "heads", "hidden",
+             "plane_size", "plane_dim", "texture_hidden", "n_expr")
+
+
+class MoGaFace(nn.Module):
+    """The trainable MoGaFace modules plus their per-timestamp memory.
+
+    ``timesteps`` and ``cameras`` (the training ones) fix the bank's rows and view slots;
+    ``canonical_vertices`` is the neutral mesh whose bounding box scales the triplane's domain.
+    """
+
+    def __init__(self, spec: dict, timesteps: list[int], cameras: list[str], canonical_vertices: torch.Tensor):
+        super().__init__()
+        missing = [k for k in SPEC_KEYS if k not in spec]
+        if missing:
+            raise InputError(None, f"mogaface.{missing[0]}", "missing")
+        if spec["mode"] not in MODES:
+            raise InputError(None, "mogaface.mode", f"expected one of {', '.join(MODES)}, got {spec['mode']!r}")
+        if spec["mode"] == "off" and (spec["bank"] or spec["texture"]):
+            raise InputError(None, "mogaface.mode", "the bank and the texture attention need a correction mode "
+                                                    "(single or multi), not 'off'")
+        self.spec = {k: spec[k] for k in SPEC_KEYS}
+        self.timesteps = list(timesteps)
+        self.row = {t: i for i, t in enumerate(self.timesteps)}
+        self.cameras = list(cameras)
+        self.slot = {c: i for i, c in enumerate(self.cameras)}
+        d = spec["feature_dim"]
+        self.encoder = ViewEncoder(spec["input_size"], d, spec["encoder_width"])
+        self.fusion = MultiViewFusion(d, spec["heads"])
+        self.head = CorrectionHead(d, spec["n_expr"], spec["hidden"])
+        self.bank = ExpressionBank(len(self.timesteps), len(self.cameras), spec["n_expr"]) if spec["bank"] else None
+        self.texture = LatentTextureAttention(d, spec["plane_size"], spec["plane_dim"], spec["texture_hidden"]) \
+            if spec["texture"] else None
+        vertices = canonical_vertices.detach().float()
+        low, high = vertices.min(0).values, vertices.max(0).values
+        self.register_buffer("canonical_vertices", vertices.clone())
+        self.register_buffer("canonical_centre", 0.5 * (low + high))
+        self.register_buffer("canonical_half_extent", (0.55 * (high - low).max()).reshape(1))
+        self.register_buffer("default_feature", torch.zeros(d))
+        self.register_buffer("default_feature_count", torch.zeros((), dtype=torch.long))
+        self.register_buffer("timestep_features", torch.zeros(len(self.timesteps), d))
+
+    @property
+    def mode(self) -> str:
+        return self.spec["mode"]
+
+    # -- correction ---------------------------------------------------------------------------
+    def correct(self, images: torch.Tensor, tracked_expr: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Per-view corrections ``(V, n_expr)`` and the timestamp's image feature ``(d,)``.
+
+        ``multi`` fuses the views by cross-attention; ``single`` regresses each view alone.
+        """
+        features = self.encoder(images)
+        fused = self.fusion(features) if self.mode == "multi" else features
+        return self.head(fused, tracked_expr), fused.mean(0)
+
+    @torch.no_grad()
+    def observe_feature(self, feature: torch.Tensor, decay: float = 0.99) -> None:
+        """Keep a running mean of image features: the feature of parameter-driven inference."""
+        count = int(self.default_feature_count)
+        rate = 1.0 / (count + 1) if count < 100 else 1.0 - decay
+        self.default_feature.mul_(1.0 - rate).add_(rate * feature.detach())
+        self.default_feature_count.add_(1)
+
+    # -- texture ------------------------------------------------------------------------------
+    def texture_offsets(self, gaussians, faces: torch.Tensor, feature: torch.Tensor | None):
+        """Per-Gaussian local offsets, or None without the texture module."""
+        if self.texture is None:
+            return None
+        feature = self.default_feature if feature is None else feature
+        points = canonical_points(gaussians, self.canonical_vertices, faces, self.canonical_centre,
+                                  self.canonical_half_extent)
+        return self.texture(points, feature)
+
+    # -- files --------------------------------------------------------------------------------
+    def to_file_state(self) -> dict:
+        return {"format": MODEL_FORMAT, "version": MODEL_VERSION, "spec": dict(self.spec),
+                "timesteps": list(self.timesteps), "cameras": list(self.cameras),
+                "state": {k: v.detach().clone() for k, v in self.state_dict().items()}}
+
+    def save(self, path: str | os.PathLike) -> None:
+        with atomic_path(pathlib.Path(path)) as tmp:
+            torch.save(self.to_file_state(), tmp)
+
+    @classmethod
+    def from_file_state(cls, state: dict, source=None) -> "MoGaFace":
+        if not isinstance(state, dict) or state.get("format") != MODEL_FORMAT:
+            raise InputError(source, "format", f"expected a {MODEL_FORMAT} file")
+        if state.get("version") != MODEL_VERSION:
+            raise InputError(source, "version", f"expected version {MODEL_VERSION}, found {state.get('version')}")
+        tensors = state["state"]
+        model = cls(state["spec"], state["timesteps"], state["cameras"], tensors["canonical_vertices"])
+        model.load_state_dict(tensors)
+        return model
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> "MoGaFace":
+        try:
+            state = torch.load(path, map_location="cpu", weights_only=True)
+        except FileNotFoundError:
+            raise InputError(path, None, "file not found") from None
+        except Exception as error:
+            raise InputError(path, None, f"not a readable MoGaFace module file ({error})") from None
+        return cls.from_file_state(state, source=path)

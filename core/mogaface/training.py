@@ -1,0 +1,129 @@
+"""One training step's MoGaFace part: pick the encoder views, regress ``Δψ``, keep the bank.
+
+The trainer owns the Gaussians and the render; this object owns the MoGaFace modules, their
+optimizer and the small view-image cache, and answers "which expression and which texture
+offsets for this training image". Encoder inputs are other training views of the scored image's
+timestamp: the scored view is left out in training as it is at evaluation (the paper's code
+feeds it in; we do not, so training and inference see the same kind of input).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import torch
+
+from .bank import consistency_loss, momentum_at
+from .model import MoGaFace
+from .views import ViewImages
+
+
+@dataclasses.dataclass
+class StepCorrection:
+    """What the trainer needs from MoGaFace for one image."""
+
+    expr_delta: torch.Tensor  # (n_expr,) differentiable
+    feature: torch.Tensor  # (d,) differentiable
+    consistency: torch.Tensor  # scalar
+    inputs: list  # the encoder's frames
+    commit: callable  # call after the optimizer step (bank write, running feature)
+
+
+def spec_from_settings(settings, n_expr: int) -> dict:
+    """The model spec of a ``[mogaface]`` config section."""
+    return {"mode": settings.mode, "bank": settings.bank, "texture": settings.texture,
+            "input_size": settings.input_size, "feature_dim": settings.feature_dim,
+            "encoder_width": settings.encoder_width, "heads": settings.heads, "hidden": settings.hidden,
+            "plane_size": settings.plane_size, "plane_dim": settings.plane_dim,
+            "texture_hidden": settings.texture_hidden, "n_expr": n_expr}
+
+
+class CorrectionTraining:
+    """The MoGaFace modules under training on one capture's training frames."""
+
+    def __init__(self, settings, frames, capture, timesteps: list[int], canonical_vertices: torch.Tensor,
+                 n_expr: int, total_steps: int, seed: int = 0):
+        self.settings = settings
+        self.total_steps = total_steps
+        self.by_timestep: dict[int, list] = {}
+        for frame in frames:
+            self.by_timestep.setdefault(frame.timestep_index, []).append(frame)
+        cameras = sorted({f.camera_id for f in frames}, key=lambda c: min(f.camera_index for f in frames
+                                                                          if f.camera_id == c))
+        with torch.random.fork_rng(devices=[]):  # seeded initialisation, global RNG untouched
+            torch.manual_seed(seed)
+            self.model = MoGaFace(spec_from_settings(settings, n_expr), timesteps, cameras, canonical_vertices)
+        self.views = ViewImages(capture, settings.input_size)
+        groups = [{"params": [*self.model.encoder.parameters(), *self.model.fusion.parameters(),
+                              *self.model.head.parameters()], "lr": settings.lr, "name": "correction"}]
+        if self.model.texture is not None:
+            groups.append({"params": list(self.model.texture.parameters()), "lr": settings.texture_lr,
+                           "name": "texture"})
+        self.optimizer = torch.optim.Adam(groups)
+
+    def encoder_frames(self, frame, generator: torch.Generator) -> list:
+        """Other training views of the frame's timestamp: one (single) or up to ``encoder_views`` (multi)."""
+        others = [f for f in self.by_timestep[frame.timestep_index] if f.camera_id != frame.camera_id]
+        if not others:
+            others = [frame]  # a one-camera capture: nothing else to look at
+        count = 1 if self.model.mode == "single" else min(self.settings.encoder_views, len(others))
+        picks = torch.randperm(len(others), generator=generator)[:count].sort().values
+        return [others[int(i)] for i in picks]
+
+    def step(self, frame, tracked_expr: torch.Tensor, step: int, generator: torch.Generator) -> StepCorrection:
+        model = self.model
+        inputs = self.encoder_frames(frame, generator)
+        images = self.views.batch(inputs)
+        per_view, feature = model.correct(images, tracked_expr.detach())
+        row = model.row[frame.timestep_index]
+        zero = per_view.sum() * 0
+        if model.bank is None:
+            delta, consistency = per_view.mean(0), zero
+
+            def commit():
+                model.observe_feature(feature)
+        else:
+            bank = model.bank
+            slots = torch.tensor([model.slot[f.camera_id] for f in inputs])
+            consistency = consistency_loss(per_view, bank.mean(row)) if bank.has(row) else zero
+            momentum = momentum_at(step, self.total_steps, self.settings.momentum_start, self.settings.momentum_end)
+            blended = bank.blend(row, slots, per_view, momentum)
+            delta = bank.mean_with(row, slots, blended)
+
+            def commit():
+                bank.store(row, slots, blended)
+                model.observe_feature(feature)
+        return StepCorrection(delta, feature, consistency, inputs, commit)
+
+    def optimizer_step(self) -> None:
+        self.optimizer.step()
+        self.optimizer.zero_grad(set_to_none=True)
+
+    # -- after training -----------------------------------------------------------------------
+    @torch.no_grad()
+    def timestep_correction(self, timestep: int, tracked_expr: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The final ``Δψ`` and image feature of a training timestamp, from its training views only.
+
+        With the bank, ``Δψ`` is the bank's mean (what training posed the mesh with); without it,
+        the modules' regression over all the timestamp's training views.
+        """
+        model = self.model
+        frames = self.by_timestep[timestep]
+        if model.mode == "single":  # one view per regression, averaged over every training view
+            outputs = [model.correct(self.views.batch([f]), tracked_expr) for f in frames]
+            per_view = torch.cat([o[0] for o in outputs])
+            feature = torch.stack([o[1] for o in outputs]).mean(0)
+        else:
+            per_view, feature = model.correct(self.views.batch(frames), tracked_expr)
+        row = model.row[timestep]
+        if model.bank is not None and model.bank.has(row):
+            return model.bank.mean(row), feature
+        return per_view.mean(0), feature
+
+    def state_dict(self) -> dict:
+        return {"model": {k: v.detach().clone() for k, v in self.model.state_dict().items()},
+                "optimizer": self.optimizer.state_dict()}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.model.load_state_dict(state["model"])
+        self.optimizer.load_state_dict(state["optimizer"])

@@ -1,0 +1,141 @@
+"""MoGaFace modules on their own: shapes, zero starts, bank EMA maths, local-space offsets."""
+
+import math
+
+import pytest
+import torch
+
+from mogaface.core.avatar.gaussians import BoundGaussians
+from mogaface.core.errors import InputError
+from mogaface.core.mogaface.bank import ExpressionBank, consistency_loss, momentum_at
+from mogaface.core.mogaface.model import MoGaFace
+from mogaface.core.mogaface.posing import world_with_offsets
+from mogaface.core.mogaface.texture_attention import LatentTextureAttention
+
+SPEC = dict(mode="multi", bank=True, texture=True, input_size=32, feature_dim=16, encoder_width=4, heads=2,
+            hidden=16, plane_size=8, plane_dim=4, texture_hidden=8, n_expr=5)
+
+
+def _mesh(seed=0, faces=12):
+    g = torch.Generator().manual_seed(seed)
+    vertices = torch.randn(3 * faces, 3, generator=g) * 0.1
+    return vertices, torch.arange(3 * faces).view(faces, 3)
+
+
+def _gaussians(n_faces, seed=0):
+    g = BoundGaussians.one_per_triangle(n_faces, 1)
+    gen = torch.Generator().manual_seed(seed)
+    with torch.no_grad():
+        g.local_position.normal_(0, 0.3, generator=gen)
+        g.local_log_scale.normal_(-1, 0.2, generator=gen)
+        g.local_rotation.add_(0.2 * torch.randn(g.local_rotation.shape, generator=gen))
+    return g
+
+
+def test_shapes_and_zero_start():
+    vertices, faces = _mesh()
+    model = MoGaFace(SPEC, [0, 1, 2], ["a", "b", "c", "d"], vertices)
+    images = torch.rand(3, 3, 32, 32)
+    per_view, feature = model.correct(images, torch.randn(5))
+    assert per_view.shape == (3, 5) and feature.shape == (16,)
+    assert torch.count_nonzero(per_view) == 0  # zero-initialised last layer: no correction at start
+    g = _gaussians(len(faces))
+    offsets = model.texture_offsets(g, faces, feature)
+    assert {k: tuple(v.shape) for k, v in offsets.items()} == {
+        "position": (12, 3), "log_scale": (12, 3), "rotation": (12, 4), "opacity": (12, 1)}
+    plain = g.world(vertices, faces)
+    modulated = world_with_offsets(g, vertices, faces, offsets)
+    for key in plain:
+        assert torch.equal(plain[key], modulated[key]), key
+
+
+def test_single_mode_regresses_each_view_alone():
+    vertices, _ = _mesh()
+    model = MoGaFace({**SPEC, "mode": "single"}, [0], ["a", "b"], vertices)
+    torch.nn.init.normal_(model.head.out.weight)
+    images = torch.rand(2, 3, 32, 32)
+    both, _ = model.correct(images, torch.zeros(5))
+    first, _ = model.correct(images[:1], torch.zeros(5))
+    assert torch.allclose(both[:1], first, atol=1e-6)
+    multi = MoGaFace(SPEC, [0], ["a", "b"], vertices)
+    multi.load_state_dict(model.state_dict())
+    fused_both, _ = multi.correct(images, torch.zeros(5))
+    fused_first, _ = multi.correct(images[:1], torch.zeros(5))
+    assert not torch.allclose(fused_both[:1], fused_first, atol=1e-6)  # the other view informs it
+
+
+def test_off_mode_refuses_bank_and_texture():
+    with pytest.raises(InputError, match="mogaface.mode"):
+        MoGaFace({**SPEC, "mode": "off"}, [0], ["a"], _mesh()[0])
+
+
+def test_momentum_schedule_is_linear():
+    assert momentum_at(0, 100, 0.9, 0.1) == pytest.approx(0.9)
+    assert momentum_at(50, 100, 0.9, 0.1) == pytest.approx(0.5)
+    assert momentum_at(100, 100, 0.9, 0.1) == pytest.approx(0.1)
+    assert momentum_at(500, 100, 0.9, 0.1) == pytest.approx(0.1)
+
+
+def test_bank_ema_and_mean():
+    bank = ExpressionBank(2, 3, 2)
+    slots = torch.tensor([0, 2])
+    first = torch.tensor([[1.0, 2.0], [3.0, 4.0]])
+    bank.update(1, slots, first, momentum=0.8)  # never written: taken as is
+    assert torch.equal(bank.values[1, slots], first)
+    second = torch.tensor([[0.0, 0.0], [10.0, 10.0]])
+    bank.update(1, slots, second, momentum=0.8)
+    expected = 0.8 * first + 0.2 * second
+    assert torch.allclose(bank.values[1, slots], expected)
+    assert torch.allclose(bank.mean(1), expected.mean(0))  # unwritten slot 1 does not count
+    assert torch.equal(bank.mean(0), torch.zeros(2)) and not bank.has(0)
+    # The differentiable path: blended values substitute their slots in the mean.
+    fresh = torch.tensor([[2.0, 2.0]], requires_grad=True)
+    blended = bank.blend(1, torch.tensor([1]), fresh, 0.5)
+    mean = bank.mean_with(1, torch.tensor([1]), blended)
+    assert torch.allclose(mean, (expected.sum(0) + fresh.detach()[0]) / 3)
+    mean.sum().backward()
+    assert torch.allclose(fresh.grad, torch.full((1, 2), 1 / 3))
+    with pytest.raises(InputError):
+        bank.blend(1, slots, second, 1.0)
+
+
+def test_consistency_loss():
+    corrections = torch.tensor([[1.0, 0.0], [3.0, 0.0]], requires_grad=True)
+    target = torch.tensor([2.0, 0.0])
+    loss = consistency_loss(corrections, target)
+    assert loss.item() == pytest.approx(0.5)
+    loss.backward()
+    assert torch.allclose(corrections.grad, torch.tensor([[-0.5, 0.0], [0.5, 0.0]]))
+
+
+def test_texture_offsets_move_with_the_mesh():
+    """Offsets live in triangle space: a rigid motion of the mesh moves the modulated Gaussians rigidly."""
+    vertices, faces = _mesh(3)
+    g = _gaussians(len(faces), 1)
+    texture = LatentTextureAttention(8, 8, 4, 8)
+    for head in texture.heads.values():
+        torch.nn.init.normal_(head.weight, std=0.3)
+    points = torch.rand(len(faces), 3) * 2 - 1
+    offsets = texture(points, torch.randn(8))
+    angle = 0.7
+    rotation = torch.tensor([[math.cos(angle), 0, math.sin(angle)], [0, 1, 0], [-math.sin(angle), 0, math.cos(angle)]])
+    shift = torch.tensor([0.1, -0.2, 0.3])
+    before = world_with_offsets(g, vertices, faces, offsets)
+    after = world_with_offsets(g, vertices @ rotation.T + shift, faces, offsets)
+    assert torch.allclose(after["means"], before["means"] @ rotation.T + shift, atol=1e-5)
+    assert torch.allclose(after["scales"], before["scales"], atol=1e-5)
+    assert torch.allclose(after["opacities"], before["opacities"])
+    # and the offsets do move the Gaussians (in the triangle's frame, not the world's)
+    plain = g.world(vertices, faces)
+    assert not torch.allclose(plain["means"], before["means"])
+
+
+def test_model_file_round_trip(tmp_path):
+    vertices, _ = _mesh()
+    model = MoGaFace(SPEC, [0, 4], ["a", "b"], vertices)
+    model.bank.update(1, torch.tensor([1]), torch.ones(1, 5), 0.5)
+    model.save(tmp_path / "m.pt")
+    again = MoGaFace.load(tmp_path / "m.pt")
+    assert again.spec == model.spec and again.timesteps == [0, 4]
+    for key, value in model.state_dict().items():
+        assert torch.equal(value, again.state_dict()[key]), key
