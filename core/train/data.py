@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import os
 import pathlib
 
@@ -11,6 +10,7 @@ import torch
 
 from ..data.capture import Capture, Frame
 from ..errors import CaptureError
+from ..io.jsonfile import read_json_object
 
 INFO_FILE = "capture_info.json"
 DEFAULT_BACKGROUND = (1.0, 1.0, 1.0)
@@ -20,15 +20,7 @@ JOINTS = ("rotation", "neck_pose", "jaw_pose", "eyes_pose")
 def capture_info(root: pathlib.Path) -> dict:
     """``capture_info.json`` of a capture, or ``{}`` when it has none."""
     path = root / INFO_FILE
-    if not path.exists():
-        return {}
-    try:
-        info = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
-        raise CaptureError(path, None, f"unreadable JSON ({error})") from None
-    if not isinstance(info, dict):
-        raise CaptureError(path, None, "expected a JSON object")
-    return info
+    return read_json_object(path, CaptureError) if path.exists() else {}
 
 
 def capture_background(root: pathlib.Path) -> tuple[float, float, float]:
