@@ -60,8 +60,12 @@ class Avatar(torch.nn.Module):
         self, flame_params: dict[str, torch.Tensor], camera: Camera, background=(1.0, 1.0, 1.0)
     ) -> SplatOutput:
         """Render the avatar posed by ``flame_params`` as ``camera`` sees it."""
+        return self.render_posed(self.posed_vertices(flame_params), camera, background)
+
+    def render_posed(self, vertices: torch.Tensor, camera: Camera, background=(1.0, 1.0, 1.0)) -> SplatOutput:
+        """Render the Gaussians bound to an already posed mesh ``vertices (V,3)``."""
         viewmat, K = camera_tensors(camera)
-        world = self.world_gaussians(flame_params)
+        world = self.gaussians.world(vertices, self.flame.faces)
         return rasterize(
             world["means"], world["quats"], world["scales"], world["opacities"], world["colors"],
             viewmat, K, camera.width, camera.height, background=torch.as_tensor(background, dtype=torch.float32),

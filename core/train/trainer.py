@@ -20,14 +20,13 @@ import time
 
 import torch
 
-from ..avatar.avatar import Avatar, camera_tensors
+from ..avatar.avatar import Avatar
 from ..avatar.binding import triangle_frames
 from ..avatar.densify import DensifySchedule, DensifyStrategy
 from ..data import layout
 from ..errors import InputError
 from ..io.atomic import atomic_path, write_json, write_text
 from ..io.npz import save_npz
-from ..splat import rasterize
 from . import config as config_module
 from .checkpoint import latest_checkpoint, load_checkpoint, save_checkpoint
 from .config import TrainConfig
@@ -209,10 +208,7 @@ class Trainer:
         target = self.data.target(frame)
         vertices = self._posed_vertices(frame.timestep_index)
 
-        world = gaussians.world(vertices, self.avatar.flame.faces)
-        viewmat, K = camera_tensors(camera)
-        out = rasterize(world["means"], world["quats"], world["scales"], world["opacities"], world["colors"],
-                        viewmat, K, camera.width, camera.height, background=self.background)
+        out = self.avatar.render_posed(vertices, camera, self.background)
         losses = image_loss(out.rgb, target, cfg.loss.ssim_weight)
         visible = out.visible
         losses["position"] = position_hinge(gaussians.local_position[visible], cfg.loss.position_threshold)
