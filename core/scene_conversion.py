@@ -467,3 +467,117 @@ def tracking_channels(folder, n_expr: int) -> TrackingChannels:
     expr, note = expression_keyframes(tracking, n_expr)
     pose = {prop: keyframe_columns(frames, tracking.params[name]) for name, (prop, _) in POSE_PROPERTIES.items()}
     return TrackingChannels(frames, pose, keyframe_columns(frames, expr), note)
+
+
+# -- back from Blender: cameras, FLAME parameters, rendered images --------------------------------
+
+AVATAR_PATH_PROPERTY = "mogaface_avatar_path"
+
+
+def opencv_camera(matrix_world, lens: float, sensor_width: float, sensor_height: float, sensor_fit: str,
+                  shift_x: float, shift_y: float, resolution: tuple[int, int],
+                  pixel_aspect: tuple[float, float] = (1.0, 1.0), camera_id: str = "blender") -> Camera:
+    """A Blender camera (settings as Blender stores them) → an OpenCV :class:`Camera`.
+
+    The inverse of :func:`blender_camera`, for every sensor fit: Blender fits the sensor to
+    the width (``HORIZONTAL``, or ``AUTO`` when the frame is at least as wide as tall) or the
+    height, and measures shifts in units of that fitted size. ``matrix_world`` may carry scale;
+    only its rotation and position are used.
+    """
+    width, height = int(resolution[0]), int(resolution[1])
+    ratio = float(pixel_aspect[1]) / float(pixel_aspect[0])  # pixel height / width = fx / fy
+    if sensor_fit == "AUTO":
+        horizontal, sensor = width >= height * ratio, sensor_width
+    else:
+        horizontal = sensor_fit == "HORIZONTAL"
+        sensor = sensor_width if horizontal else sensor_height
+    fitted = width if horizontal else height * ratio  # the fitted size, in units of a pixel's width
+    fx = lens * fitted / sensor
+    fy = fx / ratio
+    cx = 0.5 * width - shift_x * fitted
+    cy = 0.5 * height + shift_y * fitted / ratio
+    matrix = np.asarray(matrix_world, np.float64).copy()
+    matrix[:3, :3] /= np.linalg.norm(matrix[:3, :3], axis=0)
+    c2w_cv = flame_to_blender_matrix(np.eye(4)).T @ matrix @ _CV_TO_BLENDER_CAMERA
+    return Camera(K=np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]]), w2c=np.linalg.inv(c2w_cv),
+                  width=width, height=height, camera_id=camera_id)
+
+
+def head_flame_params(shape, static_offset, expr, pose: dict, n_shape: int, n_expr: int) -> dict:
+    """One timestep's FLAME parameters (numpy, unbatched) from a head's identity and rig values.
+
+    ``expr`` and ``pose`` are what a head object shows at a frame (its shape-key values and
+    pose properties, i.e. what the keyframes give); counts are fitted to the model rendered.
+    """
+    params = {"shape": fit_components(shape, n_shape), "expr": fit_components(expr, n_expr)}
+    for name, (_, size) in POSE_PROPERTIES.items():
+        value = np.asarray(pose.get(name, np.zeros(size)), np.float64).reshape(-1)
+        if value.shape != (size,):
+            raise InputError(None, name, f"expected {size} values, found {value.shape[0]}")
+        params[name] = value
+    if static_offset is not None:
+        params["static_offset"] = np.asarray(static_offset, np.float64).reshape(-1, 3)
+    return params
+
+
+def rendered_pixels(rgb, alpha) -> np.ndarray:
+    """A render's ``rgb (H,W,3)`` and ``alpha (H,W)`` → Blender's flat RGBA float32 (rows flipped)."""
+    rgba = np.concatenate([np.asarray(rgb, np.float32), np.asarray(alpha, np.float32)[..., None]], axis=2)
+    return image_pixels(rgba)
+
+
+def render_image_name(camera_name: str, frame: int) -> str:
+    """The image datablock a render of ``camera_name`` at ``frame`` goes to."""
+    return f"MoGaFace {camera_name} {frame:04d}"
+
+
+def avatar_location(path) -> tuple[pathlib.Path, tuple[float, float, float]]:
+    """A run folder or an ``avatar.pt`` → the avatar file and the background it was trained on.
+
+    The background comes from the run's ``run.json`` beside the avatar (white without one).
+    """
+    import json
+
+    path = pathlib.Path(path).expanduser()
+    avatar = path / "avatar.pt" if path.is_dir() else path
+    if not avatar.is_file():
+        raise InputError(avatar, None, "avatar file not found (is training finished?)")
+    background = (1.0, 1.0, 1.0)
+    run_json = avatar.parent / "run.json"
+    if run_json.is_file():
+        try:
+            value = json.loads(run_json.read_text(encoding="utf-8")).get("background", background)
+            if len(value) == 3 and all(isinstance(v, int | float) for v in value):
+                background = tuple(float(v) for v in value)
+        except (ValueError, TypeError, AttributeError):
+            pass
+    return avatar.resolve(), background
+
+
+_avatar_cache: dict = {}
+
+
+def load_avatar(path):
+    """The :class:`~mogaface.core.avatar.avatar.Avatar` in ``path``, cached per file and its mtime."""
+    from .avatar.avatar import Avatar
+
+    path = pathlib.Path(path).expanduser().resolve()
+    try:
+        stat = path.stat()
+    except OSError:
+        raise InputError(path, None, "avatar file not found") from None
+    key = (os.fspath(path), stat.st_size, stat.st_mtime_ns)
+    with _model_cache_lock:
+        avatar = _avatar_cache.get(key)
+        if avatar is None:
+            avatar = Avatar.load(path)
+            _avatar_cache.clear()
+            _avatar_cache[key] = avatar
+    return avatar
+
+
+def render_avatar(avatar, params: dict, camera: Camera, background) -> tuple[np.ndarray, np.ndarray]:
+    """``(rgb (H,W,3), alpha (H,W))`` float32: the core's one render of the avatar at ``params``."""
+    from .evaluate.protocols import render_frame
+
+    return render_frame(avatar, params, camera, background)

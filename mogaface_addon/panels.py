@@ -16,7 +16,12 @@ from .preferences import draw_dependencies
 # Operators that later stages provide: (idname, button text), by panel.
 STAGE_OPERATORS = {
     "training": (("mogaface.train", "Train"),),
-    "avatar": (("mogaface.load_avatar", "Load Avatar"), ("mogaface.render_avatar", "Render Views")),
+    "avatar": (
+        ("mogaface.load_avatar", "Load Avatar"),
+        ("mogaface.render_frame", "Render Frame"),
+        ("mogaface.render_animation", "Render Animation"),
+        ("mogaface.export_ply", "Export PLY"),
+    ),
 }
 
 
@@ -106,9 +111,23 @@ class MOGAFACE_PT_training(_SubPanel, bpy.types.Panel):
         layout = self.layout
         settings = context.scene.mogaface
         layout.prop(settings, "run_folder")
+        layout.prop(settings, "preset")
         layout.prop(settings, "iterations")
         layout.prop(settings, "seed")
-        draw_stage_operators(layout, "training")
+        from ..operators.train import current_worker, last_progress
+
+        progress = last_progress()
+        if current_worker() is not None:
+            layout.progress(factor=progress.fraction, text=progress.text())
+            layout.operator("mogaface.train_cancel", icon="CANCEL")
+            return
+        if operator_available("mogaface.train"):
+            op = layout.operator("mogaface.train", icon="PLAY")
+            op.preset, op.steps = settings.preset, settings.iterations
+        else:
+            draw_stage_operators(layout, "training")
+        if progress is not None:
+            layout.label(text=progress.message, icon="ERROR" if progress.state == "failed" else "INFO")
 
 
 class MOGAFACE_PT_avatar(_SubPanel, bpy.types.Panel):
@@ -118,7 +137,11 @@ class MOGAFACE_PT_avatar(_SubPanel, bpy.types.Panel):
     def draw(self, context):
         layout = self.layout
         layout.prop(context.scene.mogaface, "avatar_file")
-        draw_stage_operators(layout, "avatar")
+        if operator_available("mogaface.load_avatar"):
+            layout.operator("mogaface.load_avatar", icon="SHADERFX").filepath = context.scene.mogaface.avatar_file
+        for idname, text in STAGE_OPERATORS["avatar"][1:]:
+            if operator_available(idname):
+                layout.operator(idname, text=text)
 
 
 class MOGAFACE_PT_reenactment(_SubPanel, bpy.types.Panel):

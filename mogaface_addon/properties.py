@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import bpy
-from bpy.props import IntProperty, StringProperty
+from bpy.props import EnumProperty, IntProperty, StringProperty
 
 
 class MoGaFaceSceneSettings(bpy.types.PropertyGroup):
@@ -23,5 +23,9 @@ class MoGaFaceSceneSettings(bpy.types.PropertyGroup):
     )
     run_folder: StringProperty(name="Run", subtype="DIR_PATH", description="Folder for a training run's checkpoints")
     avatar_file: StringProperty(name="Avatar", subtype="FILE_PATH", description="A trained avatar file")
-    iterations: IntProperty(name="Iterations", default=30000, min=1, description="Training iterations")
+    iterations: IntProperty(name="Steps", default=0, min=0, description="Training steps (0: the preset's)")
+    preset: EnumProperty(
+        name="Preset", default="demo", description="Training settings preset (docs/training.md)",
+        items=(("quick", "Quick", "200 steps"), ("demo", "Demo", "1000 steps"), ("full", "Full", "the defaults")),
+    )
     seed: IntProperty(name="Seed", default=0, min=0, description="Random seed of training")

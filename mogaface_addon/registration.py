@@ -10,6 +10,10 @@ from ..operators.head_rig import update_heads_on_edit, update_heads_on_frame_cha
 from ..operators.import_capture import MOGAFACE_OT_import_capture, MOGAFACE_OT_use_capture_camera
 from ..operators.import_head import MOGAFACE_OT_import_head
 from ..operators.import_tracking import MOGAFACE_OT_import_tracking
+from ..operators.avatar import (
+    MOGAFACE_OT_export_ply, MOGAFACE_OT_load_avatar, MOGAFACE_OT_render_animation, MOGAFACE_OT_render_frame,
+)
+from ..operators.train import MOGAFACE_OT_train, MOGAFACE_OT_train_cancel, cancel_running_job
 from . import panels
 from .preferences import MoGaFacePreferences
 from .properties import MoGaFaceSceneSettings
@@ -21,6 +25,12 @@ CLASSES: list = [
     MOGAFACE_OT_use_capture_camera,
     MOGAFACE_OT_import_head,
     MOGAFACE_OT_import_tracking,
+    MOGAFACE_OT_train,
+    MOGAFACE_OT_train_cancel,
+    MOGAFACE_OT_load_avatar,
+    MOGAFACE_OT_render_frame,
+    MOGAFACE_OT_render_animation,
+    MOGAFACE_OT_export_ply,
     panels.MOGAFACE_PT_main,
     panels.MOGAFACE_PT_capture,
     panels.MOGAFACE_PT_head,
@@ -51,6 +61,7 @@ def _same_function(a, b) -> bool:
 
 
 def unregister():
+    cancel_running_job()  # a training child never outlives the extension
     for handlers, function in HANDLERS:
         for registered in [h for h in handlers if _same_function(h, function)]:
             handlers.remove(registered)

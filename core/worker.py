@@ -1,0 +1,245 @@
+"""A training run in a separate process, and the one reader of its progress.
+
+Blender must never block on training, and torch may live in another interpreter than
+Blender's. :class:`TrainWorker` starts ``python -m mogaface train …`` as a child process,
+reads new lines of ``RUN/events.jsonl`` incrementally (:meth:`TrainWorker.poll`), knows when the
+child ended and why (exit code, the tail of its stderr), and cancels it with SIGINT (the trainer
+then writes a checkpoint). The UI calls :meth:`~TrainWorker.poll` from a timer; headless code
+calls :meth:`~TrainWorker.wait`, which is the same poll in a loop. No Blender here.
+"""
+
+from __future__ import annotations
+
+import collections
+import dataclasses
+import json
+import os
+import pathlib
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+#: The package's import name; the child runs ``python -m mogaface train``.
+PACKAGE = "mogaface"
+
+
+@dataclasses.dataclass
+class Progress:
+    """What the UI shows: where the run is and how it is doing."""
+
+    state: str = "starting"  # starting, running, done, cancelled, failed
+    step: int = 0
+    steps: int = 0
+    loss: float | None = None
+    psnr: float | None = None
+    eta_s: float | None = None
+    val_psnr: float | None = None
+    message: str = ""
+
+    @property
+    def fraction(self) -> float:
+        return min(1.0, self.step / self.steps) if self.steps else 0.0
+
+    @property
+    def finished(self) -> bool:
+        return self.state in ("done", "cancelled", "failed")
+
+    def text(self) -> str:
+        """One line: step, loss, PSNR, ETA."""
+        parts = [f"step {self.step}/{self.steps}" if self.steps else self.state]
+        if self.loss is not None:
+            parts.append(f"loss {self.loss:.4f}")
+        if self.psnr is not None:
+            parts.append(f"PSNR {self.psnr:.2f} dB")
+        if self.eta_s is not None and self.state == "running":
+            parts.append(f"ETA {format_seconds(self.eta_s)}")
+        return ", ".join(parts)
+
+
+def format_seconds(seconds: float) -> str:
+    seconds = max(0, int(round(seconds)))
+    return f"{seconds // 60}:{seconds % 60:02d}"
+
+
+def package_parent() -> pathlib.Path | None:
+    """The folder holding this package when it is a folder named ``mogaface`` (an installed
+    extension), so a child ``python -m mogaface`` finds it; None otherwise (an installed package)."""
+    root = pathlib.Path(__file__).resolve().parents[1]
+    return root.parent if root.name == PACKAGE else None
+
+
+def train_command(python: str, capture, run, preset: str | None = None, steps: int | None = None,
+                  seed: int | None = None, threads: int | None = None, resume: bool = False,
+                  extra: list[str] | None = None) -> list[str]:
+    """The argument list of a training child process."""
+    command = [python or sys.executable, "-m", PACKAGE, "train", os.fspath(capture), "--out", os.fspath(run),
+               "--quiet"]
+    if resume:
+        command.append("--resume")
+    elif preset:
+        command += ["--preset", preset]
+    for flag, value in (("--steps", steps), ("--seed", seed), ("--threads", threads)):
+        if value is not None:
+            command += [flag, str(int(value))]
+    return command + list(extra or [])
+
+
+class EventReader:
+    """Reads the complete lines appended to a JSON-lines file since the last call."""
+
+    def __init__(self, path):
+        self.path = pathlib.Path(path)
+        self.offset = 0
+        self._partial = b""
+
+    def read(self) -> list[dict]:
+        try:
+            with open(self.path, "rb") as handle:
+                handle.seek(self.offset)
+                data = handle.read()
+        except FileNotFoundError:
+            return []
+        self.offset += len(data)
+        data = self._partial + data
+        lines = data.split(b"\n")
+        self._partial = lines.pop()  # an incomplete last line waits for the next read
+        events = []
+        for line in lines:
+            try:
+                event = json.loads(line)
+            except ValueError:
+                continue
+            if isinstance(event, dict):
+                events.append(event)
+        return events
+
+
+class TrainWorker:
+    """One training child process and its progress.
+
+    ``command``: the child's argument list (see :func:`train_command`); ``run``: its run folder,
+    whose ``events.jsonl`` is read. Events written before the start (a resumed run) are skipped.
+    """
+
+    def __init__(self, command: list[str], run, env: dict | None = None, stderr_lines: int = 40):
+        self.command = list(command)
+        self.run = pathlib.Path(run)
+        self.progress = Progress()
+        self.events: list[dict] = []
+        self._env = env
+        self._stderr = collections.deque(maxlen=stderr_lines)
+        self._process: subprocess.Popen | None = None
+        self._reader: EventReader | None = None
+        self._cancelled = False
+
+    # -- life cycle --------------------------------------------------------------------------
+    def start(self) -> "TrainWorker":
+        """Start the child; an interpreter that cannot be started raises ``OSError``."""
+        events = self.run / "events.jsonl"
+        self._reader = EventReader(events)
+        self._reader.offset = events.stat().st_size if events.exists() else 0
+        env = dict(os.environ if self._env is None else self._env)
+        parent = package_parent()
+        if parent is not None:
+            env["PYTHONPATH"] = os.pathsep.join(p for p in (os.fspath(parent), env.get("PYTHONPATH", "")) if p)
+        env.setdefault("PYTHONUNBUFFERED", "1")
+        self._process = subprocess.Popen(
+            self.command, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+            env=env, start_new_session=True,
+        )
+        threading.Thread(target=self._drain_stderr, daemon=True).start()
+        self.progress.state = "running"
+        return self
+
+    def _drain_stderr(self) -> None:
+        for raw in self._process.stderr:
+            line = raw.decode("utf-8", "replace").rstrip()
+            if line:
+                self._stderr.append(line)
+
+    @property
+    def pid(self) -> int | None:
+        return None if self._process is None else self._process.pid
+
+    def stderr_tail(self) -> str:
+        return "\n".join(self._stderr)
+
+    def cancel(self, sig: int = signal.SIGINT) -> None:
+        """Ask the child to stop; the trainer writes a checkpoint, then exits."""
+        if self._process is not None and self._process.poll() is None:
+            self._cancelled = True
+            self._process.send_signal(sig)
+
+    def kill(self) -> None:
+        """Stop the child at once (no checkpoint): for a child that ignores :meth:`cancel`."""
+        if self._process is not None and self._process.poll() is None:
+            self._process.kill()
+            self._process.wait()
+
+    # -- progress ----------------------------------------------------------------------------
+    def poll(self) -> Progress:
+        """Read new events, check the child; returns the updated :class:`Progress` (never blocks)."""
+        if self._process is None:
+            return self.progress
+        code = self._process.poll()
+        for event in self._reader.read():
+            self._apply(event)
+        if code is not None and not self.progress.finished:
+            time.sleep(0.05)  # let the stderr thread catch the last lines
+            for event in self._reader.read():
+                self._apply(event)
+            self._finish(code)
+        return self.progress
+
+    def _apply(self, event: dict) -> None:
+        self.events.append(event)
+        p, kind = self.progress, event.get("event")
+        p.step = int(event.get("step", p.step) or 0)
+        p.steps = int(event.get("steps", p.steps) or 0)
+        if kind == "iter":
+            p.loss, p.psnr, p.eta_s = event.get("loss"), event.get("psnr"), event.get("eta_s")
+        elif kind == "val":
+            p.val_psnr = event.get("psnr")
+        elif kind == "done":
+            p.eta_s = 0.0
+            metrics = event.get("metrics") or {}
+            p.val_psnr = metrics.get("psnr", p.val_psnr)
+
+    def _finish(self, code: int) -> None:
+        p = self.progress
+        kinds = {e.get("event") for e in self.events}
+        if code == 0 and "done" in kinds:
+            p.state, p.message = "done", f"finished at step {p.step}"
+        elif self._cancelled and ("stopped" in kinds or code in (128 + signal.SIGINT, 128 + signal.SIGTERM)):
+            p.state, p.message = "cancelled", f"cancelled at step {p.step} (checkpoint written)"
+        else:
+            p.state = "failed"
+            tail = [line for line in self._stderr if line.strip()]
+            detail = next((line for line in reversed(tail) if "error" in line.lower()), tail[-1] if tail else "")
+            p.message = f"training failed (exit code {code})" + (f": {detail}" if detail else "")
+
+    def wait(self, interval: float = 0.5, on_progress=None, timeout: float | None = None) -> Progress:
+        """Poll until the child ends (headless use: timers never run there).
+
+        ``on_progress(progress)`` is called after each poll that saw new events; on
+        KeyboardInterrupt the child is cancelled and waited for, so its checkpoint is written.
+        """
+        start, seen = time.monotonic(), -1
+        try:
+            while True:
+                progress = self.poll()
+                if on_progress is not None and len(self.events) != seen:
+                    seen = len(self.events)
+                    on_progress(progress)
+                if progress.finished:
+                    return progress
+                if timeout is not None and time.monotonic() - start > timeout:
+                    self.cancel()
+                    timeout = None
+                time.sleep(interval)
+        except KeyboardInterrupt:
+            self.cancel()
+            self._process.wait()
+            return self.poll()

@@ -1,0 +1,321 @@
+"""``mogaface.load_avatar``, ``render_frame``, ``render_animation``, ``export_ply``.
+
+A trained avatar is linked to a head object (its path is a custom property of the head). A
+render reads what the head shows at a frame (expression shape-key values and pose properties,
+i.e. what the keyframes give), the active camera converted back to OpenCV, and calls the core's
+one render; the image goes into ``bpy.data.images``. All maths is in ``core.scene_conversion``.
+"""
+
+from __future__ import annotations
+
+import os
+
+import bpy
+import numpy as np
+from bpy.props import BoolProperty, EnumProperty, IntProperty, StringProperty
+
+from .common import core_or_report, run_core
+from .head_rig import expression_values, head_objects, is_head, pose_values, rig_of
+
+BACKGROUND_PROPERTY = "mogaface_avatar_background"
+
+
+def avatar_heads(scene) -> list:
+    from ..core.scene_conversion import AVATAR_PATH_PROPERTY
+
+    return [obj for obj in head_objects(scene) if AVATAR_PATH_PROPERTY in obj]
+
+
+def _head_with_avatar(operator, context, name: str):
+    """The named head, else the active one, else the scene's only head with an avatar; or report."""
+    from ..core.scene_conversion import AVATAR_PATH_PROPERTY
+
+    obj = bpy.data.objects.get(name) if name else context.active_object
+    if not (is_head(obj) and AVATAR_PATH_PROPERTY in obj) and not name:
+        heads = avatar_heads(context.scene)
+        obj = heads[0] if len(heads) == 1 else obj
+    if not is_head(obj) or AVATAR_PATH_PROPERTY not in obj:
+        label = name or getattr(obj, "name", "nothing")
+        operator.report({"ERROR"}, f"{label} is not a head with an avatar: use Load Avatar first")
+        return None
+    return obj
+
+
+def camera_of(scene, camera_obj, head):
+    """The OpenCV camera of a Blender camera object, relative to the head object's placement."""
+    from ..core import scene_conversion as sc
+
+    data = camera_obj.data
+    render = scene.render
+    scale = render.resolution_percentage / 100.0
+    resolution = (max(1, round(render.resolution_x * scale)), max(1, round(render.resolution_y * scale)))
+    relative = np.array(head.matrix_world.inverted_safe() @ camera_obj.matrix_world)
+    return sc.opencv_camera(relative, data.lens, data.sensor_width, data.sensor_height, data.sensor_fit,
+                            data.shift_x, data.shift_y, resolution,
+                            (render.pixel_aspect_x, render.pixel_aspect_y), camera_id=camera_obj.name)
+
+
+def head_params(head, avatar) -> dict:
+    """The head's FLAME parameters as it is shown now (after ``frame_set``), fitted to the avatar."""
+    from ..core import scene_conversion as sc
+
+    n_expr = rig_of(head).model.n_expr
+    offset = head.get(sc.STATIC_OFFSET_PROPERTY)
+    return sc.head_flame_params(
+        np.asarray(head.get(sc.SHAPE_PROPERTY, []), np.float64),
+        None if offset is None else np.asarray(offset, np.float64),
+        expression_values(head, n_expr), pose_values(head), avatar.flame.n_shape, avatar.flame.n_expr,
+    )
+
+
+def render_head(context, head, camera_obj, frame: int):
+    """Render the head's avatar at ``frame`` from ``camera_obj``: ``(rgb, alpha)`` numpy."""
+    from ..core import scene_conversion as sc
+
+    scene = context.scene
+    scene.frame_set(frame)
+    avatar = sc.load_avatar(head[sc.AVATAR_PATH_PROPERTY])
+    background = tuple(head.get(BACKGROUND_PROPERTY, (1.0, 1.0, 1.0)))
+    return sc.render_avatar(avatar, head_params(head, avatar), camera_of(scene, camera_obj, head), background)
+
+
+def store_image(name: str, rgb, alpha):
+    """Write a render into the image datablock ``name`` (float, packed into the .blend)."""
+    from ..core import scene_conversion as sc
+
+    height, width = alpha.shape
+    image = bpy.data.images.get(name)
+    if image is not None and tuple(image.size) != (width, height):
+        bpy.data.images.remove(image)
+        image = None
+    if image is None:
+        image = bpy.data.images.new(name, width, height, alpha=True, float_buffer=True)
+    image.pixels.foreach_set(sc.rendered_pixels(rgb, alpha))
+    image.file_format = "OPEN_EXR"
+    image.use_fake_user = True  # an image no one uses would not be saved in the .blend
+    image.pack()
+    image.update()
+    return image
+
+
+def show_image(context, image) -> None:
+    """Show ``image`` in the first Image Editor of the screen, if there is one."""
+    screen = getattr(context, "screen", None)
+    for area in getattr(screen, "areas", ()):
+        if area.type == "IMAGE_EDITOR":
+            area.spaces.active.image = image
+            area.tag_redraw()
+            return
+
+
+def write_files(folder: str, stem: str, rgb, alpha, file_format: str) -> list[str]:
+    """Save a render as PNG (sRGB bytes) and/or EXR (linear float), atomically, through the core."""
+    from ..core.io.image import write_exr, write_png
+
+    folder = bpy.path.abspath(folder)
+    os.makedirs(folder, exist_ok=True)
+    paths = []
+    if file_format in ("PNG", "BOTH"):
+        path = os.path.join(folder, f"{stem}.png")
+        write_png(path, np.concatenate([rgb, alpha[..., None]], axis=2))
+        paths.append(path)
+    if file_format in ("EXR", "BOTH"):
+        path = os.path.join(folder, f"{stem}.exr")
+        write_exr(path, rgb, alpha)
+        paths.append(path)
+    return paths
+
+
+class MOGAFACE_OT_load_avatar(bpy.types.Operator):
+    """Link a trained avatar (run folder or avatar.pt) to a head, for rendering and export"""
+
+    bl_idname = "mogaface.load_avatar"
+    bl_label = "Load Avatar"
+    bl_options = {"REGISTER", "UNDO"}
+
+    filepath: StringProperty(name="Avatar", subtype="FILE_PATH", description="Run folder or avatar.pt")
+    target: StringProperty(name="Head", description="Head object (empty: the active object)")
+
+    def invoke(self, context, event):
+        if self.filepath:
+            return self.execute(context)
+        context.window_manager.fileselect_add(self)
+        return {"RUNNING_MODAL"}
+
+    def execute(self, context):
+        obj = bpy.data.objects.get(self.target) if self.target else context.active_object
+        if not is_head(obj):
+            self.report({"ERROR"}, f"{self.target or getattr(obj, 'name', 'nothing')} is not a MoGaFace head")
+            return {"CANCELLED"}
+        core = core_or_report(self, context)
+        if core is None:
+            return {"CANCELLED"}
+        found = run_core(self, core.avatar_location, bpy.path.abspath(self.filepath))
+        if found is None:
+            return {"CANCELLED"}
+        path, background = found
+        avatar = run_core(self, core.load_avatar, path)
+        if avatar is None:
+            return {"CANCELLED"}
+        vertices = avatar.flame.n_vertices
+        if vertices != len(obj.data.vertices):
+            self.report({"ERROR"}, f"{path}: the avatar's head has {vertices} vertices, {obj.name} has "
+                        f"{len(obj.data.vertices)}: import the avatar's head model (head.pkl beside it)")
+            return {"CANCELLED"}
+        obj[core.AVATAR_PATH_PROPERTY] = str(path)
+        obj[BACKGROUND_PROPERTY] = list(background)
+        context.scene.mogaface.avatar_file = str(path)
+        self.report({"INFO"}, f"{obj.name}: avatar with {len(avatar.gaussians)} Gaussians")
+        return {"FINISHED"}
+
+
+class _RenderBase:
+    head: StringProperty(name="Head", description="Head object with an avatar (empty: the active one)")
+    directory: StringProperty(name="Folder", subtype="DIR_PATH", description="Also save files here (empty: none)")
+    file_format: EnumProperty(
+        name="Files", default="PNG",
+        items=(("PNG", "PNG", "8-bit sRGB with alpha"), ("EXR", "EXR", "linear float with alpha"),
+               ("BOTH", "Both", "PNG and EXR")),
+    )
+
+    def _prepare(self, context):
+        camera = context.scene.camera
+        if camera is None or camera.type != "CAMERA":
+            self.report({"ERROR"}, "The scene has no active camera")
+            return None
+        if core_or_report(self, context) is None:
+            return None
+        head = _head_with_avatar(self, context, self.head)
+        return None if head is None else (head, camera)
+
+    def _render(self, context, head, camera, frame: int):
+        from ..core import scene_conversion as sc
+
+        result = run_core(self, render_head, context, head, camera, frame)
+        if result is None:
+            return None
+        rgb, alpha = result
+        image = store_image(sc.render_image_name(camera.name, frame), rgb, alpha)
+        if self.directory:
+            run_core(self, write_files, self.directory, f"{camera.name}_{frame:04d}".replace(" ", "_"),
+                     rgb, alpha, self.file_format)
+        return image
+
+
+class MOGAFACE_OT_render_frame(_RenderBase, bpy.types.Operator):
+    """Render the avatar at the current frame from the active camera into an image"""
+
+    bl_idname = "mogaface.render_frame"
+    bl_label = "Render Frame"
+    bl_options = {"REGISTER"}
+
+    def execute(self, context):
+        prepared = self._prepare(context)
+        if prepared is None:
+            return {"CANCELLED"}
+        image = self._render(context, *prepared, context.scene.frame_current)
+        if image is None:
+            return {"CANCELLED"}
+        show_image(context, image)
+        self.report({"INFO"}, f"Rendered {image.name}")
+        return {"FINISHED"}
+
+
+class MOGAFACE_OT_render_animation(_RenderBase, bpy.types.Operator):
+    """Render the avatar at every frame of the scene's range from the active camera into images"""
+
+    bl_idname = "mogaface.render_animation"
+    bl_label = "Render Animation"
+    bl_options = {"REGISTER"}
+
+    frame_start: IntProperty(name="Start", default=0, description="First frame (0: the scene's)")
+    frame_end: IntProperty(name="End", default=0, description="Last frame (0: the scene's)")
+    frame_step: IntProperty(name="Step", default=1, min=1)
+
+    def execute(self, context):
+        prepared = self._prepare(context)
+        if prepared is None:
+            return {"CANCELLED"}
+        scene = context.scene
+        start = self.frame_start or scene.frame_start
+        end = self.frame_end or scene.frame_end
+        frames = list(range(start, end + 1, self.frame_step))
+        if not frames:
+            self.report({"ERROR"}, f"Empty frame range {start}..{end}")
+            return {"CANCELLED"}
+        current = scene.frame_current
+        wm = context.window_manager
+        wm.progress_begin(0, len(frames))
+        image = None
+        try:
+            for index, frame in enumerate(frames):
+                image = self._render(context, *prepared, frame)
+                if image is None:
+                    return {"CANCELLED"}
+                wm.progress_update(index + 1)
+        finally:
+            wm.progress_end()
+            scene.frame_set(current)
+        show_image(context, image)
+        self.report({"INFO"}, f"Rendered {len(frames)} frames ({frames[0]}..{frames[-1]})")
+        return {"FINISHED"}
+
+
+class MOGAFACE_OT_export_ply(bpy.types.Operator):
+    """Export the avatar's posed Gaussians (world space) as a 3DGS .ply, for a frame or a range"""
+
+    bl_idname = "mogaface.export_ply"
+    bl_label = "Export PLY"
+    bl_options = {"REGISTER"}
+
+    filepath: StringProperty(name="File", subtype="FILE_PATH",
+                             description="Output .ply; with a range, the frame number is added to the name")
+    filter_glob: StringProperty(default="*.ply", options={"HIDDEN"})
+    head: StringProperty(name="Head", description="Head object with an avatar (empty: the active one)")
+    use_range: BoolProperty(name="Frame Range", default=False, description="Export every frame of the range")
+    frame_start: IntProperty(name="Start", default=0, description="First frame (0: the scene's)")
+    frame_end: IntProperty(name="End", default=0, description="Last frame (0: the scene's)")
+
+    def invoke(self, context, event):
+        if self.filepath:
+            return self.execute(context)
+        self.filepath = "avatar.ply"
+        context.window_manager.fileselect_add(self)
+        return {"RUNNING_MODAL"}
+
+    def execute(self, context):
+        if not self.filepath:
+            self.report({"ERROR"}, "No output file given")
+            return {"CANCELLED"}
+        if core_or_report(self, context) is None:
+            return {"CANCELLED"}
+        head = _head_with_avatar(self, context, self.head)
+        if head is None:
+            return {"CANCELLED"}
+        from ..core import scene_conversion as sc
+        from ..core.avatar.export import export_world_ply
+
+        scene = context.scene
+        path = bpy.path.abspath(self.filepath)
+        if not path.lower().endswith(".ply"):
+            path += ".ply"
+        os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+        if self.use_range:
+            frames = list(range(self.frame_start or scene.frame_start, (self.frame_end or scene.frame_end) + 1))
+        else:
+            frames = [scene.frame_current]
+        current, written = scene.frame_current, []
+        try:
+            for frame in frames:
+                scene.frame_set(frame)
+                avatar = run_core(self, sc.load_avatar, head[sc.AVATAR_PATH_PROPERTY])
+                if avatar is None:
+                    return {"CANCELLED"}
+                out = path if not self.use_range else f"{path[:-4]}_{frame:04d}.ply"
+                if run_core(self, export_world_ply, avatar, head_params(head, avatar), out) is None:
+                    return {"CANCELLED"}
+                written.append(out)
+        finally:
+            scene.frame_set(current)
+        self.report({"INFO"}, f"Wrote {written[0]}" if len(written) == 1 else f"Wrote {len(written)} PLY files")
+        return {"FINISHED"}

@@ -1,0 +1,161 @@
+"""Headless MoGaFace in Blender: capture → (train) → head with keyframes → rendered frames → .blend.
+
+Runs the same with the Blender binary and with the ``bpy`` module:
+
+    blender -b --python scripts/mogaface_blend.py -- CAPTURE --run RUN --blend OUT.blend [options]
+    python scripts/mogaface_blend.py CAPTURE --run RUN --blend OUT.blend [options]
+
+Steps: import the capture's cameras; train into RUN (``--train``; otherwise RUN must hold a
+trained avatar); import the avatar's head with the run's identity; key its expressions and pose
+from the run's corrected tracking (``RUN/flame_param``, or ``--tracking``); link the avatar; render
+a frame range from one capture camera into image datablocks (and files with ``--render-dir``);
+save the ``.blend`` with the images packed. Exit code 0 on success, 1 on any reported error.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import pathlib
+import sys
+import time
+
+
+def script_arguments(argv=None) -> list[str]:
+    """The script's own arguments: after ``--`` (Blender binary), else everything (``python``)."""
+    argv = list(sys.argv if argv is None else argv)
+    if "--" in argv:
+        return argv[argv.index("--") + 1:]
+    return argv[1:]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="mogaface_blend.py",
+        description="Build a Blender scene of a trained MoGaFace avatar headlessly: import a capture and the "
+        "avatar's head, optionally train, key the run's tracking, render a frame range, save a .blend.",
+    )
+    parser.add_argument("capture", type=pathlib.Path, help="capture folder (GaussianAvatars/VHAP layout)")
+    parser.add_argument("--run", type=pathlib.Path, required=True, help="run folder (trained, or written by --train)")
+    parser.add_argument("--blend", type=pathlib.Path, required=True, help="the .blend file to write")
+    parser.add_argument("--train", action="store_true", help="train into --run first (a separate process)")
+    parser.add_argument("--preset", default="demo", choices=["quick", "demo", "full"], help="training preset")
+    parser.add_argument("--steps", type=int, default=0, help="training steps (0: the preset's)")
+    parser.add_argument("--python", help="interpreter for the training process (default: this one)")
+    parser.add_argument("--tracking", type=pathlib.Path,
+                        help="flame_param folder to key on the head (default: RUN/flame_param)")
+    parser.add_argument("--camera", help="capture camera id to render from (default: the capture's val camera, "
+                        "else its first)")
+    parser.add_argument("--frames", type=int, nargs=2, metavar=("START", "END"),
+                        help="frame range to render (default: the first 8 frames of the tracking)")
+    parser.add_argument("--render-dir", type=pathlib.Path, help="also write the rendered frames here")
+    parser.add_argument("--format", default="PNG", choices=["PNG", "EXR", "BOTH"], help="file format of --render-dir")
+    return parser
+
+
+def _mogaface_module():
+    """The MoGaFace package: installed (``import mogaface``) or an enabled Blender extension."""
+    try:
+        import mogaface
+
+        return mogaface
+    except ImportError:
+        pass
+    import importlib
+
+    import bpy
+
+    for name in bpy.context.preferences.addons.keys():
+        if name.split(".")[-1] == "mogaface":
+            return importlib.import_module(name)
+    raise SystemExit("error: MoGaFace is neither an importable package nor an enabled extension")
+
+
+def _call(operator, **kwargs) -> None:
+    """Run an operator; its error reports become a clean exit with the message."""
+    try:
+        result = operator(**kwargs)
+    except RuntimeError as error:
+        raise SystemExit(f"error: {str(error).strip()}") from None
+    if "FINISHED" not in result:
+        raise SystemExit(f"error: {operator.idname_py()} did not finish ({', '.join(result)})")
+
+
+def _default_camera(capture: pathlib.Path) -> str:
+    mogaface = _mogaface_module()
+    core_capture = __import__(f"{mogaface.__name__}.core.data.capture", fromlist=["Capture"])
+    opened = core_capture.Capture.open(capture)
+    if opened.splits.get("val"):
+        return opened.splits["val"][0].camera_id
+    return next(iter(opened.cameras))
+
+
+def build_scene(args, log=print) -> dict:
+    """Everything after the arguments: the scene, the renders, the saved .blend. Returns a summary."""
+    import bpy
+
+    mogaface = _mogaface_module()
+    start = time.monotonic()
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    if not hasattr(bpy.types, "MOGAFACE_OT_import_head"):
+        mogaface.register()
+    ops = bpy.ops.mogaface
+    run = args.run.resolve()
+    _call(ops.import_capture, filepath=str(args.capture.resolve()))
+    log(f"[blend] imported the capture's cameras from {args.capture}")
+    if args.train:
+        if args.python:
+            addon = bpy.context.preferences.addons.get(mogaface.__name__)
+            if addon is not None:
+                addon.preferences.python_path = args.python
+        _call(ops.train, capture=str(args.capture.resolve()), run=str(run), preset=args.preset, steps=args.steps,
+              resume="NEW")
+        log(f"[blend] trained into {run}")
+    head = run / "head.pkl"
+    if not head.exists():
+        head = run / "head.npz"
+    tracking = (args.tracking or run / "flame_param").resolve()
+    identity = sorted((run / "flame_param").glob("*.npz"))  # the avatar's own identity
+    _call(ops.import_head, filepath=str(head), shape_file=str(identity[0]) if identity else "")
+    head_object = bpy.context.active_object
+    _call(ops.import_tracking, directory=str(tracking), target=head_object.name)
+    _call(ops.load_avatar, filepath=str(run), target=head_object.name)
+    log(f"[blend] head {head_object.name!r} keyed from {tracking}, avatar linked")
+    scene = bpy.context.scene
+    camera_id = args.camera or _default_camera(args.capture)
+    camera = next((o for o in scene.objects if o.get("mogaface_camera_id") == camera_id), None)
+    if camera is None:
+        raise SystemExit(f"error: the capture has no camera {camera_id!r}")
+    sys.modules[f"{mogaface.__name__}.operators.import_capture"].apply_render_settings(scene, camera)
+    first, last = args.frames or (scene.frame_start, min(scene.frame_end, scene.frame_start + 7))
+    _call(ops.render_animation, head=head_object.name, frame_start=first, frame_end=last,
+          directory=str(args.render_dir.resolve()) if args.render_dir else "", file_format=args.format)
+    images = [image.name for image in bpy.data.images if image.name.startswith("MoGaFace ")]
+    log(f"[blend] rendered frames {first}..{last} from {camera.name} ({len(images)} images)")
+    scene.frame_set(first)
+    args.blend.parent.mkdir(parents=True, exist_ok=True)
+    blend = args.blend.resolve()
+    tmp = blend.with_name(blend.stem + ".tmp.blend")
+    bpy.ops.wm.save_as_mainfile(filepath=str(tmp), compress=True)
+    os.replace(tmp, blend)
+    log(f"[blend] saved {blend} in {time.monotonic() - start:.1f} s")
+    return {"blend": str(blend), "camera": camera.name, "frames": [first, last], "images": images,
+            "head": head_object.name}
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(script_arguments(argv))
+    try:
+        build_scene(args)
+    except SystemExit as stop:
+        if isinstance(stop.code, str):
+            print(stop.code, file=sys.stderr)
+            return 1
+        raise
+    return 0
+
+
+if __name__ == "__main__":
+    code = main()
+    if code:
+        sys.exit(code)

@@ -1,0 +1,285 @@
+"""Training, rendering and export in the real Blender (bpy module), and the headless script.
+
+A tiny synthetic capture is trained for a few steps through ``mogaface.train`` (a child
+process); its avatar is then linked to the imported head, rendered from a capture camera and
+compared with the core's own render of the same frame, exported as a PLY, and the batch
+script builds and saves a whole scene that reopens with everything in it.
+"""
+
+import importlib
+import json
+import os
+import pathlib
+import subprocess
+import sys
+import time
+
+import test_blender_addon as addon_test  # sets Blender's user folders to a temporary one first
+
+import bpy  # noqa: E402
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+from conftest import make_toy_model  # noqa: E402
+from mogaface.core import scene_conversion as sc  # noqa: E402
+from mogaface.core.flame.model_file import write_model_file  # noqa: E402
+from mogaface.core.avatar.avatar import Avatar  # noqa: E402
+from mogaface.core.data.capture import Capture  # noqa: E402
+from mogaface.core.data.generator import CaptureSettings, make_capture  # noqa: E402
+from mogaface.core.evaluate.run_folder import RunFolder  # noqa: E402
+from mogaface.core.worker import TrainWorker, train_command  # noqa: E402
+
+MODULE = addon_test.MODULE
+ROOT = addon_test.ROOT
+SCRIPT = ROOT / "scripts" / "mogaface_blend.py"
+STEPS = 10
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    root = tmp_path_factory.mktemp("blender_avatar")
+    capture = make_capture(root / "capture", CaptureSettings(views=3, timesteps=16, size=48, supersample=1),
+                           progress=False)
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    addon_test.build_and_install(root / "dist")
+    train = importlib.import_module(MODULE + ".operators.train")
+    run = root / "run"
+    result = bpy.ops.mogaface.train(capture=str(capture), run=str(run), preset="quick", steps=STEPS)
+    progress = train.last_progress()
+    return {"root": root, "capture": capture, "run": run, "result": result, "progress": progress, "train": train}
+
+
+def test_train_operator_reads_progress_and_completes_the_run(trained):
+    assert trained["result"] == {"FINISHED"}
+    progress = trained["progress"]
+    assert progress.state == "done" and progress.step == progress.steps == STEPS
+    assert progress.loss is not None and progress.psnr is not None and progress.fraction == 1.0
+    run = trained["run"]
+    assert (run / "avatar.pt").exists() and len(list((run / "flame_param").glob("*.npz"))) > 0
+    assert json.loads((run / "run.json").read_text())["complete"] is True
+    assert trained["train"].current_worker() is None
+    assert bpy.context.scene.mogaface.run_folder == str(run)
+
+
+def test_cancel_stops_with_a_checkpoint(trained):
+    train, run = trained["train"], trained["root"] / "run_cancel"
+    worker = TrainWorker(train_command(sys.executable, trained["capture"], run, preset="quick", steps=5000), run)
+    train._job["worker"] = worker.start()
+    try:
+        while worker.poll().step < 5 and not worker.progress.finished:
+            time.sleep(0.1)
+        assert bpy.ops.mogaface.train_cancel() == {"FINISHED"}
+        progress = worker.wait(interval=0.1, timeout=60)
+    finally:
+        train._job["worker"] = None
+        worker.kill()
+    assert progress.state == "cancelled", progress.message
+    assert (run / "checkpoints" / "latest").exists() and not (run / "avatar.pt").exists()
+    assert any(e["event"] == "stopped" for e in worker.events)
+    assert json.loads((run / "run.json").read_text())["complete"] is False
+    assert not bpy.ops.mogaface.train_cancel.poll()  # nothing left running
+
+
+def test_a_crashing_training_is_reported_with_its_message(trained, tmp_path):
+    with pytest.raises(RuntimeError, match=r"exit code 2.*not-a-capture"):
+        bpy.ops.mogaface.train(capture=str(tmp_path / "not-a-capture"), run=str(tmp_path / "run"), steps=2)
+    assert trained["train"].last_progress().state == "failed"
+    prefs = bpy.context.preferences.addons[MODULE].preferences
+    prefs.python_path = sys.executable
+    try:
+        prefs.python_path = str(pathlib.Path("/bin/false"))
+        with pytest.raises(RuntimeError, match="exit code 1"):
+            bpy.ops.mogaface.train(capture=str(trained["capture"]), run=str(tmp_path / "run2"), steps=2)
+        prefs.python_path = str(tmp_path / "no-such-python")
+        with pytest.raises(RuntimeError, match="Cannot start"):
+            bpy.ops.mogaface.train(capture=str(trained["capture"]), run=str(tmp_path / "run3"), steps=2)
+    finally:
+        prefs.python_path = sys.executable
+    assert trained["train"].current_worker() is None
+
+
+def test_worker_ignores_events_of_earlier_sessions_and_partial_lines(tmp_path):
+    from mogaface.core.worker import EventReader
+
+    path = tmp_path / "events.jsonl"
+    path.write_text('{"event": "iter", "step": 1}\n{"event": "it')
+    reader = EventReader(path)
+    assert [e["step"] for e in reader.read()] == [1]
+    with open(path, "a") as handle:
+        handle.write('er", "step": 2}\n')
+    assert [e["step"] for e in reader.read()] == [2]
+    assert reader.read() == []
+
+
+@pytest.fixture(scope="module")
+def scene(trained):
+    run = trained["run"]
+    assert bpy.ops.mogaface.import_capture(filepath=str(trained["capture"])) == {"FINISHED"}
+    identity = sorted((run / "flame_param").glob("*.npz"))[0]
+    assert bpy.ops.mogaface.import_head(filepath=str(run / "head.pkl"), shape_file=str(identity)) == {"FINISHED"}
+    head = bpy.context.active_object
+    assert bpy.ops.mogaface.import_tracking(directory=str(run / "flame_param")) == {"FINISHED"}
+    assert bpy.ops.mogaface.load_avatar(filepath=str(run)) == {"FINISHED"}
+    return {**trained, "head": head}
+
+
+def use_camera(camera_id: str):
+    obj = next(o for o in bpy.context.scene.objects if o.get("mogaface_camera_id") == camera_id)
+    importlib.import_module(MODULE + ".operators.import_capture").apply_render_settings(bpy.context.scene, obj)
+    return obj
+
+
+def core_render(run: pathlib.Path, timestep: int, camera) -> np.ndarray:
+    """The core's render (Blender's pixel order) of a run's avatar at a training timestep."""
+    folder = RunFolder(run)
+    rgb, alpha = sc.render_avatar(Avatar.load(run / "avatar.pt"), folder.flame_params(timestep), camera,
+                                  folder.background)
+    return sc.rendered_pixels(rgb, alpha).reshape(camera.height, camera.width, 4)
+
+
+def image_array(image) -> np.ndarray:
+    pixels = np.zeros(len(image.pixels), np.float32)
+    image.pixels.foreach_get(pixels)
+    return pixels.reshape(image.size[1], image.size[0], 4)
+
+
+def test_render_frame_equals_the_core_render(scene):
+    capture = Capture.open(scene["capture"])
+    timestep = RunFolder(scene["run"]).trained_timesteps[1]
+    frame = sc.timestep_to_frame(timestep)
+    for camera_id, camera in capture.cameras.items():
+        obj = use_camera(camera_id)
+        bpy.context.scene.frame_set(frame)
+        assert bpy.ops.mogaface.render_frame() == {"FINISHED"}
+        got = image_array(bpy.data.images[sc.render_image_name(obj.name, frame)])
+        expected = core_render(scene["run"], timestep, camera)
+        assert got.shape == expected.shape
+        assert np.abs(got - expected).max() < 1e-4, camera_id
+        assert expected[..., 3].max() > 0.5  # the head is in view
+
+
+def test_blender_camera_converts_back_to_the_capture_camera(scene):
+    for camera_id, camera in Capture.open(scene["capture"]).cameras.items():
+        obj = use_camera(camera_id)
+        avatar_ops = importlib.import_module(MODULE + ".operators.avatar")
+        back = avatar_ops.camera_of(bpy.context.scene, obj, scene["head"])
+        assert np.abs(back.K - camera.K).max() < 1e-3 and np.abs(back.w2c - camera.w2c).max() < 1e-5
+        assert (back.width, back.height) == (camera.width, camera.height)
+
+
+def test_what_is_keyframed_is_what_is_rendered(scene):
+    """Editing a keyframed expression changes the render; the edit's value is what the core is given."""
+    use_camera(next(iter(Capture.open(scene["capture"]).cameras)))
+    head = scene["head"]
+    frame = bpy.context.scene.frame_start
+    avatar_ops = importlib.import_module(MODULE + ".operators.avatar")
+    rgb_before, _ = avatar_ops.render_head(bpy.context, head, bpy.context.scene.camera, frame)
+    fcurves = head.data.shape_keys.animation_data.action.layers[0].strips[0].channelbags[0].fcurves
+    curve = next(c for c in fcurves if "key_blocks" in c.data_path)
+    point = next(p for p in curve.keyframe_points if p.co[0] == frame)
+    old = point.co[1]
+    point.co[1] = old + 3.0
+    try:
+        rgb_after, _ = avatar_ops.render_head(bpy.context, head, bpy.context.scene.camera, frame)
+        params = avatar_ops.head_params(head, sc.load_avatar(head[sc.AVATAR_PATH_PROPERTY]))
+    finally:
+        point.co[1] = old
+    assert np.abs(rgb_after - rgb_before).max() > 1e-3
+    block = curve.data_path.split('"')[1]
+    index = list(head.data.shape_keys.key_blocks.keys()).index(block) - 1
+    assert params["expr"][index] == pytest.approx(old + 3.0, abs=1e-6)
+
+
+def test_render_animation_writes_images_and_files(scene, tmp_path):
+    use_camera(next(iter(Capture.open(scene["capture"]).cameras)))
+    start = bpy.context.scene.frame_start
+    result = bpy.ops.mogaface.render_animation(frame_start=start, frame_end=start + 2, directory=str(tmp_path),
+                                               file_format="BOTH")
+    assert result == {"FINISHED"}
+    camera = bpy.context.scene.camera.name
+    for frame in range(start, start + 3):
+        image = bpy.data.images[sc.render_image_name(camera, frame)]
+        assert image.packed_file is not None
+        stem = f"{camera}_{frame:04d}".replace(" ", "_")
+        assert (tmp_path / f"{stem}.png").exists() and (tmp_path / f"{stem}.exr").exists()
+
+
+def test_export_ply_writes_world_gaussians(scene, tmp_path):
+    import trimesh
+
+    path = tmp_path / "avatar.ply"
+    assert bpy.ops.mogaface.export_ply(filepath=str(path)) == {"FINISHED"}
+    cloud = trimesh.load(path)
+    avatar = Avatar.load(scene["run"] / "avatar.pt")
+    assert len(cloud.vertices) == len(avatar.gaussians)
+    start = bpy.context.scene.frame_start
+    ranged = tmp_path / "range.ply"
+    assert bpy.ops.mogaface.export_ply(filepath=str(ranged), use_range=True, frame_start=start,
+                                       frame_end=start + 1) == {"FINISHED"}
+    assert sorted(p.name for p in tmp_path.glob("range_*.ply")) == [f"range_{start:04d}.ply",
+                                                                  f"range_{start + 1:04d}.ply"]
+
+
+def test_avatar_errors_are_reported(scene, tmp_path):
+    with pytest.raises(RuntimeError, match="avatar file not found"):
+        bpy.ops.mogaface.load_avatar(filepath=str(tmp_path))
+    toy = tmp_path / "toy.npz"
+    write_model_file(toy, make_toy_model(n_vertices=60, n_shape=4, n_expr=3))
+    bpy.ops.mogaface.import_head(filepath=str(toy))
+    with pytest.raises(RuntimeError, match="vertices"):
+        bpy.ops.mogaface.load_avatar(filepath=str(scene["run"]))
+    with pytest.raises(RuntimeError, match="not a head with an avatar"):
+        bpy.ops.mogaface.render_frame(head=bpy.context.active_object.name)
+    bpy.data.objects.remove(bpy.context.active_object)
+    bpy.context.view_layer.objects.active = scene["head"]
+
+
+def test_headless_script_help():
+    result = subprocess.run([sys.executable, str(SCRIPT), "--help"], capture_output=True, text=True, timeout=60)
+    assert result.returncode == 0 and "--blend" in result.stdout and "--train" in result.stdout
+
+
+def test_headless_script_builds_a_scene_that_reopens_with_everything(scene, tmp_path):
+    blend, frames = tmp_path / "scene.blend", tmp_path / "frames"
+    env = {**os.environ, **{name: str(tmp_path / "user") for name in addon_test._USER_VARS}}
+    result = subprocess.run(
+        [sys.executable, str(SCRIPT), str(scene["capture"]), "--run", str(tmp_path / "run"), "--train",
+         "--preset", "quick", "--steps", "5", "--blend", str(blend), "--render-dir", str(frames),
+         "--frames", "2", "4"],
+        capture_output=True, text=True, timeout=120, env=env,
+    )
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert sorted(p.name for p in frames.glob("*.png")) == [f"Camera_cam01_{f:04d}.png" for f in (2, 3, 4)]
+    bpy.ops.wm.open_mainfile(filepath=str(blend))
+    cameras = [o for o in bpy.data.objects if o.type == "CAMERA"]
+    assert len(cameras) == 3 and bpy.context.scene.camera.name == "Camera cam01"
+    head = next(o for o in bpy.data.objects if sc.AVATAR_PATH_PROPERTY in o)
+    assert head.data.shape_keys.animation_data.action and head.animation_data.action
+    images = [bpy.data.images[sc.render_image_name("Camera cam01", f)] for f in (2, 3, 4)]
+    assert all(image.packed_file is not None and tuple(image.size) == (48, 48) for image in images)
+    assert image_array(images[0])[..., 3].max() > 0.5  # pixels survived the round trip
+    bpy.context.scene.frame_set(3)
+    assert bpy.ops.mogaface.render_frame() == {"FINISHED"}
+
+
+def test_headless_script_reports_errors(tmp_path):
+    env = {**os.environ, **{name: str(tmp_path / "user") for name in addon_test._USER_VARS}}
+    result = subprocess.run(
+        [sys.executable, str(SCRIPT), str(tmp_path / "missing"), "--run", str(tmp_path / "run"),
+         "--blend", str(tmp_path / "x.blend")],
+        capture_output=True, text=True, timeout=60, env=env,
+    )
+    assert result.returncode == 1 and "error:" in result.stderr and "Traceback" not in result.stderr
+
+
+def test_disabling_leaves_nothing_registered(scene):
+    import addon_utils
+
+    addon_utils.disable(MODULE, default_set=True)
+    for name in (*addon_test.CLASS_NAMES, "MOGAFACE_OT_train_cancel"):
+        assert not hasattr(bpy.types, name), name
+    assert not hasattr(bpy.types.Scene, "mogaface")
+    for handlers in (bpy.app.handlers.frame_change_post, bpy.app.handlers.depsgraph_update_post):
+        assert not any(h.__module__.startswith(MODULE) for h in handlers)
+    assert "mogaface" not in dir(bpy.ops)
+
