@@ -1,10 +1,11 @@
 """Benchmark of the full training step (render, loss, backward, Adam, densify bookkeeping).
 
-Makes a small synthetic capture (3 views, 256², default head) in a temporary folder, then times
+Makes a small synthetic capture (10 views, 256², default head) in a temporary folder, then times
 training steps of the default settings with densification off, at the avatar's starting size
 (one Gaussian per triangle) and, unless ``quick``, with every Gaussian tripled (jittered copies,
-the size a densified avatar reaches). Reports steps per second, the median step and the load
-average, since a busy machine slows every number here.
+the size a densified avatar reaches). Each size is timed for the baseline (Freeze) and for the
+full MoGaFace step (8 encoder views at 128², cross-attention, bank, texture attention). Reports
+steps per second, the median step and the load average, since a busy machine slows every number here.
 """
 
 from __future__ import annotations
@@ -19,7 +20,11 @@ import time
 def _make_capture(folder, size):
     from mogaface.core.data.generator import CaptureSettings, make_capture
 
-    return make_capture(folder, CaptureSettings(views=3, timesteps=16, size=size, supersample=1), progress=False)
+    return make_capture(folder, CaptureSettings(views=VIEWS, timesteps=16, size=size, supersample=1), progress=False)
+
+
+VIEWS = 10  # 9 training cameras: 8 other views for the encoder, the held-out one aside
+VARIANTS = {"freeze": {}, "mogaface": {"mode": "multi", "bank": True, "texture": True, "encoder_views": 8}}
 
 
 def _grow(trainer, factor, seed=0):
@@ -60,13 +65,14 @@ def run(threads: int = 2, quick: bool = False) -> dict:
         start = time.perf_counter()
         capture = _make_capture(os.path.join(folder, "capture"), size)
         capture_s = time.perf_counter() - start
-        for factor in factors:
+        for factor, (variant, mogaface) in ((f, v) for f in factors for v in VARIANTS.items()):
             config = config_module.resolve(overrides={
                 "train": {"steps": 100000, "threads": threads, "checkpoint_every": 0},
                 "densify": {"start": 100000, "stop": 100000, "opacity_reset_interval": 0},
                 "eval": {"at_end": False},
+                "mogaface": mogaface,
             })
-            trainer = Trainer(capture, os.path.join(folder, f"run{factor}"), config)
+            trainer = Trainer(capture, os.path.join(folder, f"run{factor}_{variant}"), config)
             if factor > 1:
                 _grow(trainer, factor)
             # Warm up (numba cache, first images) with opacities raised as a trained avatar has them.
@@ -76,6 +82,7 @@ def run(threads: int = 2, quick: bool = False) -> dict:
                 trainer.avatar.gaussians.opacity_logit.fill_(2.0)
             times = _time_steps(trainer, 3, steps)
             results.append({
+                "variant": variant,
                 "gaussians": len(trainer.avatar.gaussians),
                 "steps": steps,
                 "it_s": round(len(times) / sum(times), 3),
@@ -88,7 +95,7 @@ def run(threads: int = 2, quick: bool = False) -> dict:
         "threads": threads,
         "quick": quick,
         "image": [size, size],
-        "capture_views": 3,
+        "capture_views": VIEWS,
         "capture_seconds": round(capture_s, 1),
         "load_average": [round(x, 2) for x in os.getloadavg()],
         "machine": {"cpu_count": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version()},

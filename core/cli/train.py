@@ -7,10 +7,12 @@ import sys
 
 
 def add_arguments(parser):
+    from ..train.config import PRESETS
+
     parser.add_argument("capture", type=pathlib.Path, help="capture folder (GaussianAvatars/VHAP layout)")
     parser.add_argument("--out", type=pathlib.Path, required=True, help="run folder (created)")
     parser.add_argument("--config", type=pathlib.Path, help="TOML settings file (see docs/training.md)")
-    parser.add_argument("--preset", choices=["quick", "demo", "full"], help="a preset under the config file")
+    parser.add_argument("--preset", choices=list(PRESETS), help="a preset under the config file")
     parser.add_argument("--resume", action="store_true", help="continue the run in --out from its latest checkpoint")
     parser.add_argument("--steps", type=int, help="total optimisation steps (overrides the config)")
     parser.add_argument("--seed", type=int, help="random seed (overrides the config)")

@@ -265,8 +265,12 @@ def evaluate_run(
         if name not in PROTOCOLS:
             raise InputError(None, "protocols", f"unknown protocol {name!r} (have {', '.join(PROTOCOLS)})")
     out = pathlib.Path(out_dir) if out_dir is not None else run.root
-    avatar = run.load_avatar() if avatar is None else avatar
     cap = run.open_capture()
+    if avatar is None and source is None:
+        from .mogaface_source import run_inference
+
+        avatar, source = run_inference(run, cap)  # MoGaFace runs: modules + image-assisted inference
+    avatar = run.load_avatar() if avatar is None else avatar
     source = TrackedParams(cap, run) if source is None else source
     plans = {name: protocol_frames(cap, name, max_frames) for name in protocols}
     total = sum(len(f) for f in plans.values())

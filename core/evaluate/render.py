@@ -13,6 +13,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..io.image import srgb_to_linear, write_exr, write_png
+from .mogaface_source import run_inference
 from .protocols import TrackedParams, render_frame
 from .run_folder import RunFolder, capture_info, load_flame_file
 
@@ -53,8 +54,9 @@ def render_run(
     for camera_id in cameras:
         if camera_id not in cap.cameras:
             raise InputError(cap.root, "camera", f"no camera {camera_id!r} (have {', '.join(cap.cameras)})")
-    avatar = run.load_avatar() if avatar is None else avatar
-    source = TrackedParams(cap, run)
+    modulated, modules_source = run_inference(run, cap, image_assisted=False)
+    avatar = (modulated or run.load_avatar()) if avatar is None else avatar
+    source = modules_source or TrackedParams(cap, run)
     out = pathlib.Path(out_dir) if out_dir is not None else run.root / RENDER_DIR
     background = np.asarray(run.background, dtype=np.float32)
     written = []

@@ -19,6 +19,7 @@ from .bank import ExpressionBank
 from .correction import CorrectionHead
 from .encoder import ViewEncoder
 from .fusion import MultiViewFusion
+from ..avatar.binding import triangle_frames
 from .posing import canonical_points
 from .texture_attention import LatentTextureAttention
 
@@ -66,6 +67,7 @@ class MoGaFace(nn.Module):
         self.register_buffer("default_feature", torch.zeros(d))
         self.register_buffer("default_feature_count", torch.zeros((), dtype=torch.long))
         self.register_buffer("timestep_features", torch.zeros(len(self.timesteps), d))
+        self._canonical_frames = None  # the neutral mesh's triangle frames, computed once
 
     @property
     def mode(self) -> str:
@@ -95,7 +97,9 @@ class MoGaFace(nn.Module):
         if self.texture is None:
             return None
         feature = self.default_feature if feature is None else feature
-        points = canonical_points(gaussians, self.canonical_vertices, faces, self.canonical_centre,
+        if self._canonical_frames is None or len(self._canonical_frames.scale) != len(faces):
+            self._canonical_frames = triangle_frames(self.canonical_vertices, faces)
+        points = canonical_points(gaussians, self._canonical_frames, self.canonical_centre,
                                   self.canonical_half_extent)
         return self.texture(points, feature)
 

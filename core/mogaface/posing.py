@@ -9,16 +9,18 @@ from __future__ import annotations
 
 import torch
 
-from ..avatar.binding import bound_to_world, triangle_frames
+from ..avatar.binding import TriangleFrames, bound_to_world, triangle_frames
 
 
-def canonical_points(gaussians, canonical_vertices: torch.Tensor, faces: torch.Tensor,
-                     centre: torch.Tensor, half_extent: torch.Tensor) -> torch.Tensor:
-    """Each Gaussian's position on the canonical (neutral) mesh, scaled into [-1, 1]³ (no gradient)."""
+def canonical_points(gaussians, frames: TriangleFrames, centre: torch.Tensor,
+                     half_extent: torch.Tensor) -> torch.Tensor:
+    """Each Gaussian's position on the canonical (neutral) mesh with triangle ``frames``, scaled
+    into [-1, 1]³ (no gradient: the triplane is read there, it does not move the Gaussians)."""
     with torch.no_grad():
-        frames = triangle_frames(canonical_vertices, faces)
-        means, _, _ = bound_to_world(frames, gaussians.binding, gaussians.local_position,
-                                     gaussians.local_log_scale, gaussians.local_rotation)
+        binding = gaussians.binding
+        local = gaussians.local_position
+        means = frames.scale[binding][:, None] * (frames.rotation[binding] @ local[..., None])[..., 0] \
+            + frames.centroid[binding]
         return ((means - centre) / half_extent).clamp(-1.0, 1.0)
 
 

@@ -88,6 +88,28 @@ class EvalSection:
 
 
 @dataclasses.dataclass
+class MogafaceSection:
+    mode: str = _setting("off", "expression correction: 'off' (Freeze, the baseline), 'single' (one other view of "
+                                "the timestamp), 'multi' (other training views, fused by cross-attention)")
+    encoder_views: int = _setting(8, "views the encoder reads per step in 'multi' mode (never the scored one)")
+    bank: bool = _setting(False, "momentum-updated expression bank: its per-timestamp mean poses the mesh")
+    momentum_start: float = _setting(0.5, "bank momentum at step 0 (decays linearly to momentum_end)")
+    momentum_end: float = _setting(0.0, "bank momentum at the last step")
+    consistency_weight: float = _setting(0.1, "weight of the per-view consistency loss against the bank's mean")
+    texture: bool = _setting(False, "latent texture attention (triplane + image feature → Δμ Δs Δr Δα)")
+    plane_size: int = _setting(64, "triplane resolution n_f")
+    plane_dim: int = _setting(16, "feature channels of each triplane plane")
+    texture_hidden: int = _setting(32, "width of the texture attention and its MLP heads")
+    input_size: int = _setting(128, "encoder input: views downsampled to this many pixels square")
+    feature_dim: int = _setting(64, "image feature size d")
+    encoder_width: int = _setting(16, "channels of the encoder's first convolution (doubled twice deeper)")
+    heads: int = _setting(4, "attention heads of the multi-view fusion (divides feature_dim)")
+    hidden: int = _setting(128, "hidden units of the correction MLP")
+    lr: float = _setting(1e-3, "Adam learning rate of the encoder, fusion and correction head")
+    texture_lr: float = _setting(1e-3, "Adam learning rate of the triplane and the texture attention")
+
+
+@dataclasses.dataclass
 class TrainConfig:
     train: TrainSection = dataclasses.field(default_factory=TrainSection)
     loss: LossSection = dataclasses.field(default_factory=LossSection)
@@ -95,6 +117,7 @@ class TrainConfig:
     densify: DensifySection = dataclasses.field(default_factory=DensifySection)
     flame: FlameSection = dataclasses.field(default_factory=FlameSection)
     eval: EvalSection = dataclasses.field(default_factory=EvalSection)
+    mogaface: MogafaceSection = dataclasses.field(default_factory=MogafaceSection)
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -119,7 +142,27 @@ class TrainConfig:
             raise InputError(source, "lr.position_final_ratio", "must lie in (0, 1]")
         if not 0 <= self.loss.ssim_weight <= 1:
             raise InputError(source, "loss.ssim_weight", "must lie in [0, 1]")
+        _check_mogaface(self.mogaface, source)
         return self
+
+
+def _check_mogaface(m: MogafaceSection, source) -> None:
+    if m.mode not in ("off", "single", "multi"):
+        raise InputError(source, "mogaface.mode", f"expected 'off', 'single' or 'multi', got {m.mode!r}")
+    if m.mode == "off" and (m.bank or m.texture):
+        raise InputError(source, "mogaface.mode", "the bank and the texture attention need mode 'single' or 'multi'")
+    for key in ("encoder_views", "plane_size", "plane_dim", "texture_hidden", "input_size", "feature_dim",
+                "encoder_width", "heads", "hidden"):
+        if getattr(m, key) <= 0:
+            raise InputError(source, f"mogaface.{key}", f"must be positive (got {getattr(m, key)})")
+    for key in ("momentum_start", "momentum_end"):
+        if not 0 <= getattr(m, key) < 1:
+            raise InputError(source, f"mogaface.{key}", f"must lie in [0, 1) (got {getattr(m, key)})")
+    if m.feature_dim % m.heads:
+        raise InputError(source, "mogaface.heads", f"must divide feature_dim ({m.feature_dim})")
+    for key in ("consistency_weight", "lr", "texture_lr"):
+        if getattr(m, key) < 0:
+            raise InputError(source, f"mogaface.{key}", f"must be >= 0 (got {getattr(m, key)})")
 
 
 def _get(config, dotted: str):
@@ -140,6 +183,19 @@ PRESETS: dict[str, dict] = {
              "eval": {"max_frames": 16}},
     # The defaults: sized for about 15 minutes on two CPU cores at 256².
     "full": {},
+    # The full MoGaFace method (multi-view correction, expression bank, texture attention), default length.
+    "mogaface": {"mogaface": {"mode": "multi", "bank": True, "texture": True}},
+    # The demo preset with the full MoGaFace method.
+    "mogaface-demo": {"train": {"steps": 1000, "checkpoint_every": 250},
+                      "densify": {"start": 150, "stop": 800, "interval": 100, "opacity_reset_interval": 0,
+                                  "sh_degree_interval": 200},
+                      "eval": {"max_frames": 16},
+                      "mogaface": {"mode": "multi", "bank": True, "texture": True}},
+    # The ablation's common settings (each variant sets its own [mogaface] section): short runs.
+    "mogaface-ablation": {"train": {"steps": 2000, "checkpoint_every": 500},
+                          "densify": {"start": 150, "stop": 1200, "interval": 100, "opacity_reset_interval": 0,
+                                      "sh_degree_interval": 300},
+                          "eval": {"at_end": False}},
 }
 
 

@@ -33,6 +33,7 @@ from .config import TrainConfig
 from .data import TrainingData, capture_head_file
 from .events import EventLog, Listener
 from .losses import image_loss, position_hinge, psnr, scaling_hinge
+from .mogaface_part import build_mogaface, finish_mogaface, mogaface_render
 from .run_folder import RUN_FORMAT, RUN_VERSION, RunFolder
 
 GAUSSIAN_GROUPS = ("local_position", "local_log_scale", "local_rotation", "opacity_logit", "sh_dc", "sh_rest")
@@ -108,6 +109,7 @@ class Trainer:
         self.avatar = Avatar.initial(head, self.config.densify.max_sh_degree)
         self.table = self.data.flame_table()
         self._build_optimizer()
+        self.mogaface = build_mogaface(self.config, self.data, self.table, self.avatar)
         self.strategy = DensifyStrategy(densify_schedule(self.config), len(self.avatar.gaussians),
                                         len(self.avatar.flame.faces))
         self._write_run_json(complete=False)
@@ -123,6 +125,11 @@ class Trainer:
                 value.copy_(state["table"][name])
         self._build_optimizer()
         self.optimizer.load_state_dict(state["optimizer"])
+        self.mogaface = build_mogaface(self.config, self.data, self.table, self.avatar)
+        if self.mogaface is not None:
+            if "mogaface" not in state:
+                raise InputError(self.run_folder.checkpoints, "mogaface", "the checkpoint holds no MoGaFace modules")
+            self.mogaface.load_state_dict(state["mogaface"])
         self.strategy = DensifyStrategy(densify_schedule(self.config), len(self.avatar.gaussians),
                                         len(self.avatar.flame.faces))
         self.strategy.load_state_dict(state["densify"])
@@ -166,6 +173,7 @@ class Trainer:
             "densify": self.strategy.state_dict(),
             "rng": {"torch": self.generator.get_state()},
             "sampler": {"order": self._order.clone(), "position": self._position},
+            **({"mogaface": self.mogaface.state_dict()} if self.mogaface is not None else {}),
         }
 
     def checkpoint(self) -> pathlib.Path:
@@ -206,19 +214,29 @@ class Trainer:
         frame = self._next_frame()
         camera = self.data.capture.camera(frame)
         target = self.data.target(frame)
-        vertices = self._posed_vertices(frame.timestep_index)
-
-        out = self.avatar.render_posed(vertices, camera, self.background)
+        correction = None
+        if self.mogaface is None:
+            vertices = self._posed_vertices(frame.timestep_index)
+            out = self.avatar.render_posed(vertices, camera, self.background)
+        else:
+            vertices, out, correction = mogaface_render(self.mogaface, self.avatar, self.table, frame, camera,
+                                                        self.background, self.step, self.generator)
         losses = image_loss(out.rgb, target, cfg.loss.ssim_weight)
         visible = out.visible
         losses["position"] = position_hinge(gaussians.local_position[visible], cfg.loss.position_threshold)
         losses["scaling"] = scaling_hinge(gaussians.local_log_scale[visible], cfg.loss.scaling_threshold)
         total = losses["rgb"] + cfg.loss.position_weight * losses["position"] \
             + cfg.loss.scaling_weight * losses["scaling"]
+        if correction is not None:
+            losses["consistency"] = correction.consistency
+            total = total + cfg.mogaface.consistency_weight * correction.consistency
         total.backward()
         self.strategy.observe(self.step + 1, out.means2d.grad, out.radii, camera.width, camera.height)
         self.optimizer.step()
         self.optimizer.zero_grad(set_to_none=True)
+        if correction is not None:
+            self.mogaface.optimizer_step()
+            correction.commit()
         self.step += 1
         report = {}
         if self.strategy.schedule.densifies_at(self.step) or self.strategy.schedule.resets_opacity_at(self.step):
@@ -315,15 +333,17 @@ class Trainer:
         """Write the final avatar, the FLAME parameters used, run.json and the quick val metrics."""
         self.avatar.gaussians.active_sh_degree = self.strategy.schedule.sh_degree(self.step)
         self.avatar.save(self.run_folder.avatar)
+        table, avatar, extra = self.table, self.avatar, None
+        if self.mogaface is not None:  # the corrected expressions, the modules and their features
+            table, avatar, extra = finish_mogaface(self.mogaface, self.avatar, self.table, self.run_folder.root)
         for t in self.table.timesteps:
-            save_npz(self.run_folder.root / layout.flame_param_path(t),
-                     layout.batched_flame_params(self.table.numpy(t)))
+            save_npz(self.run_folder.root / layout.flame_param_path(t), layout.batched_flame_params(table.numpy(t)))
         metrics = None
         if self.config.eval.at_end and "val" in self.data.capture.splits:
             from .quick_eval import evaluate_val
 
             start = time.monotonic()
-            metrics = evaluate_val(self.avatar, self.data, self.table, self.config.eval)
+            metrics = evaluate_val(avatar, self.data, table, self.config.eval, extra)
             metrics["step"] = self.step
             metrics["seconds"] = round(time.monotonic() - start, 3)
             write_json(self.run_folder.metrics, metrics)
@@ -342,6 +362,7 @@ class Trainer:
             "splits": self.data.split_summary(),
             "train_timesteps": list(self.table.timesteps),
             "flame_finetuned": self.config.flame.finetune,
+            "mogaface": {k: getattr(self.config.mogaface, k) for k in ("mode", "bank", "texture")},
             "steps": self.config.train.steps,
             "final_step": self.step,
             "wall_time_s": round(self.elapsed, 3),

@@ -1,0 +1,52 @@
+"""How close a run's expressions are to the truth, for synthetic captures that carry it.
+
+Synthetic captures keep the true parameters in ``flame_param_gt/`` beside the tracked ones. Over
+the run's training timesteps this reports the RMSE of the expression coefficients and the mean
+vertex distance (mm) of the posed mesh from the true mesh, for the tracked parameters (before) and
+the run's own ``flame_param/`` (after correction).
+"""
+
+from __future__ import annotations
+
+import os
+import pathlib
+
+import numpy as np
+import torch
+
+from ..errors import InputError
+from ..flame.model import FlameModel
+from .run_folder import RunFolder, capture_info, load_flame_file
+
+
+def _mesh(model: FlameModel, params: dict[str, np.ndarray]) -> np.ndarray:
+    with torch.no_grad():
+        return model(**{k: torch.as_tensor(v, dtype=torch.float32)[None] for k, v in params.items()})[0].numpy()
+
+
+def expression_errors(run_dir: str | os.PathLike, capture: str | os.PathLike | None = None) -> dict:
+    """``{"timesteps", "expr_rmse_tracked", "expr_rmse_corrected", "vertex_mm_tracked", "vertex_mm_corrected"}``."""
+    run = RunFolder(run_dir, capture)
+    cap = run.open_capture()
+    truth_dir = capture_info(cap.root).get("ground_truth", {}).get("flame_param")
+    if not truth_dir or not (cap.root / truth_dir).is_dir():
+        raise InputError(cap.root, "ground_truth.flame_param", "the capture carries no true parameters")
+    head = pathlib.Path(run.avatar_path).parent / run.info.get("head_file", "head.pkl")
+    model = FlameModel.load(head)
+    expr = {"tracked": [], "corrected": []}
+    vertex = {"tracked": [], "corrected": []}
+    for timestep in run.trained_timesteps:
+        truth = load_flame_file(cap.root / truth_dir / f"{timestep:05d}.npz")
+        true_mesh = _mesh(model, truth)
+        for name, params in (("tracked", cap.flame_params(timestep)), ("corrected", run.flame_params(timestep))):
+            expr[name].append(params["expr"] - truth["expr"])
+            vertex[name].append(np.linalg.norm(_mesh(model, params) - true_mesh, axis=1).mean() * 1000.0)
+    if not run.trained_timesteps:
+        raise InputError(run.flame_param_dir, None, "the run holds no FLAME parameters")
+    return {
+        "timesteps": len(run.trained_timesteps),
+        "expr_rmse_tracked": float(np.sqrt(np.mean(np.square(expr["tracked"])))),
+        "expr_rmse_corrected": float(np.sqrt(np.mean(np.square(expr["corrected"])))),
+        "vertex_mm_tracked": float(np.mean(vertex["tracked"])),
+        "vertex_mm_corrected": float(np.mean(vertex["corrected"])),
+    }

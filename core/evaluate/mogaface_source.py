@@ -1,0 +1,78 @@
+"""Parameter sources of a MoGaFace run: parameter-driven and image-assisted inference.
+
+- training timestamps (novel view): the run's ``flame_param/`` already holds the corrected
+  expressions (the bank's mean, built from training views only), and the texture attention reads
+  the feature stored for that timestamp at the end of training (training views only too);
+- other timestamps (self-reenactment), **parameter-driven**: the tracked parameters, no image,
+  the learned default feature;
+- other timestamps, **image-assisted**: the encoder looks at the *other* views of that timestamp
+  (:func:`views_at` with the scored view excluded), regresses ``Δψ`` and the feature.
+
+The scored view is never an encoder input: every encoder call is recorded in :attr:`inputs`
+(scored camera, cameras seen), so tests can check it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from ..data.capture import Capture, Frame
+from ..mogaface.avatar import FEATURE_KEY, MODULES_FILE, load_run_avatar
+from ..mogaface.model import MoGaFace
+from ..mogaface.views import ViewImages
+from .protocols import TrackedParams, views_at
+from .run_folder import RunFolder
+
+
+class MoGaFaceParams:
+    """FLAME parameters (and the texture feature) of one frame for a MoGaFace run."""
+
+    def __init__(self, capture: Capture, run: RunFolder, model: MoGaFace, image_assisted: bool = True,
+                 max_views: int = 16):
+        self.capture = capture
+        self.model = model
+        self.tracked = TrackedParams(capture, run)
+        self.image_assisted = image_assisted and model.mode != "off"
+        self.uses_images = self.image_assisted
+        self.max_views = max_views
+        self.views = ViewImages(capture, model.spec["input_size"])
+        self.inputs: list[tuple[str | None, list[str]]] = []
+        self.description = ("image-assisted (MoGaFace: other views of the timestamp, scored view left out)"
+                            if self.image_assisted else "parameter-driven (MoGaFace: tracked parameters, no image)")
+
+    def params_for(self, frame: Frame | int, exclude_view: str | None = None) -> dict[str, np.ndarray]:
+        timestep = frame if isinstance(frame, int) else frame.timestep_index
+        params = dict(self.tracked.params_for(timestep))
+        model = self.model
+        feature = None
+        row = model.row.get(timestep)
+        if row is not None and model.default_feature_count > 0:
+            feature = model.timestep_features[row]  # training views only, stored after training
+        elif row is None and self.image_assisted:
+            frames = views_at(self.capture, timestep, exclude_view)[: self.max_views]
+            if frames:
+                delta, feature = self._regress(frames, params["expr"])
+                params["expr"] = (params["expr"] + delta.numpy()).astype(np.float32)
+                self.inputs.append((exclude_view, [f.camera_id for f in frames]))
+        if model.texture is not None:
+            chosen = model.default_feature if feature is None else feature
+            params[FEATURE_KEY] = chosen.detach().numpy().astype(np.float32)
+        return params
+
+    @torch.no_grad()
+    def _regress(self, frames: list[Frame], expr: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
+        tracked = torch.as_tensor(expr, dtype=torch.float32)
+        if self.model.mode == "single":
+            outputs = [self.model.correct(self.views.batch([f]), tracked) for f in frames]
+            return torch.cat([o[0] for o in outputs]).mean(0), torch.stack([o[1] for o in outputs]).mean(0)
+        per_view, feature = self.model.correct(self.views.batch(frames), tracked)
+        return per_view.mean(0), feature
+
+
+def run_inference(run: RunFolder, capture: Capture, image_assisted: bool = True):
+    """``(avatar, source)`` of a MoGaFace run (``RUN/mogaface.pt``), or ``(None, None)`` for a plain run."""
+    if not (run.root / MODULES_FILE).exists():
+        return None, None
+    avatar = load_run_avatar(run.root)
+    return avatar, MoGaFaceParams(capture, run, avatar.model, image_assisted=image_assisted)

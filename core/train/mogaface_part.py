@@ -1,0 +1,73 @@
+"""The trainer's MoGaFace part: build the modules, pose one training image, write the results.
+
+Kept apart from :mod:`.trainer` so the baseline loop reads as before; with ``[mogaface] mode =
+"off"`` nothing here runs.
+"""
+
+from __future__ import annotations
+
+import copy
+import pathlib
+
+import torch
+
+from ..data import layout
+from ..io.npz import save_npz
+from ..mogaface.avatar import FEATURE_KEY, MODULES_FILE, ModulatedAvatar, render_world
+from ..mogaface.posing import world_with_offsets
+from ..mogaface.training import CorrectionTraining
+
+CORRECTED_DIR = "flame_param_corrected"
+
+
+def build_mogaface(config, data, table, avatar) -> CorrectionTraining | None:
+    """The MoGaFace modules of a run (None for the Freeze baseline)."""
+    settings = config.mogaface
+    if settings.mode == "off":
+        return None
+    with torch.no_grad():
+        canonical = avatar.posed_vertices({"shape": table.shape[None],
+                                           **({"static_offset": table.static_offset[None]}
+                                              if table.static_offset is not None else {})})
+    return CorrectionTraining(settings, data.frames, data.capture, table.timesteps, canonical,
+                              int(table.expr.shape[1]), config.train.steps, seed=config.train.seed)
+
+
+def mogaface_world(part: CorrectionTraining, avatar, table, frame, step: int, generator):
+    """Posed vertices, world Gaussians and the step's correction for one training image."""
+    params = table.params(frame.timestep_index)
+    correction = part.step(frame, params["expr"][0], step, generator)
+    params = {**params, "expr": params["expr"] + correction.expr_delta[None]}
+    vertices = avatar.posed_vertices(params)
+    faces = avatar.flame.faces
+    offsets = part.model.texture_offsets(avatar.gaussians, faces, correction.feature)
+    return vertices, world_with_offsets(avatar.gaussians, vertices, faces, offsets), correction
+
+
+def mogaface_render(part: CorrectionTraining, avatar, table, frame, camera, background, step: int, generator):
+    """Posed vertices, the render and the step's correction for one training image."""
+    vertices, world, correction = mogaface_world(part, avatar, table, frame, step, generator)
+    return vertices, render_world(world, camera, background), correction
+
+
+@torch.no_grad()
+def finish_mogaface(part: CorrectionTraining, avatar, table, root: pathlib.Path):
+    """Store per-timestamp features, save ``mogaface.pt`` and ``flame_param_corrected/``.
+
+    Returns the corrected table, the modulated avatar and the render extras for the val check.
+    """
+    model = part.model
+    corrected = copy.deepcopy(table)
+    for t in table.timesteps:
+        row = table.row[t]
+        delta, feature = part.timestep_correction(t, table.expr[row])
+        corrected.expr[row] += delta
+        model.timestep_features[model.row[t]] = feature
+    model.save(root / MODULES_FILE)
+    for t in table.timesteps:
+        save_npz(root / CORRECTED_DIR / f"{t:05d}.npz", layout.batched_flame_params(corrected.numpy(t)))
+
+    def extra(timestep: int) -> dict:
+        return {FEATURE_KEY: model.timestep_features[model.row[timestep]][None]} if model.texture is not None else {}
+
+    return corrected, ModulatedAvatar(avatar, model), extra
