@@ -73,7 +73,7 @@ def test_cancel_stops_with_a_checkpoint(trained):
     finally:
         train._job["worker"] = None
         worker.kill()
-    assert progress.state == "cancelled", progress.message
+    assert progress.state == "cancelled", (progress.message, worker.events[-3:], worker.stderr_tail())
     assert (run / "checkpoints" / "latest").exists() and not (run / "avatar.pt").exists()
     assert any(e["event"] == "stopped" for e in worker.events)
     assert json.loads((run / "run.json").read_text())["complete"] is False
