@@ -558,7 +558,11 @@ _avatar_cache: dict = {}
 
 
 def load_avatar(path):
-    """The :class:`~mogaface.core.avatar.avatar.Avatar` in ``path``, cached per file and its mtime."""
+    """The avatar in ``path``, cached per file and its mtime.
+
+    With the run's MoGaFace modules beside it (``mogaface.pt``) the avatar renders with them,
+    driven by parameters alone (the learned default texture feature), as ``render`` does.
+    """
     from .avatar.avatar import Avatar
 
     path = pathlib.Path(path).expanduser().resolve()
@@ -570,7 +574,12 @@ def load_avatar(path):
     with _model_cache_lock:
         avatar = _avatar_cache.get(key)
         if avatar is None:
-            avatar = Avatar.load(path)
+            if (path.parent / "mogaface.pt").exists() and path.name == "avatar.pt":
+                from .mogaface.avatar import load_run_avatar
+
+                avatar = load_run_avatar(path.parent)
+            else:
+                avatar = Avatar.load(path)
             _avatar_cache.clear()
             _avatar_cache[key] = avatar
     return avatar

@@ -7,7 +7,8 @@ Runs the same with the Blender binary and with the ``bpy`` module:
 
 Steps: import the capture's cameras; train into RUN (``--train``; otherwise RUN must hold a
 trained avatar); import the avatar's head with the run's identity; key its expressions and pose
-from the run's corrected tracking (``RUN/flame_param``, or ``--tracking``); link the avatar; render
+from the run's corrected tracking (``RUN/flame_param_corrected`` of a MoGaFace run, else
+``RUN/flame_param``; or ``--tracking``); link the avatar; render
 a frame range from one capture camera into image datablocks (and files with ``--render-dir``);
 save the ``.blend`` with the images packed. Exit code 0 on success, 1 on any reported error.
 """
@@ -43,7 +44,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--steps", type=int, default=0, help="training steps (0: the preset's)")
     parser.add_argument("--python", help="interpreter for the training process (default: this one)")
     parser.add_argument("--tracking", type=pathlib.Path,
-                        help="flame_param folder to key on the head (default: RUN/flame_param)")
+                        help="flame_param folder to key on the head (default: the run's corrected tracking, "
+                        "RUN/flame_param_corrected or RUN/flame_param)")
     parser.add_argument("--camera", help="capture camera id to render from (default: the capture's val camera, "
                         "else its first)")
     parser.add_argument("--frames", type=int, nargs=2, metavar=("START", "END"),
@@ -114,7 +116,8 @@ def build_scene(args, log=print) -> dict:
     head = run / "head.pkl"
     if not head.exists():
         head = run / "head.npz"
-    tracking = (args.tracking or run / "flame_param").resolve()
+    corrected = run / "flame_param_corrected"  # a MoGaFace run's improved tracking (same as flame_param)
+    tracking = (args.tracking or (corrected if corrected.is_dir() else run / "flame_param")).resolve()
     identity = sorted((run / "flame_param").glob("*.npz"))  # the avatar's own identity
     _call(ops.import_head, filepath=str(head), shape_file=str(identity[0]) if identity else "")
     head_object = bpy.context.active_object

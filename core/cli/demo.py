@@ -113,13 +113,13 @@ def val_camera(capture: pathlib.Path) -> str:
 
 
 def export_ply(run: pathlib.Path, out: pathlib.Path) -> pathlib.Path:
-    from ..avatar.avatar import Avatar
     from ..avatar.export import export_world_ply
     from ..evaluate.run_folder import RunFolder
+    from ..scene_conversion import load_avatar
 
     folder = RunFolder(run)
     timestep = folder.trained_timesteps[0]
-    return export_world_ply(Avatar.load(run / "avatar.pt"), folder.flame_params(timestep),
+    return export_world_ply(load_avatar(run / "avatar.pt"), folder.flame_params(timestep),
                             out / f"avatar_world_t{timestep:05d}.ply")
 
 
