@@ -278,7 +278,7 @@ def run(args) -> int:
         "capture_summary": f"{plan.views} cameras, {plan.timesteps} timesteps, {plan.size}² pixels",
         "steps": run_info.get("final_step"), "gaussians": run_info.get("gaussians"),
         "eval_frames": plan.eval_frames, "ply": ply.name, "gif": gif.name if gif else None,
-        "blend_note": (f"`demo.blend` with the capture's cameras, the head keyed from the run's tracking and "
+        "blend_note": (f"`demo.blend` with the capture's cameras, the head keyed from the run's corrected tracking and "
                        f"{len(frames)} rendered frames as packed images (`frames/`)." if blend
                        else f"not built ({problem})."),
         "images": images,
