@@ -158,6 +158,37 @@ def test_render_frame_equals_the_core_render(scene):
         assert expected[..., 3].max() > 0.5  # the head is in view
 
 
+def test_a_mogaface_run_renders_with_its_modules(scene):
+    """A run with MoGaFace modules: keyed with its corrected tracking, rendered as the core renders it."""
+    from mogaface.core.mogaface.avatar import ModulatedAvatar, load_run_avatar
+
+    run = scene["root"] / "run_mogaface"
+    command = train_command(sys.executable, scene["capture"], run, preset="mogaface-demo", steps=5)
+    assert TrainWorker(command, run).start().wait(interval=0.1, timeout=120).state == "done"
+    head = scene["head"]
+    assert bpy.ops.mogaface.import_tracking(directory=str(run / "flame_param_corrected"),
+                                            target=head.name) == {"FINISHED"}
+    assert bpy.ops.mogaface.load_avatar(filepath=str(run), target=head.name) == {"FINISHED"}
+    try:
+        avatar = load_run_avatar(run)
+        assert isinstance(avatar, ModulatedAvatar) and isinstance(sc.load_avatar(run / "avatar.pt"), ModulatedAvatar)
+        timestep = RunFolder(run).trained_timesteps[0]
+        frame = sc.timestep_to_frame(timestep)
+        camera_id, camera = next(iter(Capture.open(scene["capture"]).cameras.items()))
+        obj = use_camera(camera_id)
+        bpy.context.scene.frame_set(frame)
+        assert bpy.ops.mogaface.render_frame(head=head.name) == {"FINISHED"}
+        got = image_array(bpy.data.images[sc.render_image_name(obj.name, frame)])
+        folder = RunFolder(run)
+        rgb, alpha = sc.render_avatar(avatar, folder.flame_params(timestep), camera, folder.background)
+        expected = sc.rendered_pixels(rgb, alpha).reshape(camera.height, camera.width, 4)
+        assert np.abs(got - expected).max() < 1e-4
+    finally:  # back to the plain run for the tests below
+        assert bpy.ops.mogaface.import_tracking(directory=str(scene["run"] / "flame_param"),
+                                                target=head.name) == {"FINISHED"}
+        assert bpy.ops.mogaface.load_avatar(filepath=str(scene["run"]), target=head.name) == {"FINISHED"}
+
+
 def test_blender_camera_converts_back_to_the_capture_camera(scene):
     for camera_id, camera in Capture.open(scene["capture"]).cameras.items():
         obj = use_camera(camera_id)
