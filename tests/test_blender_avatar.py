@@ -154,7 +154,7 @@ def test_render_frame_equals_the_core_render(scene):
         got = image_array(bpy.data.images[sc.render_image_name(obj.name, frame)])
         expected = core_render(scene["run"], timestep, camera)
         assert got.shape == expected.shape
-        assert np.abs(got - expected).max() < 1e-4, camera_id
+        assert np.abs(got - expected).max() < 5e-5, camera_id  # Blender keeps camera settings in float32
         assert expected[..., 3].max() > 0.5  # the head is in view
 
 
