@@ -577,7 +577,10 @@ def load_avatar(path):
             if (path.parent / "mogaface.pt").exists() and path.name == "avatar.pt":
                 from .mogaface.avatar import load_run_avatar
 
-                avatar = load_run_avatar(path.parent)
+                try:
+                    avatar = load_run_avatar(path.parent)
+                except (RuntimeError, KeyError, ValueError, TypeError) as error:  # modules of another version
+                    raise InputError(path.parent / "mogaface.pt", None, f"cannot load the modules ({error})") from None
             else:
                 avatar = Avatar.load(path)
             _avatar_cache.clear()
