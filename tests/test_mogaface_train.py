@@ -150,3 +150,17 @@ def test_evaluation_never_feeds_the_scored_view(full_run, tiny_capture, monkeypa
     assert source.inputs and all(scored_view not in views for scored_view, views in source.inputs)
     assert result["inference"].startswith("image-assisted")
     assert np.isfinite(result["protocols"]["self_reenactment"]["psnr"])
+
+
+def test_centring_prior_pushes_against_the_running_mean(tiny_capture, tmp_path):
+    trainer = Trainer(tiny_capture, tmp_path / "run", config(centring_weight=1.0))
+    trainer.mogaface.model.correction_mean.fill_(0.5)
+    frame = trainer.data.frames[0]
+    _, _, correction = mogaface_world(trainer.mogaface, trainer.avatar, trainer.table, frame, 0, trainer.generator)
+    assert correction.centring.item() == 0.0  # the correction starts at zero
+    expr_delta = correction.expr_delta
+    gradient, = torch.autograd.grad(correction.centring, expr_delta, retain_graph=True)
+    assert torch.allclose(gradient, torch.full_like(gradient, 0.5))
+    assert "centring" in trainer.train_step()["losses"]
+    with pytest.raises(Exception, match="centring_weight"):
+        config(centring_weight=-1.0)

@@ -67,6 +67,7 @@ class MoGaFace(nn.Module):
         self.register_buffer("default_feature", torch.zeros(d))
         self.register_buffer("default_feature_count", torch.zeros((), dtype=torch.long))
         self.register_buffer("timestep_features", torch.zeros(len(self.timesteps), d))
+        self.register_buffer("correction_mean", torch.zeros(spec["n_expr"]))
         self._canonical_frames = None  # the neutral mesh's triangle frames, computed once
 
     @property
@@ -90,6 +91,11 @@ class MoGaFace(nn.Module):
         rate = 1.0 / (count + 1) if count < 100 else 1.0 - decay
         self.default_feature.mul_(1.0 - rate).add_(rate * feature.detach())
         self.default_feature_count.add_(1)
+
+    @torch.no_grad()
+    def observe_correction(self, delta: torch.Tensor, decay: float = 0.99) -> None:
+        """Running mean of the mesh corrections over training steps (its drift is penalised)."""
+        self.correction_mean.mul_(decay).add_((1.0 - decay) * delta.detach())
 
     # -- texture ------------------------------------------------------------------------------
     def texture_offsets(self, gaussians, faces: torch.Tensor, feature: torch.Tensor | None):

@@ -25,6 +25,7 @@ class StepCorrection:
     expr_delta: torch.Tensor  # (n_expr,) differentiable
     feature: torch.Tensor  # (d,) differentiable
     consistency: torch.Tensor  # scalar
+    centring: torch.Tensor  # scalar: the correction's drift against its running mean
     inputs: list  # the encoder's frames
     commit: callable  # call after the optimizer step (bank write, running feature)
 
@@ -93,7 +94,10 @@ class CorrectionTraining:
             def commit():
                 bank.store(row, slots, blended)
                 model.observe_feature(feature)
-        return StepCorrection(delta, feature, consistency, inputs, commit)
+        running = model.correction_mean
+        centring = (running.detach().clone() * delta).sum()
+        model.observe_correction(delta)
+        return StepCorrection(delta, feature, consistency, centring, inputs, commit)
 
     def optimizer_step(self) -> None:
         self.optimizer.step()

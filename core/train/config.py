@@ -96,6 +96,8 @@ class MogafaceSection:
     momentum_start: float = _setting(0.5, "bank momentum at step 0 (decays linearly to momentum_end)")
     momentum_end: float = _setting(0.0, "bank momentum at the last step")
     consistency_weight: float = _setting(0.1, "weight of the per-view consistency loss against the bank's mean")
+    centring_weight: float = _setting(0.0, "weight of a zero-mean prior on the correction over timestamps "
+                                           "(pushes against its running mean; 0: off, as in the paper)")
     texture: bool = _setting(False, "latent texture attention (triplane + image feature → Δμ Δs Δr Δα)")
     plane_size: int = _setting(64, "triplane resolution n_f")
     plane_dim: int = _setting(16, "feature channels of each triplane plane")
@@ -160,7 +162,7 @@ def _check_mogaface(m: MogafaceSection, source) -> None:
             raise InputError(source, f"mogaface.{key}", f"must lie in [0, 1) (got {getattr(m, key)})")
     if m.feature_dim % m.heads:
         raise InputError(source, "mogaface.heads", f"must divide feature_dim ({m.feature_dim})")
-    for key in ("consistency_weight", "lr", "texture_lr"):
+    for key in ("consistency_weight", "centring_weight", "lr", "texture_lr"):
         if getattr(m, key) < 0:
             raise InputError(source, f"mogaface.{key}", f"must be >= 0 (got {getattr(m, key)})")
 

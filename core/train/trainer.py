@@ -230,6 +230,9 @@ class Trainer:
         if correction is not None:
             losses["consistency"] = correction.consistency
             total = total + cfg.mogaface.consistency_weight * correction.consistency
+            if cfg.mogaface.centring_weight:
+                losses["centring"] = correction.centring
+                total = total + cfg.mogaface.centring_weight * correction.centring
         total.backward()
         self.strategy.observe(self.step + 1, out.means2d.grad, out.radii, camera.width, camera.height)
         self.optimizer.step()
