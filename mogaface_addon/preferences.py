@@ -27,7 +27,8 @@ class MoGaFacePreferences(bpy.types.AddonPreferences):
         layout = self.layout
         layout.prop(self, "python_path")
         layout.prop(self, "threads")
-        draw_dependencies(layout, self.python_path)
+        if draw_dependencies(layout, self.python_path):
+            layout.operator("mogaface.install_dependencies", text="Reinstall Dependencies", icon="IMPORT")
 
 
 def draw_dependencies(layout, python: str) -> bool:
@@ -38,6 +39,7 @@ def draw_dependencies(layout, python: str) -> bool:
     box = layout.box()
     box.alert = True
     box.label(text=f"Missing Python packages: {', '.join(missing)}", icon="ERROR")
-    box.label(text="Install them, then restart Blender:")
+    box.operator("mogaface.install_dependencies", icon="IMPORT")
+    box.label(text="or install them yourself, then restart Blender:")
     box.label(text=install_command(missing, python))
     return False

@@ -1,7 +1,8 @@
 """What the extension registers with Blender, in order; unregistered in reverse.
 
-Besides the classes: the ``Scene.mogaface`` settings and the handlers that re-pose heads
-(``frame_change_post``, ``depsgraph_update_post``). :func:`unregister` removes every one of them.
+Besides the classes: the ``Scene.mogaface`` settings, the handlers that re-pose heads
+(``frame_change_post``, ``depsgraph_update_post``) and the extension's user site-packages folder
+on ``sys.path``. :func:`unregister` removes every one of them.
 """
 
 import bpy
@@ -10,6 +11,8 @@ from ..operators.head_rig import update_heads_on_edit, update_heads_on_frame_cha
 from ..operators.import_capture import MOGAFACE_OT_import_capture, MOGAFACE_OT_use_capture_camera
 from ..operators.import_head import MOGAFACE_OT_import_head
 from ..operators.import_tracking import MOGAFACE_OT_import_tracking
+from ..operators.install_dependencies import MOGAFACE_OT_install_dependencies
+from ..operators.dependencies import add_site_packages, remove_site_packages
 from ..operators.avatar import (
     MOGAFACE_OT_export_ply, MOGAFACE_OT_load_avatar, MOGAFACE_OT_render_animation, MOGAFACE_OT_render_frame,
 )
@@ -31,6 +34,7 @@ CLASSES: list = [
     MOGAFACE_OT_render_frame,
     MOGAFACE_OT_render_animation,
     MOGAFACE_OT_export_ply,
+    MOGAFACE_OT_install_dependencies,
     panels.MOGAFACE_PT_main,
     panels.MOGAFACE_PT_capture,
     panels.MOGAFACE_PT_head,
@@ -46,6 +50,7 @@ HANDLERS = (
 
 
 def register():
+    add_site_packages()  # packages installed by mogaface.install_dependencies
     for cls in CLASSES:
         bpy.utils.register_class(cls)
     bpy.types.Scene.mogaface = bpy.props.PointerProperty(type=MoGaFaceSceneSettings)
@@ -70,3 +75,4 @@ def unregister():
     for cls in reversed(CLASSES):
         if getattr(cls, "is_registered", False):
             bpy.utils.unregister_class(cls)
+    remove_site_packages()

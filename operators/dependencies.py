@@ -1,12 +1,17 @@
 """Which Python packages the core needs, whether they import here, and how to install them.
 
+Packages installed by ``mogaface.install_dependencies`` live in the extension's user folder
+(:func:`site_packages`), on ``sys.path`` while the extension is enabled.
+
 Checked with ``importlib.util.find_spec`` (nothing is imported), so the panel can draw the
 answer on every redraw, and the operators can refuse cleanly instead of failing in an import.
 """
 
 from __future__ import annotations
 
+import importlib
 import importlib.util
+import os
 import sys
 
 REQUIRED_MODULES = ("numpy", "torch", "numba")
@@ -33,7 +38,8 @@ def install_command(missing, python: str | None = None) -> str:
 
 def report(missing, python: str | None = None) -> str:
     """One sentence for an operator's error report: what is missing and how to fix it."""
-    return f"Missing Python packages: {', '.join(missing)}. Install them with: {install_command(missing, python)}"
+    return (f"Missing Python packages: {', '.join(missing)}. Install them with: {install_command(missing, python)}"
+            " (or Install Dependencies in the add-on preferences)")
 
 
 def top_package() -> str:
@@ -46,3 +52,46 @@ def interpreter(context) -> str:
     addon = context.preferences.addons.get(top_package())
     path = getattr(getattr(addon, "preferences", None), "python_path", "") if addon else ""
     return path or sys.executable
+
+
+def site_packages(create: bool = False) -> str | None:
+    """The extension's user folder for installed packages; None outside an installed extension."""
+    import bpy
+
+    try:
+        return bpy.utils.extension_path_user(top_package(), path="site-packages", create=create)
+    except ValueError:  # registered as a plain module, not an extension
+        return None
+
+
+def online_access() -> bool:
+    """Whether the user allows Blender to go online (Preferences › System)."""
+    import bpy
+
+    return bool(bpy.app.online_access)
+
+
+_added: list[str] = []
+
+
+def add_site_packages(create: bool = False) -> str | None:
+    """Put the user site-packages folder on ``sys.path`` (once); returns it, or None if absent."""
+    folder = site_packages(create=create)
+    if folder is None or not os.path.isdir(folder):
+        return None
+    if folder not in sys.path:
+        sys.path.append(folder)
+        _added.append(folder)
+    importlib.invalidate_caches()
+    return folder
+
+
+def remove_site_packages() -> None:
+    """Take back what :func:`add_site_packages` put on ``sys.path``."""
+    folders = set(_added)
+    _added.clear()
+    own = site_packages()
+    if own:
+        folders.add(own)
+    sys.path[:] = [path for path in sys.path if path not in folders]
+    importlib.invalidate_caches()

@@ -47,7 +47,8 @@ MODULE = "bl_ext.user_default.mogaface"
 CLASS_NAMES = (
     "MOGAFACE_OT_import_capture", "MOGAFACE_OT_use_capture_camera", "MOGAFACE_OT_import_head",
     "MOGAFACE_OT_import_tracking", "MOGAFACE_OT_train", "MOGAFACE_OT_train_cancel", "MOGAFACE_OT_load_avatar",
-    "MOGAFACE_OT_render_frame", "MOGAFACE_OT_render_animation", "MOGAFACE_OT_export_ply", "MOGAFACE_PT_main", "MOGAFACE_PT_capture", "MOGAFACE_PT_head",
+    "MOGAFACE_OT_render_frame", "MOGAFACE_OT_render_animation", "MOGAFACE_OT_export_ply",
+    "MOGAFACE_OT_install_dependencies", "MOGAFACE_PT_main", "MOGAFACE_PT_capture", "MOGAFACE_PT_head",
     "MOGAFACE_PT_training", "MOGAFACE_PT_avatar", "MOGAFACE_PT_reenactment",
 )
 N_EXPR_A, N_EXPR_B = 3, 5
@@ -336,6 +337,61 @@ def test_panels_draw_every_section_and_name_missing_packages(scenario, monkeypat
     labels = [entry[1] for entry in draw_panels(["MOGAFACE_PT_main"])]
     assert "Missing Python packages: numba, torch" in labels
     assert f'"{sys.executable}" -m pip install numba torch' in labels
+    assert ("operator", "mogaface.install_dependencies", True) in draw_panels(["MOGAFACE_PT_main"])
+
+
+FAKE_PIP = """#!{python}
+import pathlib, sys
+pathlib.Path({log!r}).write_text("\\n".join(sys.argv[1:]))
+if {fail!r}:
+    print("Collecting torch==2.13.0", file=sys.stderr)
+    print("ERROR: No matching distribution found for torch==2.13.0", file=sys.stderr)
+    sys.exit(1)
+package = pathlib.Path(sys.argv[sys.argv.index("--target") + 1]) / "mogaface_dummy_dependency"
+package.mkdir(parents=True, exist_ok=True)
+(package / "__init__.py").write_text("VALUE = 42")
+"""
+
+
+def fake_interpreter(folder: pathlib.Path, fail: bool) -> tuple[pathlib.Path, pathlib.Path]:
+    """A stand-in for ``python -m pip``: records its argv, then fails or installs a dummy package."""
+    log, script = folder / f"argv-{fail}.txt", folder / f"fake-python-{fail}"
+    script.write_text(FAKE_PIP.format(python=sys.executable, log=str(log), fail=fail))
+    script.chmod(0o755)
+    return script, log
+
+
+def test_installing_dependencies_is_refused_without_online_access(scenario, monkeypatch):
+    dependencies = importlib.import_module(MODULE + ".operators.dependencies")
+    monkeypatch.setattr(dependencies, "online_access", lambda: False)
+    with pytest.raises(RuntimeError, match="Online access is off: allow it in Preferences › System"):
+        bpy.ops.mogaface.install_dependencies()
+
+
+def test_installing_dependencies_puts_the_user_folder_on_sys_path(scenario, monkeypatch, tmp_path):
+    dependencies = importlib.import_module(MODULE + ".operators.dependencies")
+    monkeypatch.setattr(dependencies, "online_access", lambda: True)
+    prefs = bpy.context.preferences.addons[MODULE].preferences
+    folder = bpy.utils.extension_path_user(MODULE, path="site-packages")
+    assert dependencies.site_packages() == folder and folder not in sys.path  # nothing installed at register
+    script, log = fake_interpreter(tmp_path, fail=True)
+    prefs.python_path = str(script)
+    try:
+        with pytest.raises(RuntimeError, match="pip failed .*No matching distribution found for torch==2.13.0"):
+            bpy.ops.mogaface.install_dependencies()
+        assert folder not in sys.path
+        script, log = fake_interpreter(tmp_path, fail=False)
+        prefs.python_path = str(script)
+        assert bpy.ops.mogaface.install_dependencies() == {"FINISHED"}
+    finally:
+        prefs.python_path = sys.executable
+    argv = log.read_text().splitlines()
+    assert argv[:3] == ["-m", "pip", "install"] and argv[argv.index("--target") + 1] == folder
+    assert {"torch==2.13.0", "numpy==1.26.4", "pillow==13.0.0"} <= set(argv)
+    assert sys.path.count(folder) == 1
+    assert importlib.import_module("mogaface_dummy_dependency").VALUE == 42
+    sys.modules.pop("mogaface_dummy_dependency")
+    assert bpy.ops.mogaface.install_dependencies.poll()
 
 
 NO_TORCH_SCRIPT = """
@@ -395,3 +451,4 @@ def test_disabling_leaves_nothing_registered(scenario):
     for handlers in (bpy.app.handlers.frame_change_post, bpy.app.handlers.depsgraph_update_post):
         assert not any(h.__module__.startswith(MODULE) for h in handlers)
     assert "mogaface" not in dir(bpy.ops)
+    assert not any(path.endswith("mogaface" + os.sep + "site-packages") for path in sys.path)
