@@ -197,6 +197,16 @@ _model_cache: dict = {}
 _model_cache_lock = threading.Lock()
 
 
+def _file_version(path, what: str) -> tuple[pathlib.Path, tuple]:
+    """The resolved path and a cache key that changes whenever the file is rewritten."""
+    path = pathlib.Path(path).expanduser().resolve()
+    try:
+        stat = path.stat()
+    except OSError:
+        raise InputError(path, None, f"{what} file not found") from None
+    return path, (os.fspath(path), stat.st_size, stat.st_mtime_ns)
+
+
 def load_head_model(path):
     """The float64 :class:`~mogaface.core.flame.model.FlameModel` of ``path``, cached per file.
 
@@ -205,12 +215,7 @@ def load_head_model(path):
     from .flame.model import FlameModel  # torch: imported when a head is used, not before
     import torch
 
-    path = pathlib.Path(path).expanduser().resolve()
-    try:
-        stat = path.stat()
-    except OSError:
-        raise InputError(path, None, "head model file not found") from None
-    key = (os.fspath(path), stat.st_size, stat.st_mtime_ns)
+    path, key = _file_version(path, "head model")
     with _model_cache_lock:
         model = _model_cache.get(key)
         if model is None:
@@ -565,12 +570,7 @@ def load_avatar(path):
     """
     from .avatar.avatar import Avatar
 
-    path = pathlib.Path(path).expanduser().resolve()
-    try:
-        stat = path.stat()
-    except OSError:
-        raise InputError(path, None, "avatar file not found") from None
-    key = (os.fspath(path), stat.st_size, stat.st_mtime_ns)
+    path, key = _file_version(path, "avatar")
     with _model_cache_lock:
         avatar = _avatar_cache.get(key)
         if avatar is None:
