@@ -16,6 +16,7 @@ from ..camera import Camera
 from ..errors import InputError
 from ..flame.model import FlameModel
 from ..io.atomic import atomic_path
+from ..io.torch_file import check_format, load_torch_state
 from ..splat import SplatOutput, rasterize
 from .gaussians import PARAMETER_NAMES, BoundGaussians
 
@@ -93,20 +94,11 @@ class Avatar(torch.nn.Module):
     def load(cls, path: str | os.PathLike) -> "Avatar":
         """Read an avatar saved by :meth:`save` (``weights_only``: nothing in it is executed)."""
         path = pathlib.Path(path)
-        try:
-            state = torch.load(path, map_location="cpu", weights_only=True)
-        except FileNotFoundError:
-            raise InputError(path, None, "file not found") from None
-        except Exception as error:
-            raise InputError(path, None, f"not a readable avatar file ({error})") from None
-        return cls.from_state(state, path.parent, source=path)
+        return cls.from_state(load_torch_state(path, "avatar file"), path.parent, source=path)
 
     @classmethod
     def from_state(cls, state: dict, folder: pathlib.Path, source=None) -> "Avatar":
-        if not isinstance(state, dict) or state.get("format") != AVATAR_FORMAT:
-            raise InputError(source, "format", f"expected a {AVATAR_FORMAT} file")
-        if state.get("version") != AVATAR_VERSION:
-            raise InputError(source, "version", f"expected version {AVATAR_VERSION}, found {state.get('version')}")
+        check_format(state, source, AVATAR_FORMAT, AVATAR_VERSION)
         tensors = state["gaussians"]
         missing = [k for k in ("binding", *PARAMETER_NAMES) if k not in tensors]
         if missing:

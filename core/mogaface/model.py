@@ -15,6 +15,7 @@ from torch import nn
 
 from ..errors import InputError
 from ..io.atomic import atomic_path
+from ..io.torch_file import check_format, load_torch_state
 from .bank import ExpressionBank
 from .correction import CorrectionHead
 from .encoder import ViewEncoder
@@ -121,10 +122,7 @@ class MoGaFace(nn.Module):
 
     @classmethod
     def from_file_state(cls, state: dict, source=None) -> "MoGaFace":
-        if not isinstance(state, dict) or state.get("format") != MODEL_FORMAT:
-            raise InputError(source, "format", f"expected a {MODEL_FORMAT} file")
-        if state.get("version") != MODEL_VERSION:
-            raise InputError(source, "version", f"expected version {MODEL_VERSION}, found {state.get('version')}")
+        check_format(state, source, MODEL_FORMAT, MODEL_VERSION)
         tensors = state["state"]
         model = cls(state["spec"], state["timesteps"], state["cameras"], tensors["canonical_vertices"])
         model.load_state_dict(tensors)
@@ -132,10 +130,4 @@ class MoGaFace(nn.Module):
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "MoGaFace":
-        try:
-            state = torch.load(path, map_location="cpu", weights_only=True)
-        except FileNotFoundError:
-            raise InputError(path, None, "file not found") from None
-        except Exception as error:
-            raise InputError(path, None, f"not a readable MoGaFace module file ({error})") from None
-        return cls.from_file_state(state, source=path)
+        return cls.from_file_state(load_torch_state(path, "MoGaFace module file"), source=path)

@@ -14,7 +14,7 @@ import re
 
 import torch
 
-from ..errors import InputError
+from ..io.torch_file import check_format, load_torch_state
 from ..io.atomic import atomic_path, write_text
 
 CHECKPOINT_FORMAT = "mogaface-train-checkpoint"
@@ -64,14 +64,6 @@ def latest_checkpoint(folder: str | os.PathLike) -> pathlib.Path | None:
 
 def load_checkpoint(path: str | os.PathLike) -> dict:
     """Read a checkpoint (``weights_only``: nothing in it is executed) and check its format."""
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except FileNotFoundError:
-        raise InputError(path, None, "file not found") from None
-    except Exception as error:
-        raise InputError(path, None, f"not a readable checkpoint ({error})") from None
-    if not isinstance(state, dict) or state.get("format") != CHECKPOINT_FORMAT:
-        raise InputError(path, "format", f"expected a {CHECKPOINT_FORMAT} file")
-    if state.get("version") != CHECKPOINT_VERSION:
-        raise InputError(path, "version", f"expected version {CHECKPOINT_VERSION}, found {state.get('version')}")
+    state = load_torch_state(path, "checkpoint")
+    check_format(state, path, CHECKPOINT_FORMAT, CHECKPOINT_VERSION)
     return state
