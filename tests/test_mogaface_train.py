@@ -51,7 +51,8 @@ def test_baseline_has_no_modules(tiny_capture, tmp_path):
 def test_full_model_starts_at_the_baseline(tiny_capture, tmp_path):
     trainer = Trainer(tiny_capture, tmp_path / "run", config())
     frame = trainer.data.frames[0]
-    _, world, correction = mogaface_world(trainer.mogaface, trainer.avatar, trainer.table, frame, 0, trainer.generator)
+    _, world, correction = mogaface_world(trainer.mogaface, trainer.avatar, trainer.table, frame,
+                                          trainer.background, 0, trainer.generator)
     with torch.no_grad():
         plain = trainer.avatar.gaussians.world(trainer.avatar.posed_vertices(trainer.table.params(frame.timestep_index)),
                                                trainer.avatar.flame.faces)
@@ -156,7 +157,8 @@ def test_centring_prior_pushes_against_the_running_mean(tiny_capture, tmp_path):
     trainer = Trainer(tiny_capture, tmp_path / "run", config(centring_weight=1.0))
     trainer.mogaface.model.correction_mean.fill_(0.5)
     frame = trainer.data.frames[0]
-    _, _, correction = mogaface_world(trainer.mogaface, trainer.avatar, trainer.table, frame, 0, trainer.generator)
+    _, _, correction = mogaface_world(trainer.mogaface, trainer.avatar, trainer.table, frame,
+                                      trainer.background, 0, trainer.generator)
     assert correction.centring.item() == 0.0  # the correction starts at zero
     expr_delta = correction.expr_delta
     gradient, = torch.autograd.grad(correction.centring, expr_delta, retain_graph=True)
@@ -164,3 +166,42 @@ def test_centring_prior_pushes_against_the_running_mean(tiny_capture, tmp_path):
     assert "centring" in trainer.train_step()["losses"]
     with pytest.raises(Exception, match="centring_weight"):
         config(centring_weight=-1.0)
+
+
+def test_rendered_targets_regress_a_known_offset(tiny_capture, tmp_path):
+    trainer = Trainer(tiny_capture, tmp_path / "run", config(rendered_weight=1.0, rendered_views=2, rendered_offset=0.3))
+    part = trainer.mogaface
+    frame = trainer.data.frames[0]
+    params = trainer.table.params(frame.timestep_index)
+    inputs = [f for f in trainer.data.frames if f.timestep_index == frame.timestep_index]
+    state = trainer.generator.get_state()
+    loss = part.rendered_loss(trainer.avatar, params, inputs, trainer.background, trainer.generator)
+    replay = torch.Generator()
+    replay.set_state(state)
+    offset = torch.randn(params["expr"][0].shape, generator=replay) * 0.3
+    assert loss.item() == pytest.approx((offset**2).mean().item(), rel=1e-5)  # the head starts at zero
+    loss.backward()
+    assert torch.count_nonzero(part.model.head.out.bias.grad) > 0
+    assert all(p.grad is None for p in trainer.avatar.gaussians.parameters())  # renders are targets only
+    assert "rendered" in trainer.train_step()["losses"]
+    with pytest.raises(Exception, match="rendered_offset"):
+        config(rendered_offset=-0.1)
+
+
+def test_rendered_views_are_the_avatar_seen_by_the_encoder(tiny_capture, tmp_path):
+    from mogaface.core.mogaface.rendered_targets import render_views
+
+    trainer = Trainer(tiny_capture, tmp_path / "run", config())
+    frame = trainer.data.frames[0]
+    camera = trainer.data.capture.camera(frame)
+    with torch.no_grad():
+        vertices = trainer.avatar.posed_vertices(trainer.table.params(frame.timestep_index))
+        full = trainer.avatar.render_posed(vertices, camera, trainer.background).rgb.permute(2, 0, 1)
+    same = render_views(trainer.avatar, vertices, [camera], camera.width, trainer.background)
+    assert same.shape == (1, 3, camera.height, camera.width)
+    assert torch.allclose(same[0], full.clamp(0, 1), atol=1e-6)
+    half = render_views(trainer.avatar, vertices, [camera], camera.width // 2, trainer.background)
+    pooled = torch.nn.functional.avg_pool2d(full.clamp(0, 1)[None], 2)[0]
+    assert half.shape == (1, 3, camera.height // 2, camera.width // 2)
+    error = (half[0] - pooled).abs().mean()
+    assert error < 0.04 and error < 0.5 * (half[0] - pooled.flip(-1)).abs().mean()  # the same picture, smaller

@@ -133,8 +133,8 @@ def markdown(results: dict) -> str:
     lines = [
         "| variant | novel view PSNR | SSIM | LPIPS | self-reen. (params) PSNR | SSIM | LPIPS "
         "| self-reen. (images) PSNR | SSIM | LPIPS | expr RMSE tracked → corrected "
-        "| vertex error mm tracked → corrected | it/s |",
-        "|---|" + "---|" * 12,
+        "| expr vertex error mm tracked → corrected | mesh vertex error mm tracked → corrected | it/s |",
+        "|---|" + "---|" * 13,
     ]
     for name, entry in results["variants"].items():
         cells = [LABELS.get(name, name)]
@@ -143,7 +143,8 @@ def markdown(results: dict) -> str:
             cells += [_fmt(m.get("psnr")), _fmt(m.get("ssim"), 4), _fmt(m.get("lpips"), 4)]
         e = entry.get("expression", {})
         cells.append(f"{_fmt(e.get('expr_rmse_tracked'), 3)} → {_fmt(e.get('expr_rmse_corrected'), 3)}")
-        cells.append(f"{_fmt(e.get('vertex_mm_tracked'), 2)} → {_fmt(e.get('vertex_mm_corrected'), 2)}")
+        for key in ("expr_vertex_mm", "vertex_mm"):
+            cells.append(f"{_fmt(e.get(key + '_tracked'), 2)} → {_fmt(e.get(key + '_corrected'), 2)}")
         cells.append(_fmt(entry.get("train", {}).get("it_s"), 1))
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"

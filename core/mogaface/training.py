@@ -15,6 +15,7 @@ import torch
 
 from .bank import consistency_loss, momentum_at
 from .model import MoGaFace
+from .rendered_targets import rendered_target_loss
 from .views import ViewImages
 
 
@@ -28,6 +29,7 @@ class StepCorrection:
     centring: torch.Tensor  # scalar: the correction's drift against its running mean
     inputs: list  # the encoder's frames
     commit: callable  # call after the optimizer step (bank write, running feature)
+    rendered: torch.Tensor | None = None  # scalar: the self-supervised loss on renders, when on
 
 
 def spec_from_settings(settings, n_expr: int) -> dict:
@@ -98,6 +100,15 @@ class CorrectionTraining:
         centring = (running.detach().clone() * delta).sum()
         model.observe_correction(delta)
         return StepCorrection(delta, feature, consistency, centring, inputs, commit)
+
+    def rendered_loss(self, avatar, params: dict, inputs: list, background, generator: torch.Generator):
+        """The self-supervised correction loss on renders from the first ``rendered_views`` encoder cameras."""
+        settings = self.settings
+        cameras = [self.views.capture.camera(f) for f in inputs[:settings.rendered_views]]
+        if self.model.mode == "single":
+            cameras = cameras[:1]
+        return rendered_target_loss(self.model, avatar, params, cameras, settings.input_size, background,
+                                    settings.rendered_offset, generator)
 
     def optimizer_step(self) -> None:
         self.optimizer.step()

@@ -98,6 +98,11 @@ class MogafaceSection:
     consistency_weight: float = _setting(0.1, "weight of the per-view consistency loss against the bank's mean")
     centring_weight: float = _setting(0.0, "weight of a zero-mean prior on the correction over timestamps "
                                            "(pushes against its running mean; 0: off, as in the paper)")
+    rendered_weight: float = _setting(0.0, "weight of the self-supervised correction loss: the avatar rendered at "
+                                          "the tracked expression plus a known offset, regressed back (0: off, "
+                                          "as in the paper)")
+    rendered_offset: float = _setting(0.5, "std of the known expression offsets of those renders")
+    rendered_views: int = _setting(4, "views rendered per step for that loss (the encoder's cameras)")
     texture: bool = _setting(False, "latent texture attention (triplane + image feature → Δμ Δs Δr Δα)")
     plane_size: int = _setting(64, "triplane resolution n_f")
     plane_dim: int = _setting(16, "feature channels of each triplane plane")
@@ -154,7 +159,7 @@ def _check_mogaface(m: MogafaceSection, source) -> None:
     if m.mode == "off" and (m.bank or m.texture):
         raise InputError(source, "mogaface.mode", "the bank and the texture attention need mode 'single' or 'multi'")
     for key in ("encoder_views", "plane_size", "plane_dim", "texture_hidden", "input_size", "feature_dim",
-                "encoder_width", "heads", "hidden"):
+                "encoder_width", "heads", "hidden", "rendered_views"):
         if getattr(m, key) <= 0:
             raise InputError(source, f"mogaface.{key}", f"must be positive (got {getattr(m, key)})")
     for key in ("momentum_start", "momentum_end"):
@@ -162,7 +167,7 @@ def _check_mogaface(m: MogafaceSection, source) -> None:
             raise InputError(source, f"mogaface.{key}", f"must lie in [0, 1) (got {getattr(m, key)})")
     if m.feature_dim % m.heads:
         raise InputError(source, "mogaface.heads", f"must divide feature_dim ({m.feature_dim})")
-    for key in ("consistency_weight", "centring_weight", "lr", "texture_lr"):
+    for key in ("consistency_weight", "centring_weight", "rendered_weight", "rendered_offset", "lr", "texture_lr"):
         if getattr(m, key) < 0:
             raise InputError(source, f"mogaface.{key}", f"must be >= 0 (got {getattr(m, key)})")
 

@@ -33,10 +33,12 @@ def build_mogaface(config, data, table, avatar) -> CorrectionTraining | None:
                               int(table.expr.shape[1]), config.train.steps, seed=config.train.seed)
 
 
-def mogaface_world(part: CorrectionTraining, avatar, table, frame, step: int, generator):
+def mogaface_world(part: CorrectionTraining, avatar, table, frame, background, step: int, generator):
     """Posed vertices, world Gaussians and the step's correction for one training image."""
     params = table.params(frame.timestep_index)
     correction = part.step(frame, params["expr"][0], step, generator)
+    if part.settings.rendered_weight:
+        correction.rendered = part.rendered_loss(avatar, params, correction.inputs, background, generator)
     params = {**params, "expr": params["expr"] + correction.expr_delta[None]}
     vertices = avatar.posed_vertices(params)
     faces = avatar.flame.faces
@@ -46,7 +48,7 @@ def mogaface_world(part: CorrectionTraining, avatar, table, frame, step: int, ge
 
 def mogaface_render(part: CorrectionTraining, avatar, table, frame, camera, background, step: int, generator):
     """Posed vertices, the render and the step's correction for one training image."""
-    vertices, world, correction = mogaface_world(part, avatar, table, frame, step, generator)
+    vertices, world, correction = mogaface_world(part, avatar, table, frame, background, step, generator)
     return vertices, render_world(world, camera, background), correction
 
 

@@ -233,6 +233,9 @@ class Trainer:
             if cfg.mogaface.centring_weight:
                 losses["centring"] = correction.centring
                 total = total + cfg.mogaface.centring_weight * correction.centring
+            if correction.rendered is not None:
+                losses["rendered"] = correction.rendered
+                total = total + cfg.mogaface.rendered_weight * correction.rendered
         total.backward()
         self.strategy.observe(self.step + 1, out.means2d.grad, out.radii, camera.width, camera.height)
         self.optimizer.step()
