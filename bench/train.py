@@ -24,7 +24,15 @@ def _make_capture(folder, size):
 
 
 VIEWS = 10  # 9 training cameras: 8 other views for the encoder, the held-out one aside
-VARIANTS = {"freeze": {}, "mogaface": {"mode": "multi", "bank": True, "texture": True, "encoder_views": 8}}
+
+
+def _variants() -> dict:
+    """Settings over the defaults; "mogaface" is the full method as its preset trains it."""
+    from mogaface.core.train.config import EXPRESSION_FINETUNE
+
+    return {"freeze": {},
+            "mogaface": {"mogaface": {"mode": "multi", "bank": True, "texture": True, "encoder_views": 8},
+                         "flame": EXPRESSION_FINETUNE}}
 
 
 def _grow(trainer, factor, seed=0):
@@ -65,12 +73,12 @@ def run(threads: int = 2, quick: bool = False) -> dict:
         start = time.perf_counter()
         capture = _make_capture(os.path.join(folder, "capture"), size)
         capture_s = time.perf_counter() - start
-        for factor, (variant, mogaface) in ((f, v) for f in factors for v in VARIANTS.items()):
+        for factor, (variant, settings) in ((f, v) for f in factors for v in _variants().items()):
             config = config_module.resolve(overrides={
                 "train": {"steps": 100000, "threads": threads, "checkpoint_every": 0},
                 "densify": {"start": 100000, "stop": 100000, "opacity_reset_interval": 0},
                 "eval": {"at_end": False},
-                "mogaface": mogaface,
+                **settings,
             })
             trainer = Trainer(capture, os.path.join(folder, f"run{factor}_{variant}"), config)
             if factor > 1:

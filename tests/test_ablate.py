@@ -25,7 +25,7 @@ def test_ablate_writes_results_table_and_figure(tiny_capture, tmp_path):
                  "--max-frames", "2", "--no-lpips", "--quiet"])
     assert code == 0
     results = json.loads((out / "results.json").read_text())
-    assert list(results["variants"]) == ["freeze", "single", "multi", "multi_bank", "multi_texture", "full"]
+    assert list(results["variants"]) == ["freeze", "finetune", "single", "multi", "multi_bank", "multi_texture", "full"]
     for name, entry in results["variants"].items():
         for key in ("novel_view", "self_reenactment_params", "self_reenactment_images"):
             assert entry[key]["frames"] == 2 and entry[key]["psnr"] > 5, (name, key)
@@ -33,8 +33,12 @@ def test_ablate_writes_results_table_and_figure(tiny_capture, tmp_path):
         assert entry["train"]["steps"] == 3
     freeze = results["variants"]["freeze"]["expression"]
     assert freeze["expr_rmse_corrected"] == pytest.approx(freeze["expr_rmse_tracked"])  # Freeze corrects nothing
+    assert freeze["expr_vertex_mm_corrected"] == pytest.approx(freeze["expr_vertex_mm_tracked"])
+    finetune = results["variants"]["finetune"]
+    assert finetune["settings"]["flame"]["finetune"] and not results["variants"]["freeze"]["settings"]["flame"]["finetune"]
+    assert finetune["expression"]["expr_rmse_corrected"] != pytest.approx(finetune["expression"]["expr_rmse_tracked"])
     table = (out / "results.md").read_text()
-    assert table.count("\n") == 2 + 6 and "Full (multi + bank + texture)" in table
+    assert table.count("\n") == 2 + 7 and "Full (multi + bank + texture)" in table
     assert (out / "figure.png").stat().st_size > 0
     # A second call reuses the complete runs.
     before = (out / "runs" / "full" / "run.json").stat().st_mtime_ns

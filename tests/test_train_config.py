@@ -57,6 +57,13 @@ def test_presets_are_valid_and_quick_is_short():
         C.resolve("slow")
 
 
+def test_mogaface_presets_fine_tune_expressions_only():
+    for name in ("mogaface", "mogaface-demo"):
+        flame = C.resolve(name).flame
+        assert flame.finetune and flame.expression_lr > 0 and flame.joints_lr == flame.translation_lr == 0
+    assert not C.resolve("full").flame.finetune and not C.resolve("mogaface-ablation").flame.finetune
+
+
 def test_every_setting_is_documented():
     for section in dataclasses.fields(C.TrainConfig):
         for f in dataclasses.fields(section.type if not isinstance(section.type, str) else getattr(C, section.type)):

@@ -1,6 +1,6 @@
 """The ablation ladder of the paper's tables 3 and 4 on one capture: train, score, tabulate, show.
 
-Every variant starts from the same settings and seed and differs only in its ``[mogaface]``
+Every variant starts from the same settings and seed and differs only in its ``[mogaface]`` and ``[flame]``
 section. Scores: novel view (training timestamps, held-out camera; corrections from the bank or
 the training views), self-reenactment both parameter-driven and image-assisted (other views of
 the timestamp, scored view left out), and the expression error against the synthetic truth.
@@ -14,16 +14,27 @@ import pathlib
 
 import numpy as np
 
+from ..train.config import EXPRESSION_FINETUNE
+
+def _variant(mode: str, bank: bool = False, texture: bool = False, finetune: bool = True) -> dict:
+    return {"mogaface": {"mode": mode, "bank": bank, "texture": texture},
+            "flame": dict(EXPRESSION_FINETUNE) if finetune else {"finetune": False}}
+
+
+# The settings of each variant over the common preset. Every correction variant fine-tunes the
+# per-timestamp expressions as the paper's training does; "finetune" does that alone, so the gain
+# of the modules over it can be told apart from the fine-tuning's own.
 LADDER: dict[str, dict] = {
-    "freeze": {"mode": "off", "bank": False, "texture": False},
-    "single": {"mode": "single", "bank": False, "texture": False},
-    "multi": {"mode": "multi", "bank": False, "texture": False},
-    "multi_bank": {"mode": "multi", "bank": True, "texture": False},
-    "multi_texture": {"mode": "multi", "bank": False, "texture": True},
-    "full": {"mode": "multi", "bank": True, "texture": True},
+    "freeze": _variant("off", finetune=False),
+    "finetune": _variant("off"),
+    "single": _variant("single"),
+    "multi": _variant("multi"),
+    "multi_bank": _variant("multi", bank=True),
+    "multi_texture": _variant("multi", texture=True),
+    "full": _variant("multi", bank=True, texture=True),
 }
-LABELS = {"freeze": "Freeze", "single": "Single-view", "multi": "Multi-view (O)",
-          "multi_bank": "Multi-view + bank (M)", "multi_texture": "Multi-view + texture (T)",
+LABELS = {"freeze": "Freeze", "finetune": "Freeze + expression fine-tuning", "single": "Single-view",
+          "multi": "Multi-view (O)", "multi_bank": "Multi-view + bank (M)", "multi_texture": "Multi-view + texture (T)",
           "full": "Full (multi + bank + texture)"}
 METRICS = ("psnr", "ssim", "lpips")
 
@@ -49,7 +60,7 @@ def train_variant(capture, run_dir: pathlib.Path, name: str, preset, config_path
     if _complete(run_dir):
         return
     resume = latest_checkpoint(run_dir / "checkpoints") is not None
-    config = config_module.resolve(preset, config_path, _merge(overrides or {}, {"mogaface": LADDER[name]}))
+    config = config_module.resolve(preset, config_path, _merge(overrides or {}, LADDER[name]))
     listeners = []
     if progress:
         from ..progress import ProgressBar
@@ -199,7 +210,7 @@ def run_ablation(capture, out, variants, *, preset="mogaface-ablation", config_p
     for name in variants:
         run_dir = out / "runs" / name
         train_variant(capture, run_dir, name, preset, config_path, overrides, progress)
-        entry = {"label": LABELS[name], "mogaface": LADDER[name], "train": _train_summary(run_dir)}
+        entry = {"label": LABELS[name], "settings": LADDER[name], "train": _train_summary(run_dir)}
         entry.update(score_variant(run_dir, max_frames, lpips))
         scored[name] = entry
         _write_results(out, results, scored)
