@@ -57,11 +57,14 @@ def test_presets_are_valid_and_quick_is_short():
         C.resolve("slow")
 
 
-def test_mogaface_presets_fine_tune_expressions_only():
+def test_mogaface_presets_fine_tune_flame_at_ten_times_the_papers_rates():
     for name in ("mogaface", "mogaface-demo"):
         flame = C.resolve(name).flame
-        assert flame.finetune and flame.expression_lr > 0 and flame.joints_lr == flame.translation_lr == 0
-    assert not C.resolve("full").flame.finetune and not C.resolve("mogaface-ablation").flame.finetune
+        assert flame.finetune
+        assert (flame.expression_lr, flame.joints_lr, flame.translation_lr) == pytest.approx((1e-2, 1e-4, 1e-5))
+    assert not C.resolve("full").flame.finetune
+    ablation = C.resolve("mogaface-ablation").flame  # each variant says whether it fine-tunes
+    assert not ablation.finetune and ablation.expression_lr == C.resolve("mogaface").flame.expression_lr
 
 
 def test_every_setting_is_documented():

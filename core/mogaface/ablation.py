@@ -14,16 +14,15 @@ import pathlib
 
 import numpy as np
 
-from ..train.config import EXPRESSION_FINETUNE
 
 def _variant(mode: str, bank: bool = False, texture: bool = False, finetune: bool = True) -> dict:
     return {"mogaface": {"mode": mode, "bank": bank, "texture": texture},
-            "flame": dict(EXPRESSION_FINETUNE) if finetune else {"finetune": False}}
+            "flame": {"finetune": finetune}}
 
 
-# The settings of each variant over the common preset. Every correction variant fine-tunes the
-# per-timestamp expressions as the paper's training does; "finetune" does that alone, so the gain
-# of the modules over it can be told apart from the fine-tuning's own.
+# The settings of each variant over the common preset. Every variant but Freeze fine-tunes the
+# per-timestamp FLAME parameters as the paper's training does (at the rates of the preset); "finetune"
+# does that alone, so the gain of the modules over it can be told apart from the fine-tuning's own.
 LADDER: dict[str, dict] = {
     "freeze": _variant("off", finetune=False),
     "finetune": _variant("off"),
@@ -33,7 +32,7 @@ LADDER: dict[str, dict] = {
     "multi_texture": _variant("multi", texture=True),
     "full": _variant("multi", bank=True, texture=True),
 }
-LABELS = {"freeze": "Freeze", "finetune": "Freeze + expression fine-tuning", "single": "Single-view",
+LABELS = {"freeze": "Freeze", "finetune": "Freeze + FLAME fine-tuning", "single": "Single-view",
           "multi": "Multi-view (O)", "multi_bank": "Multi-view + bank (M)", "multi_texture": "Multi-view + texture (T)",
           "full": "Full (multi + bank + texture)"}
 METRICS = ("psnr", "ssim", "lpips")
