@@ -25,7 +25,8 @@ def test_ablate_writes_results_table_and_figure(tiny_capture, tmp_path):
                  "--max-frames", "2", "--no-lpips", "--quiet"])
     assert code == 0
     results = json.loads((out / "results.json").read_text())
-    assert list(results["variants"]) == ["freeze", "finetune", "single", "multi", "multi_bank", "multi_texture", "full"]
+    assert list(results["variants"]) == ["freeze", "finetune", "single", "multi", "multi_bank", "multi_texture", "full",
+                                         "full_prior"]
     for name, entry in results["variants"].items():
         for key in ("novel_view", "self_reenactment_params", "self_reenactment_images"):
             assert entry[key]["frames"] == 2 and entry[key]["psnr"] > 5, (name, key)
@@ -38,7 +39,9 @@ def test_ablate_writes_results_table_and_figure(tiny_capture, tmp_path):
     assert finetune["settings"]["flame"]["finetune"] and not results["variants"]["freeze"]["settings"]["flame"]["finetune"]
     assert finetune["expression"]["expr_rmse_corrected"] != pytest.approx(finetune["expression"]["expr_rmse_tracked"])
     table = (out / "results.md").read_text()
-    assert table.count("\n") == 2 + 7 and "Full (multi + bank + texture)" in table
+    prior = [results["variants"][name]["settings"]["mogaface"]["centring_weight"] for name in ("full", "full_prior")]
+    assert prior[0] == 0 and prior[1] > 0
+    assert table.count("\n") == 2 + 8 and "Full (multi + bank + texture)" in table
     assert (out / "figure.png").stat().st_size > 0
     # A second call reuses the complete runs.
     before = (out / "runs" / "full" / "run.json").stat().st_mtime_ns

@@ -57,11 +57,12 @@ def test_presets_are_valid_and_quick_is_short():
         C.resolve("slow")
 
 
-def test_mogaface_presets_fine_tune_flame_at_ten_times_the_papers_rates():
+def test_mogaface_presets_fine_tune_flame_and_centre_the_correction():
     for name in ("mogaface", "mogaface-demo"):
         flame = C.resolve(name).flame
         assert flame.finetune
         assert (flame.expression_lr, flame.joints_lr, flame.translation_lr) == pytest.approx((1e-2, 1e-4, 1e-5))
+        assert C.resolve(name).mogaface.centring_weight > 0  # the zero-mean prior of the full method
     assert not C.resolve("full").flame.finetune
     ablation = C.resolve("mogaface-ablation").flame  # each variant says whether it fine-tunes
     assert not ablation.finetune and ablation.expression_lr == C.resolve("mogaface").flame.expression_lr

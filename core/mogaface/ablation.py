@@ -14,15 +14,20 @@ import pathlib
 
 import numpy as np
 
+from ..train.config import PRESET_CENTRING_WEIGHT
 
-def _variant(mode: str, bank: bool = False, texture: bool = False, finetune: bool = True) -> dict:
-    return {"mogaface": {"mode": mode, "bank": bank, "texture": texture},
+
+def _variant(mode: str, bank: bool = False, texture: bool = False, finetune: bool = True,
+             centring_weight: float = 0.0) -> dict:
+    return {"mogaface": {"mode": mode, "bank": bank, "texture": texture, "centring_weight": centring_weight},
             "flame": {"finetune": finetune}}
 
 
 # The settings of each variant over the common preset. Every variant but Freeze fine-tunes the
 # per-timestamp FLAME parameters as the paper's training does (at the rates of the preset); "finetune"
 # does that alone, so the gain of the modules over it can be told apart from the fine-tuning's own.
+# "full_prior" is the full method with our zero-mean prior on the correction: what the MoGaFace
+# presets train.
 LADDER: dict[str, dict] = {
     "freeze": _variant("off", finetune=False),
     "finetune": _variant("off"),
@@ -31,10 +36,11 @@ LADDER: dict[str, dict] = {
     "multi_bank": _variant("multi", bank=True),
     "multi_texture": _variant("multi", texture=True),
     "full": _variant("multi", bank=True, texture=True),
+    "full_prior": _variant("multi", bank=True, texture=True, centring_weight=PRESET_CENTRING_WEIGHT),
 }
 LABELS = {"freeze": "Freeze", "finetune": "Freeze + FLAME fine-tuning", "single": "Single-view",
           "multi": "Multi-view (O)", "multi_bank": "Multi-view + bank (M)", "multi_texture": "Multi-view + texture (T)",
-          "full": "Full (multi + bank + texture)"}
+          "full": "Full (multi + bank + texture)", "full_prior": "Full + zero-mean prior (the presets)"}
 METRICS = ("psnr", "ssim", "lpips")
 
 
