@@ -14,12 +14,11 @@ import pathlib
 
 import numpy as np
 
-from ..train.config import PRESET_CENTRING_WEIGHT
+from ..train.config import FULL_METHOD
 
 
-def _variant(mode: str, bank: bool = False, texture: bool = False, finetune: bool = True,
-             centring_weight: float = 0.0) -> dict:
-    return {"mogaface": {"mode": mode, "bank": bank, "texture": texture, "centring_weight": centring_weight},
+def _variant(mode: str, bank: bool = False, texture: bool = False, finetune: bool = True) -> dict:
+    return {"mogaface": {"mode": mode, "bank": bank, "texture": texture, "centring_weight": 0.0},
             "flame": {"finetune": finetune}}
 
 
@@ -36,7 +35,7 @@ LADDER: dict[str, dict] = {
     "multi_bank": _variant("multi", bank=True),
     "multi_texture": _variant("multi", texture=True),
     "full": _variant("multi", bank=True, texture=True),
-    "full_prior": _variant("multi", bank=True, texture=True, centring_weight=PRESET_CENTRING_WEIGHT),
+    "full_prior": {"mogaface": dict(FULL_METHOD), "flame": {"finetune": True}},
 }
 LABELS = {"freeze": "Freeze", "finetune": "Freeze + FLAME fine-tuning", "single": "Single-view",
           "multi": "Multi-view (O)", "multi_bank": "Multi-view + bank (M)", "multi_texture": "Multi-view + texture (T)",

@@ -14,16 +14,14 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-from .posing import world_with_offsets
+from .avatar import render_world
 
 
 def render_views(avatar, vertices: torch.Tensor, cameras, size: int, background) -> torch.Tensor:
     """``(V, 3, size, size)`` renders of a posed mesh as the encoder sees views (no gradient)."""
-    from .avatar import render_world
-
     images = []
     with torch.no_grad():
-        world = world_with_offsets(avatar.gaussians, vertices, avatar.flame.faces, None)
+        world = avatar.gaussians.world(vertices, avatar.flame.faces)
         for camera in cameras:
             factor = size / max(camera.width, camera.height)
             rgb = render_world(world, camera.scaled(factor) if factor < 1.0 else camera, background).rgb

@@ -181,10 +181,9 @@ def _get(config, dotted: str):
 # 1e-5, translation 1e-6) are for 10⁶ steps; our runs see each timestamp a few dozen times, so all
 # three are ten times the paper's.
 FLAME_FINETUNE = {"finetune": True, "expression_lr": 1e-2, "joints_lr": 1e-4, "translation_lr": 1e-5}
-# The zero-mean prior on the correction (ours) that the MoGaFace presets use: without it the
+# The full method's modules, with the zero-mean prior on the correction (ours): without it the
 # modules drift by an offset shared by all timestamps, which no image pins (docs/results.md).
-PRESET_CENTRING_WEIGHT = 1.0
-FULL_METHOD = {"mode": "multi", "bank": True, "texture": True, "centring_weight": PRESET_CENTRING_WEIGHT}
+FULL_METHOD = {"mode": "multi", "bank": True, "texture": True, "centring_weight": 1.0}
 
 PRESETS: dict[str, dict] = {
     # A smoke run: a minute or two, no densification worth the name.
