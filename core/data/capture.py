@@ -25,6 +25,7 @@ from ..io.image import read_image
 from ..io.jsonfile import read_json_object
 from ..io.npz import load_npz
 from . import layout
+from .paths import check_stays_inside
 
 DEFAULT_CACHE_BYTES = 512 * 1024 * 1024
 
@@ -43,6 +44,8 @@ class Frame:
     fg_mask_path: str | None
     flame_param_path: str
     sequence: str | None
+    # This frame's own camera: one id may have a different pose per sequence (union datasets).
+    camera: Camera | None = dataclasses.field(default=None, compare=False, repr=False)
 
     @property
     def source(self) -> str:
@@ -135,7 +138,7 @@ def _frame_camera(frame: dict, top: dict, camera_id: str, source, where: str) ->
         angle = _number(frame, top, "camera_angle_y", source, where)
         fy = fx if angle is None else 0.5 * h / math.tan(0.5 * angle)
     cx = _number(frame, top, "cx", source, where, 0.5 * w)
-    cy = _number(frame, top, "cy", source, where, 0.5 * h)
+    cy = layout.cy_from_file(_number(frame, top, "cy", source, where, 0.5 * h), h, layout.cy_origin(top, source))
     if fx <= 0 or fy <= 0:
         raise CaptureError(source, f"{where}.fl_x", f"focal lengths must be positive, got {fx}, {fy}")
     matrix = frame.get("transform_matrix")
@@ -168,7 +171,11 @@ def _raw_camera_key(frame: dict, top: dict) -> tuple | None:
 
 
 def _camera_difference(known: Camera, new: Camera) -> tuple[str, str] | None:
-    """The first field in which two sightings of one camera id disagree, or None."""
+    """The first intrinsic in which two sightings of one camera id disagree, or None.
+
+    The pose may differ: VHAP moves every sequence's cameras by that sequence's mean head
+    translation, so in a union dataset one camera id has one pose per sequence.
+    """
     for name, a, b in (
         ("w", known.width, new.width),
         ("h", known.height, new.height),
@@ -179,9 +186,61 @@ def _camera_difference(known: Camera, new: Camera) -> tuple[str, str] | None:
     ):
         if not np.isclose(a, b, rtol=1e-6, atol=1e-6):
             return name, f"{a:g} before, {b:g} here"
-    if not np.allclose(known.w2c, new.w2c, rtol=1e-6, atol=1e-6):
-        return "transform_matrix", "a different pose before"
     return None
+
+
+def _empty_split_reason(split: str, doc: dict) -> str:
+    """Why a split file lists no frames, in words a user can act on."""
+    if split == "val" and doc.get("camera_indices") == []:
+        return ("no camera is held out: VHAP writes an empty val split when the capture has a single "
+                "camera (monocular)")
+    return f"{layout.split_file(split)} lists no frames"
+
+
+MESH_MODE_HINT = (
+    "this folder holds meshes, not FLAME parameters (VHAP's export with --flame-mode mesh: "
+    "'mesh_path' and 'exp_path' per frame); export the tracking again with "
+    "'python vhap/export_as_nerf_dataset.py ... --flame-mode param' (the default)"
+)
+
+
+def _check_frame_paths(root, entry: dict, source, where: str) -> None:
+    """Every path a frame names follows the rule of :mod:`.paths` (text only; links at read time)."""
+    for name in ("file_path", "flame_param_path"):
+        if name not in entry:
+            problem = MESH_MODE_HINT if name == "flame_param_path" and "mesh_path" in entry else "missing key"
+            raise CaptureError(source, f"{where}.{name}", problem)
+        layout.resolve_inside(root, entry[name], source, f"{where}.{name}")
+    if entry.get("fg_mask_path") is not None:
+        layout.resolve_inside(root, entry["fg_mask_path"], source, f"{where}.fg_mask_path")
+
+
+def _camera_of(entry, doc, camera_id, index, source, where, cameras, parsed) -> Camera:
+    """This frame's camera; checks the id keeps one index and one set of intrinsics."""
+    known = cameras.get(camera_id)
+    if known is not None and known[0] != index:
+        raise CaptureError(source, f"{where}.camera_index", f"camera {camera_id!r} has indices {known[0]} and {index}")
+    raw = _raw_camera_key(entry, doc)
+    camera = parsed.get((camera_id, raw)) if raw is not None else None
+    if camera is not None:
+        return camera
+    camera = _frame_camera(entry, doc, camera_id, source, where)
+    if known is None:
+        taken = next((cid for cid, (i, _) in cameras.items() if i == index), None)
+        if taken is not None:
+            raise CaptureError(source, f"{where}.camera_index",
+                               f"index {index} is used by cameras {taken!r} and {camera_id!r}")
+        cameras[camera_id] = (index, camera)
+    else:
+        difference = _camera_difference(known[1], camera)
+        if difference is not None:
+            raise CaptureError(
+                source, f"{where}.{difference[0]}",
+                f"camera {camera_id!r} appears twice with different values ({difference[1]})",
+            )
+    if raw is not None:
+        parsed[(camera_id, raw)] = camera
+    return camera
 
 
 class Capture:
@@ -190,10 +249,12 @@ class Capture:
     Attributes:
         root: the dataset folder.
         splits: split name -> list of :class:`Frame` (only split files that exist).
-        cameras: camera id -> :class:`~mogaface.core.camera.Camera`, ordered by camera index.
+        cameras: camera id -> :class:`~mogaface.core.camera.Camera` (its first pose), by camera index;
+            :meth:`camera` gives a frame's own pose.
         timesteps: sorted timestep indices over all splits.
         timestep_ids: timestep index -> id string.
         sequences: sequence name -> sorted timestep indices (empty when frames name none).
+        empty_splits: split name -> why its file lists no frames (e.g. VHAP's monocular val).
         memory_bound_bytes: the most bytes the image cache ever holds.
     """
 
@@ -213,6 +274,7 @@ class Capture:
         for f in frames:
             self._timestep_frame.setdefault(f.timestep_index, f)
         self._images = _ByteLRU(cache_bytes)
+        self.empty_splits: dict[str, str] = {}
 
     # -- opening -------------------------------------------------------------------------------
     @classmethod
@@ -231,16 +293,21 @@ class Capture:
         splits: dict[str, list[Frame]] = {}
         cameras: dict[str, tuple[int, Camera]] = {}
         per_timestep: dict[int, tuple] = {}
+        empty: dict[str, str] = {}
         for split in layout.SPLITS:
             source = root / layout.split_file(split)
             if split != "train" and not source.exists():
                 continue
-            splits[split] = cls._parse_split(root, split, source, cameras, per_timestep)
+            frames = cls._parse_split(root, split, source, cameras, per_timestep, empty)
+            if frames is not None:
+                splits[split] = frames
         ordered = dict(sorted(((cid, cam) for cid, (_, cam) in cameras.items()), key=lambda kv: cameras[kv[0]][0]))
-        return cls(root, splits, ordered, cache_bytes)
+        capture = cls(root, splits, ordered, cache_bytes)
+        capture.empty_splits = empty
+        return capture
 
     @staticmethod
-    def _parse_split(root, split, source, cameras, per_timestep) -> list[Frame]:
+    def _parse_split(root, split, source, cameras, per_timestep, empty) -> list[Frame] | None:
         doc = _load_json(source)
         entries = doc.get("frames")
         if entries is None:
@@ -248,10 +315,13 @@ class Capture:
         if not isinstance(entries, list):
             raise CaptureError(source, "frames", f"expected a list, got {type(entries).__name__}")
         if not entries:
-            raise CaptureError(source, "frames", f"the {split} split is empty")
+            if split == "train":
+                raise CaptureError(source, "frames", "the train split is empty")
+            empty[split] = _empty_split_reason(split, doc)
+            return None
         frames = []
         seen: set[tuple[int, int]] = set()
-        raw_seen: dict[str, tuple] = {}
+        parsed: dict[tuple, Camera] = {}
         for pos, entry in enumerate(entries):
             where = f"frames[{pos}]"
             if not isinstance(entry, dict):
@@ -263,38 +333,12 @@ class Capture:
             sequence = entry.get("sequence")
             if sequence is not None and not isinstance(sequence, str):
                 raise CaptureError(source, f"{where}.sequence", f"expected a string, got {sequence!r}")
-            for name in ("file_path", "flame_param_path"):
-                if name not in entry:
-                    raise CaptureError(source, f"{where}.{name}", "missing key")
-                layout.resolve_inside(root, entry[name], source, f"{where}.{name}")
+            _check_frame_paths(root, entry, source, where)
             mask = entry.get("fg_mask_path")
-            if mask is not None:
-                layout.resolve_inside(root, mask, source, f"{where}.fg_mask_path")
             if (t, c) in seen:
                 raise CaptureError(source, where, f"timestep {t} camera {c} is listed twice")
             seen.add((t, c))
-            known = cameras.get(camera_id)
-            if known is not None and known[0] != c:
-                problem = f"camera {camera_id!r} has indices {known[0]} and {c}"
-                raise CaptureError(source, f"{where}.camera_index", problem)
-            raw = _raw_camera_key(entry, doc)
-            if known is None or raw is None or raw_seen.get(camera_id) != raw:
-                # A camera id's first sighting in this file, or values that differ in their text.
-                camera = _frame_camera(entry, doc, camera_id, source, where)
-                if known is None:
-                    taken = next((cid for cid, (index, _) in cameras.items() if index == c), None)
-                    if taken is not None:
-                        problem = f"index {c} is used by cameras {taken!r} and {camera_id!r}"
-                        raise CaptureError(source, f"{where}.camera_index", problem)
-                    cameras[camera_id] = (c, camera)
-                else:
-                    difference = _camera_difference(known[1], camera)
-                    if difference is not None:
-                        raise CaptureError(
-                            source, f"{where}.{difference[0]}",
-                            f"camera {camera_id!r} appears twice with different values ({difference[1]})",
-                        )
-                raw_seen[camera_id] = raw
+            camera = _camera_of(entry, doc, camera_id, c, source, where, cameras, parsed)
             record = (timestep_id, entry["flame_param_path"], sequence)
             if per_timestep.setdefault(t, record) != record:
                 raise CaptureError(
@@ -304,7 +348,7 @@ class Capture:
             frames.append(
                 Frame(
                     split, pos, t, timestep_id, c, camera_id,
-                    entry["file_path"], mask, entry["flame_param_path"], sequence,
+                    entry["file_path"], mask, entry["flame_param_path"], sequence, camera,
                 )
             )
         for name, values in (
@@ -326,11 +370,24 @@ class Capture:
         return [f for frames in self.splits.values() for f in frames]
 
     def camera(self, frame: Frame) -> Camera:
-        return self.cameras[frame.camera_id]
+        """The camera of one frame (its own pose: in union datasets it differs per sequence)."""
+        return frame.camera if frame.camera is not None else self.cameras[frame.camera_id]
+
+    def camera_at(self, camera_id: str, timestep: int) -> Camera:
+        """Camera ``camera_id`` as placed at ``timestep`` (its first pose when no frame shows it there)."""
+        for frame in self.frames():
+            if frame.camera_id == camera_id and frame.timestep_index == timestep:
+                return self.camera(frame)
+        return self.cameras[camera_id]
 
     def path(self, frame: Frame, name: str) -> pathlib.Path:
-        """Absolute path of one of ``frame``'s files: ``"file_path"``, ``"fg_mask_path"``, ``"flame_param_path"``."""
-        return layout.resolve_inside(self.root, getattr(frame, name), self.root / frame.source, frame.field(name))
+        """Absolute path of one of ``frame``'s files: ``"file_path"``, ``"fg_mask_path"``, ``"flame_param_path"``.
+
+        Refuses a path that leaves its allowed tree, symlinks followed (:mod:`.paths`).
+        """
+        relative, source, field = getattr(frame, name), self.root / frame.source, frame.field(name)
+        path = layout.resolve_inside(self.root, relative, source, field)
+        return check_stays_inside(self.root, relative, path, source, field)
 
     @property
     def memory_bound_bytes(self) -> int:
@@ -409,7 +466,10 @@ class Capture:
     def canonical_flame_params(self) -> dict[str, np.ndarray] | None:
         """``canonical_flame_param.npz`` normalised like :meth:`flame_params`, or None if absent."""
         path = self.root / layout.CANONICAL_FILE
-        return self._load_flame(path, None) if path.exists() else None
+        if not path.exists():
+            return None
+        check_stays_inside(self.root, layout.CANONICAL_FILE, path, path, None)
+        return self._load_flame(path, None)
 
     @staticmethod
     def _load_flame(path: pathlib.Path, field: str | None) -> dict[str, np.ndarray]:

@@ -154,7 +154,7 @@ def make_capture(
     bar = ProgressBar(total * len(cameras), "make-capture") if progress else None
     timestep = 0
     ranges = {}
-    with CaptureWriter(out) as writer:
+    with CaptureWriter(out, n_vertices=model.n_vertices) as writer:
         for sequence in sequences:
             tracked = add_tracking_noise(sequence.params, noise, rng)
             ranges[sequence.name] = [timestep, timestep + sequence.length]

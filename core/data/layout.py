@@ -16,11 +16,11 @@ Shared by the writer (:mod:`.writer`), the reader (:mod:`.capture`) and the chec
 from __future__ import annotations
 
 import pathlib
-import posixpath
 
 import numpy as np
 
 from ..errors import CaptureError
+from .paths import resolve_capture_path
 
 SPLITS = ("train", "val", "test")
 ALL_FRAMES_FILE = "transforms.json"
@@ -44,20 +44,37 @@ def flame_param_path(timestep: int) -> str:
 
 
 def resolve_inside(root: pathlib.Path, relative, source, field: str) -> pathlib.Path:
-    """Resolve a dataset-relative path, refusing ones that could leave ``root``.
+    """Resolve a dataset-relative path by the rule of :mod:`.paths` (text checks only)."""
+    return resolve_capture_path(root, relative, source, field)
 
-    Absolute paths, drive letters and ``..`` components are refused (checked on the text, so a
-    folder that is itself a symlink inside the dataset stays allowed).
-    """
-    if not isinstance(relative, str) or not relative:
-        raise CaptureError(source, field, f"expected a non-empty relative path string, got {relative!r}")
-    text = relative.replace("\\", "/")
-    parts = text.split("/")
-    if posixpath.isabs(text) or (len(parts[0]) >= 2 and parts[0][1] == ":"):
-        raise CaptureError(source, field, f"absolute path {relative!r}: paths must be relative to the dataset folder")
-    if ".." in parts:
-        raise CaptureError(source, field, f"path {relative!r} leaves the dataset folder")
-    return root.joinpath(*[p for p in parts if p not in ("", ".")])
+
+# -- the principal point's y ------------------------------------------------------------------
+# VHAP converts its OpenCV calibration to OpenGL axes with ``K[1,2] = H - K[1,2]``
+# (vhap/util/camera.py, convert_camera_convention) and its exporter writes that value as
+# ``cy``; its renderer's projection (``(h - 2 cy) / h`` in the OpenGL projection matrix) reads
+# it from the bottom edge. So ``cy`` in this layout is measured from the image's bottom edge
+# unless the split file says ``"cy_origin": "top"``. These two functions are the only place
+# that converts it; inside MoGaFace ``cy`` is OpenCV's, from the top.
+CY_ORIGINS = ("bottom", "top")
+CY_ORIGIN_KEY = "cy_origin"
+
+
+def cy_origin(doc: dict, source) -> str:
+    """The convention of a split file's ``cy`` values: VHAP's ``"bottom"`` unless it says ``"top"``."""
+    value = doc.get(CY_ORIGIN_KEY, "bottom")
+    if value not in CY_ORIGINS:
+        raise CaptureError(source, CY_ORIGIN_KEY, f"expected one of {CY_ORIGINS}, got {value!r}")
+    return value
+
+
+def cy_from_file(cy: float, height: int, origin: str) -> float:
+    """The file's ``cy`` as OpenCV's (pixels from the top edge)."""
+    return height - cy if origin == "bottom" else cy
+
+
+def cy_to_file(cy: float, height: int, origin: str = "bottom") -> float:
+    """OpenCV's ``cy`` as the file stores it (VHAP's: from the bottom edge)."""
+    return height - cy if origin == "bottom" else cy
 
 
 # FLAME parameters: name -> required length of the last axis (None: any length, set by the model).
@@ -70,14 +87,15 @@ FLAME_KEYS: dict[str, int | None] = {
     "eyes_pose": 6,
     "translation": 3,
 }
-OPTIONAL_FLAME_KEYS = ("static_offset",)
+OPTIONAL_FLAME_KEYS = ("static_offset", "dynamic_offset")
 
 
 def normalize_flame_params(arrays: dict[str, np.ndarray], source) -> dict[str, np.ndarray]:
     """Check one timestep's FLAME parameters and return them as float32, without the batch axis.
 
     Accepts VHAP's per-timestep arrays with a leading axis of 1 (``(1, n)``, ``(1, V, 3)``) and
-    plain ones (``(n,)``, ``(V, 3)``). Returns ``(n,)`` vectors and ``static_offset (V, 3)``.
+    plain ones (``(n,)``, ``(V, 3)``). Returns ``(n,)`` vectors, ``static_offset (V, 3)`` and
+    VHAP's per-timestep ``dynamic_offset (V, 3)`` (its tracking with ``use_dynamic_offset``).
     Keys other than the FLAME ones are ignored.
     """
     out: dict[str, np.ndarray] = {}
@@ -85,8 +103,9 @@ def normalize_flame_params(arrays: dict[str, np.ndarray], source) -> dict[str, n
         if key not in arrays:
             raise CaptureError(source, key, f"missing FLAME parameter (the file has {sorted(arrays)})")
         out[key] = _checked(arrays[key], key, 1, size, source)
-    if "static_offset" in arrays:
-        out["static_offset"] = _checked(arrays["static_offset"], "static_offset", 2, 3, source)
+    for key in OPTIONAL_FLAME_KEYS:
+        if key in arrays:
+            out[key] = _checked(arrays[key], key, 2, 3, source)
     return out
 
 

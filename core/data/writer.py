@@ -29,7 +29,7 @@ def camera_fields(camera: Camera) -> dict:
         "fl_x": camera.fx,
         "fl_y": camera.fy,
         "cx": camera.cx,
-        "cy": camera.cy,
+        "cy": layout.cy_to_file(camera.cy, camera.height),
         "w": camera.width,
         "h": camera.height,
         "camera_angle_x": camera.fov_x,
@@ -52,8 +52,11 @@ class CaptureWriter:
     Camera indices follow the order in which camera ids first appear, unless given.
     """
 
-    def __init__(self, root: str | os.PathLike, *, png_compress_level: int = 4):
+    def __init__(self, root: str | os.PathLike, *, png_compress_level: int = 4, n_vertices: int | None = None):
+        """``n_vertices``: the head model's vertex count; FLAME files then always carry a
+        ``static_offset`` (zeros when none is given), which GaussianAvatars' loader requires."""
         self.root = pathlib.Path(root)
+        self.n_vertices = n_vertices
         self.root.mkdir(parents=True, exist_ok=True)
         self.png_compress_level = png_compress_level
         self._frames: dict[str, list[dict]] = {split: [] for split in layout.SPLITS}
@@ -77,7 +80,7 @@ class CaptureWriter:
     def write_flame_params(self, timestep: int, params: dict[str, np.ndarray]) -> str:
         """Write ``flame_param/{t:05d}.npz`` (VHAP form); returns its relative path."""
         rel = layout.flame_param_path(timestep)
-        checked = layout.normalize_flame_params(params, self.root / rel)
+        checked = layout.normalize_flame_params(self._with_static_offset(params), self.root / rel)
         save_npz(self.root / rel, layout.batched_flame_params(checked))
         self._flame_written.add(int(timestep))
         return rel
@@ -85,7 +88,13 @@ class CaptureWriter:
     def write_canonical_flame_params(self, params: dict[str, np.ndarray]) -> None:
         """Write ``canonical_flame_param.npz``."""
         path = self.root / layout.CANONICAL_FILE
-        save_npz(path, layout.batched_flame_params(layout.normalize_flame_params(params, path)))
+        checked = layout.normalize_flame_params(self._with_static_offset(params), path)
+        save_npz(path, layout.batched_flame_params(checked))
+
+    def _with_static_offset(self, params: dict) -> dict:
+        if self.n_vertices is None or "static_offset" in params:
+            return params
+        return {**params, "static_offset": np.zeros((self.n_vertices, 3), np.float32)}
 
     def add_frame(
         self,
@@ -188,6 +197,7 @@ class CaptureWriter:
 def transforms_document(frames: list[dict]) -> dict:
     """A ``transforms_*.json`` document: index lists, uniform camera fields, frames."""
     doc: dict = {
+        layout.CY_ORIGIN_KEY: "bottom",
         "camera_indices": sorted({f["camera_index"] for f in frames}),
         "timestep_indices": sorted({f["timestep_index"] for f in frames}),
     }
