@@ -207,23 +207,33 @@ def _file_version(path, what: str) -> tuple[pathlib.Path, tuple]:
     return path, (os.fspath(path), stat.st_size, stat.st_mtime_ns)
 
 
-def load_head_model(path):
+def load_head_model(path, n_vertices: int | None = None):
     """The float64 :class:`~mogaface.core.flame.model.FlameModel` of ``path``, cached per file.
 
     The cache key includes the file's size and modification time, so an edited file reloads.
+    ``n_vertices``: a tracking's vertex count (5143 on FLAME adds its teeth, see ``flame.teeth``).
     """
     from .flame.model import FlameModel  # torch: imported when a head is used, not before
     import torch
 
     path, key = _file_version(path, "head model")
+    key = key + (n_vertices,)
     with _model_cache_lock:
         model = _model_cache.get(key)
         if model is None:
-            model = FlameModel.load(path, dtype=torch.float64)
-            for old in [k for k in _model_cache if k[0] == key[0]]:
+            model = FlameModel.load(path, dtype=torch.float64, n_vertices=n_vertices)
+            for old in [k for k in _model_cache if k[0] == key[0] and k[-1] == n_vertices]:
                 del _model_cache[old]
             _model_cache[key] = model
     return model
+
+
+def identity_vertex_count(path) -> int | None:
+    """The vertex count of an ``.npz``'s ``static_offset`` (None without one)."""
+    from .io.npz import load_npz
+
+    offset = load_npz(path).get("static_offset")
+    return None if offset is None or np.ndim(offset) < 2 else int(np.shape(offset)[-2])
 
 
 def read_identity(path, n_shape: int, n_vertices: int) -> tuple[np.ndarray, np.ndarray | None]:
@@ -343,7 +353,7 @@ class HeadImport:
 
 def head_import(path, shape_file=None) -> HeadImport:
     """Load a FLAME-format head (and optionally the identity of a ``flame_param`` npz) for Blender."""
-    model = load_head_model(path)
+    model = load_head_model(path, identity_vertex_count(shape_file) if shape_file else None)
     arrays = model.arrays
     if shape_file:
         shape, offset = read_identity(shape_file, model.n_shape, model.n_vertices)
@@ -415,6 +425,11 @@ def read_tracking(folder) -> Tracking:
     rows = {name: [] for name in names}
     for path in files:
         params = layout.normalize_flame_params(load_npz(path), path)
+        if "dynamic_offset" in params and np.abs(params["dynamic_offset"]).max() > 0:
+            raise InputError(path, "dynamic_offset",
+                             "per-timestep vertex offsets (VHAP's use_dynamic_offset) cannot be keyed as shape-key "
+                             "values in Blender; render such tracking with 'python -m mogaface render', or track "
+                             "without dynamic offsets")
         for name in names:
             if name not in params:
                 raise InputError(path, name, "missing from the tracked parameters")

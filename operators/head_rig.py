@@ -39,11 +39,11 @@ def rig_of(obj):
     """The core :class:`HeadRig` of a head object (model loaded once per file)."""
     from ..core import scene_conversion as sc
 
-    model = sc.load_head_model(obj[MODEL_PATH_PROPERTY])
     shape = np.asarray(obj.get(sc.SHAPE_PROPERTY, []), np.float64)
     offset = obj.get(sc.STATIC_OFFSET_PROPERTY)
     if offset is not None:
         offset = np.asarray(offset, np.float64).reshape(-1, 3)
+    model = sc.load_head_model(obj[MODEL_PATH_PROPERTY], None if offset is None else len(offset))
     return sc.HeadRig(model, shape, offset)
 
 

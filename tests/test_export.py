@@ -80,7 +80,8 @@ def test_binding_ply_round_trip_renders_identically(setup, tmp_path):
     run, capture, avatar, params = setup
     ply = tmp_path / "bound.ply"
     written = export_binding_ply(avatar, ply, params[6])
-    assert written == [ply, flame_param_path(ply)] and written[1].name == "bound.flame_param.npz"
+    assert written == [ply, flame_param_path(ply), ply.with_name("flame_param.npz")]
+    assert written[1].name == "bound.flame_param.npz"
     stored = load_flame_param_npz(written[1])
     assert set(stored) == set(params[6])
     for key in params[6]:

@@ -45,9 +45,12 @@ class Avatar(torch.nn.Module):
         self.head_file = pathlib.Path(head_file)
 
     @classmethod
-    def initial(cls, head_file: str | os.PathLike, max_sh_degree: int = 3) -> "Avatar":
-        """A new avatar: one faint grey Gaussian per triangle of the head model."""
-        flame = FlameModel.load(head_file)
+    def initial(cls, head_file: str | os.PathLike, max_sh_degree: int = 3, n_vertices: int | None = None) -> "Avatar":
+        """A new avatar: one faint grey Gaussian per triangle of the head model.
+
+        ``n_vertices``: the tracking's vertex count (5143 adds FLAME's teeth, :mod:`..flame.teeth`).
+        """
+        flame = FlameModel.load(head_file, n_vertices=n_vertices)
         return cls(flame, BoundGaussians.one_per_triangle(len(flame.faces), max_sh_degree), head_file)
 
     def posed_vertices(self, flame_params: dict[str, torch.Tensor]) -> torch.Tensor:
@@ -79,6 +82,7 @@ class Avatar(torch.nn.Module):
             "format": AVATAR_FORMAT,
             "version": AVATAR_VERSION,
             "head_file": self.head_file.name,
+            "n_vertices": self.flame.n_vertices,
             "max_sh_degree": self.gaussians.max_sh_degree,
             "active_sh_degree": self.gaussians.active_sh_degree,
             "gaussians": {k: v.detach().clone() for k, v in self.gaussians.tensors().items()},
@@ -108,7 +112,9 @@ class Avatar(torch.nn.Module):
             tensors["binding"], int(state["max_sh_degree"]), **{k: tensors[k] for k in PARAMETER_NAMES}
         )
         gaussians.active_sh_degree = int(state["active_sh_degree"])
-        return cls(FlameModel.load(head_file), gaussians, head_file)
+        n_vertices = state.get("n_vertices")
+        return cls(FlameModel.load(head_file, n_vertices=None if n_vertices is None else int(n_vertices)),
+                   gaussians, head_file)
 
 
 def flame_params_to_torch(params: dict[str, np.ndarray]) -> dict[str, torch.Tensor]:

@@ -7,6 +7,8 @@
   layout) and, beside the file, ``FILE.flame_param.npz`` with the FLAME parameters that pose it
   (GaussianAvatars' layout: a leading time axis of one on every parameter but ``shape``).
   :func:`import_binding_ply` turns such a file and its head model back into an Avatar.
+  Also ``flame_param.npz`` (that exact name, in the PLY's folder): the motion in the form
+  GaussianAvatars' viewer opens beside a PLY (:func:`gaussian_avatars_motion`).
 
 SH bands above the active degree are written as zeros (they take no part in a render), so a
 file always has degree-``max_sh_degree`` columns, as the 3DGS loader expects, and an imported
@@ -30,6 +32,8 @@ from .avatar import Avatar, flame_params_to_torch
 from .gaussians import BoundGaussians, rgb_to_sh_dc
 
 FLAME_PARAM_SUFFIX = ".flame_param.npz"
+GA_MOTION_FILE = "flame_param.npz"  # GaussianAvatars' viewer opens exactly this name beside the PLY
+GA_SHAPE_COUNT, GA_EXPR_COUNT = 300, 100  # GaussianAvatars' FLAME defaults
 _OPACITY_EPS = 1e-7  # keeps the logit of a saturated opacity finite
 
 
@@ -76,11 +80,46 @@ def export_world_ply(avatar: Avatar, flame_params: dict[str, np.ndarray], path: 
     return pathlib.Path(path)
 
 
+def gaussian_avatars_motion(frames: list[dict[str, np.ndarray]], n_vertices: int) -> dict[str, np.ndarray]:
+    """Per-timestep FLAME parameters as GaussianAvatars keeps them (and saves as ``flame_param.npz``).
+
+    ``shape (300,)``, ``expr (T,100)``, ``rotation``/``neck_pose``/``jaw_pose``/``translation (T,3)``,
+    ``eyes_pose (T,6)``, ``static_offset (1,V,3)``, ``dynamic_offset (T,V,3)``, float32, with
+    ``V`` its FLAME with teeth (5143): fewer components are padded with zeros, and offsets of a
+    5023-vertex FLAME get zero rows for the teeth (GaussianAvatars pads them the same way).
+    """
+    from ..flame.teeth import FLAME_VERTEX_COUNT, TEETH_VERTEX_COUNT
+
+    if not frames:
+        raise InputError(None, "frames", "no timesteps to write")
+    rows = n_vertices + TEETH_VERTEX_COUNT if n_vertices == FLAME_VERTEX_COUNT else n_vertices
+
+    def padded(value, count):
+        value = np.asarray(value, np.float32)
+        return np.pad(value, [(0, 0)] * (value.ndim - 1) + [(0, max(0, count - value.shape[-1]))])
+
+    def offset(params, name):
+        value = np.asarray(params.get(name, np.zeros((n_vertices, 3))), np.float32).reshape(-1, 3)
+        return np.pad(value, [(0, rows - len(value)), (0, 0)])
+
+    out = {
+        "shape": padded(frames[0]["shape"], GA_SHAPE_COUNT),
+        "expr": np.stack([padded(f["expr"], GA_EXPR_COUNT) for f in frames]),
+        **{k: np.stack([np.asarray(f[k], np.float32) for f in frames])
+           for k in ("rotation", "neck_pose", "jaw_pose", "eyes_pose", "translation")},
+        "static_offset": offset(frames[0], "static_offset")[None],
+        "dynamic_offset": np.stack([offset(f, "dynamic_offset") for f in frames]),
+    }
+    return out
+
+
 def export_binding_ply(
-    avatar: Avatar, path: str | os.PathLike, flame_params: dict[str, np.ndarray] | None = None
+    avatar: Avatar, path: str | os.PathLike, flame_params: dict[str, np.ndarray] | None = None,
+    motion: list[dict[str, np.ndarray]] | None = None,
 ) -> list[pathlib.Path]:
     """Write the triangle-bound Gaussians (GaussianAvatars' layout) and, given parameters, the
-    ``FILE.flame_param.npz`` beside it. Returns the files written."""
+    ``FILE.flame_param.npz`` beside it; given ``motion`` (parameters per timestep, or else the
+    one timestep), GaussianAvatars' ``flame_param.npz`` too. Returns the files written."""
     g = avatar.gaussians
     write_gaussian_ply(
         path, g.local_position, g.local_log_scale, g.local_rotation, g.opacity_logit, rendered_sh(g), binding=g.binding
@@ -91,6 +130,11 @@ def export_binding_ply(
         npz = flame_param_path(path)
         save_npz(npz, layout.batched_flame_params(params))
         written.append(npz)
+        motion = [params] if motion is None else motion
+    if motion:
+        ga = pathlib.Path(path).with_name(GA_MOTION_FILE)
+        save_npz(ga, gaussian_avatars_motion(motion, avatar.flame.n_vertices))
+        written.append(ga)
     return written
 
 

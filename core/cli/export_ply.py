@@ -12,6 +12,7 @@ def add_arguments(parser) -> None:
     parser.add_argument(
         "--binding-space", action="store_true",
         help="write triangle-local Gaussians with binding_0 plus FILE.flame_param.npz (GaussianAvatars' layout) "
+        "and flame_param.npz (every trained timestep, as GaussianAvatars' viewer opens it) "
         "instead of the posed world-space Gaussians",
     )
     parser.add_argument("--capture", type=pathlib.Path, help="the run's capture folder, when it has moved")
@@ -24,9 +25,11 @@ def run(args) -> int:
 
     run_folder = RunFolder(args.run, args.capture)
     avatar = run_folder.load_avatar()
-    params = TrackedParams(run_folder.open_capture(), run_folder).params_for(args.timestep)
+    source = TrackedParams(run_folder.open_capture(), run_folder)
+    params = source.params_for(args.timestep)
     if args.binding_space:
-        written = export_binding_ply(avatar, args.out, params)
+        motion = [source.params_for(t) for t in run_folder.trained_timesteps]
+        written = export_binding_ply(avatar, args.out, params, motion=motion)
     else:
         written = [export_world_ply(avatar, params, args.out)]
     for path in written:

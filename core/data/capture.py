@@ -449,7 +449,8 @@ class Capture:
         return self._load_flame(self.path(frame, "flame_param_path"), field)
 
     def flame_params_stacked(self, timesteps: list[int] | None = None) -> dict[str, np.ndarray]:
-        """Parameters of many timesteps stacked to ``(T, n)`` (``static_offset`` from the first)."""
+        """Parameters of many timesteps stacked to ``(T, n)`` (``static_offset`` from the first;
+        ``dynamic_offset`` stacked to ``(T, V, 3)``)."""
         timesteps = self.timesteps if timesteps is None else list(timesteps)
         rows = [self.flame_params(t) for t in timesteps]
         out = {}

@@ -10,17 +10,20 @@ import torch
 from ..errors import InputError
 from .lbs import axis_angle_to_matrix, linear_blend_skinning
 from .model_file import ModelArrays, read_model_file
+from .teeth import match_tracking
 
 # Pose parameters, in joint order after the root: (name, number of values).
 POSE_PARAMETERS = (("rotation", 3), ("neck_pose", 3), ("jaw_pose", 3), ("eyes_pose", 6))
-PARAMETER_NAMES = ("shape", "expr", "rotation", "neck_pose", "jaw_pose", "eyes_pose", "translation", "static_offset")
+PARAMETER_NAMES = ("shape", "expr", "rotation", "neck_pose", "jaw_pose", "eyes_pose", "translation", "static_offset",
+                   "dynamic_offset")
+OFFSET_NAMES = ("static_offset", "dynamic_offset")
 
 
 class FlameModel(torch.nn.Module):
     """A FLAME-format head model evaluated with linear blend skinning.
 
     ``model(shape=…, expr=…, rotation=…, neck_pose=…, jaw_pose=…, eyes_pose=…,
-    translation=…, static_offset=…)`` takes tensors with a leading batch dimension
+    translation=…, static_offset=…, dynamic_offset=…)`` takes tensors with a leading batch dimension
     (missing ones are zeros; names as in GaussianAvatars/VHAP ``flame_param/*.npz``)
     and returns vertices ``(B,V,3)``. Joints: global (``rotation``), neck, jaw, left
     eye, right eye; poses are axis-angle; ``translation`` is added last.
@@ -57,9 +60,15 @@ class FlameModel(torch.nn.Module):
         n_shape: int | None = None,
         n_expr: int | None = None,
         dtype: torch.dtype = torch.float32,
+        n_vertices: int | None = None,
     ) -> "FlameModel":
-        """Load a FLAME ``.pkl`` (official or ours) or ``.npz``; see ``read_model_file``."""
-        return cls(read_model_file(path, n_shape=n_shape, n_expr=n_expr), dtype=dtype)
+        """Load a FLAME ``.pkl`` (official or ours) or ``.npz``; see ``read_model_file``.
+
+        ``n_vertices``: the vertex count of the tracking to evaluate (its offsets' rows); 5143
+        on a 5023-vertex FLAME file adds VHAP's teeth (:mod:`.teeth`).
+        """
+        arrays = match_tracking(read_model_file(path, n_shape=n_shape, n_expr=n_expr), n_vertices, path)
+        return cls(arrays, dtype=dtype)
 
     @property
     def n_shape(self) -> int:
@@ -84,6 +93,7 @@ class FlameModel(torch.nn.Module):
             + torch.einsum("vck,bk->bvc", self.shapedirs, p["shape"])
             + torch.einsum("vck,bk->bvc", self.exprdirs, p["expr"])
             + p["static_offset"]
+            + p["dynamic_offset"]
         )
         joints = torch.einsum("jv,bvc->bjc", self.J_regressor, shaped)
         full_pose = torch.cat([p[name] for name, _ in POSE_PARAMETERS], dim=1).reshape(-1, 5, 3)
@@ -116,14 +126,18 @@ class FlameModel(torch.nn.Module):
             if value.shape[1] != count:
                 raise InputError(None, name, f"expected {count} values per batch entry, found {value.shape[1]}")
             out[name] = value.expand(batch, count)
-        offset = given.get("static_offset")
-        if offset is None:
-            out["static_offset"] = torch.zeros(1, self.n_vertices, 3, dtype=dtype, device=device)
-        else:
-            offset = offset.to(dtype=dtype, device=device)
-            if offset.dim() != 3 or offset.shape[1:] != (self.n_vertices, 3) or offset.shape[0] not in (1, batch):
-                raise InputError(
-                    None, "static_offset", f"expected shape (B, {self.n_vertices}, 3), found {tuple(offset.shape)}"
-                )
-            out["static_offset"] = offset
+        for name in OFFSET_NAMES:
+            out[name] = self._offset(given.get(name), name, batch, dtype, device)
         return out
+
+    def _offset(self, offset, name: str, batch: int, dtype, device) -> torch.Tensor:
+        """A per-vertex offset ``(1 or B, V, 3)``; zeros when not given."""
+        if offset is None:
+            return torch.zeros(1, self.n_vertices, 3, dtype=dtype, device=device)
+        offset = offset.to(dtype=dtype, device=device)
+        if offset.dim() != 3 or offset.shape[1:] != (self.n_vertices, 3) or offset.shape[0] not in (1, batch):
+            hint = ""
+            if offset.dim() == 3 and offset.shape[1] != self.n_vertices:
+                hint = " (a tracking with another vertex count: load the model with n_vertices=that count)"
+            raise InputError(None, name, f"expected shape (B, {self.n_vertices}, 3), found {tuple(offset.shape)}{hint}")
+        return offset

@@ -63,6 +63,8 @@ class FlameTable(torch.nn.Module):
         self.register_buffer("shape", torch.as_tensor(stacked["shape"][0], dtype=torch.float32))
         static = stacked.get("static_offset")
         self.register_buffer("static_offset", None if static is None else torch.as_tensor(static, dtype=torch.float32))
+        dynamic = stacked.get("dynamic_offset")  # (T,V,3): VHAP's per-timestep offsets, fixed
+        self.register_buffer("dynamic_offset", None if dynamic is None else torch.as_tensor(dynamic, dtype=torch.float32))
         for name in ("expr", *JOINTS, "translation"):
             setattr(self, name, torch.nn.Parameter(torch.as_tensor(stacked[name], dtype=torch.float32),
                                                    requires_grad=False))
@@ -78,7 +80,17 @@ class FlameTable(torch.nn.Module):
         out["shape"] = self.shape[None].expand(batch, -1)
         if self.static_offset is not None:
             out["static_offset"] = self.static_offset[None].expand(batch, -1, -1)
+        if self.dynamic_offset is not None:
+            out["dynamic_offset"] = self.dynamic_offset[rows]
         return out
+
+    @property
+    def n_vertices(self) -> int | None:
+        """The vertex count the tracking's offsets describe (None without offsets)."""
+        for offset in (self.static_offset, self.dynamic_offset):
+            if offset is not None:
+                return int(offset.shape[-2])
+        return None
 
     def numpy(self, timestep: int) -> dict[str, np.ndarray]:
         """One timestep's parameters as the capture's ``(n,)`` float32 arrays."""
@@ -86,6 +98,8 @@ class FlameTable(torch.nn.Module):
         out["shape"] = self.shape.numpy().copy()
         if self.static_offset is not None:
             out["static_offset"] = self.static_offset.numpy().copy()
+        if self.dynamic_offset is not None:
+            out["dynamic_offset"] = self.dynamic_offset[self.row[timestep]].numpy().copy()
         return out
 
 

@@ -106,8 +106,8 @@ class Trainer:
         with atomic_path(head) as tmp:
             shutil.copyfile(source, tmp)
         write_text(self.run_folder.config, config_module.to_toml(self.config))
-        self.avatar = Avatar.initial(head, self.config.densify.max_sh_degree)
         self.table = self.data.flame_table()
+        self.avatar = Avatar.initial(head, self.config.densify.max_sh_degree, n_vertices=self.table.n_vertices)
         self._build_optimizer()
         self.mogaface = build_mogaface(self.config, self.data, self.table, self.avatar)
         self.strategy = DensifyStrategy(densify_schedule(self.config), len(self.avatar.gaussians),
