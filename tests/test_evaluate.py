@@ -168,7 +168,8 @@ def test_run_folder_reads_background_identity_and_relative_capture(run, tmp_path
     import shutil
 
     assert run.trained_timesteps == list(range(12)) and run.background == (1.0, 1.0, 1.0)
-    assert set(run.identity_params()) == {"shape"}
+    identity = run.identity_params()  # the capture writes a zero static_offset, as GaussianAvatars needs
+    assert set(identity) == {"shape", "static_offset"} and not identity["static_offset"].any()
     moved = tmp_path / "run"
     shutil.copytree(run.root, moved)
     shutil.copytree(run.capture_root, tmp_path / "cap", ignore=shutil.ignore_patterns("images", "fg_masks"))

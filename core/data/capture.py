@@ -275,6 +275,7 @@ class Capture:
             self._timestep_frame.setdefault(f.timestep_index, f)
         self._images = _ByteLRU(cache_bytes)
         self.empty_splits: dict[str, str] = {}
+        self._at: dict[tuple[str, int], Frame] | None = None
 
     # -- opening -------------------------------------------------------------------------------
     @classmethod
@@ -375,10 +376,10 @@ class Capture:
 
     def camera_at(self, camera_id: str, timestep: int) -> Camera:
         """Camera ``camera_id`` as placed at ``timestep`` (its first pose when no frame shows it there)."""
-        for frame in self.frames():
-            if frame.camera_id == camera_id and frame.timestep_index == timestep:
-                return self.camera(frame)
-        return self.cameras[camera_id]
+        if self._at is None:
+            self._at = {(f.camera_id, f.timestep_index): f for f in reversed(self.frames())}
+        frame = self._at.get((camera_id, timestep))
+        return self.camera(frame) if frame is not None else self.cameras[camera_id]
 
     def path(self, frame: Frame, name: str) -> pathlib.Path:
         """Absolute path of one of ``frame``'s files: ``"file_path"``, ``"fg_mask_path"``, ``"flame_param_path"``.

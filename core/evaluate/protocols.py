@@ -111,29 +111,46 @@ def _spread(items: list, limit: int | None) -> list:
     return [items[i] for i in picks]
 
 
+def protocol_unavailable(capture: Capture, protocol: str) -> str | None:
+    """Why a protocol cannot be scored on this capture, or None when it can."""
+    try:
+        frames = _protocol_candidates(capture, protocol)
+    except InputError as error:
+        return error.problem
+    if frames:
+        return None
+    split = {"novel_view": "val", "self_reenactment": "test"}[protocol]
+    what = {"novel_view": "a held-out camera", "self_reenactment": "a held-out sequence"}[protocol]
+    if split in capture.empty_splits:
+        return f"the {split} split is empty ({capture.empty_splits[split]}), so there is no {what} to score"
+    return f"the capture has no {split} split and capture_info.json names no {what}"
+
+
+def _protocol_candidates(capture: Capture, protocol: str) -> list[Frame]:
+    info = capture_info(capture.root)
+    if protocol == "novel_view":
+        if "val" in capture.splits:
+            return capture.frames("val")
+        camera = info.get("val_camera")
+        return [f for f in capture.frames("train") if camera is not None and f.camera_id == camera]
+    if protocol == "self_reenactment":
+        if "test" in capture.splits:
+            return capture.frames("test")
+        sequence = info.get("test_sequence")
+        return [f for f in capture.frames() if sequence is not None and f.sequence == sequence]
+    raise InputError(None, "protocol", f"unknown protocol {protocol!r} (have {', '.join(PROTOCOLS)})")
+
+
 def protocol_frames(capture: Capture, protocol: str, max_frames: int | None = None) -> list[Frame]:
     """The frames a protocol scores, in capture order (evenly thinned to ``max_frames``).
 
     Captures without ``val``/``test`` splits fall back on ``capture_info.json``'s
     ``val_camera`` and ``test_sequence``.
     """
-    info = capture_info(capture.root)
-    if protocol == "novel_view":
-        if "val" in capture.splits:
-            frames = capture.frames("val")
-        else:
-            camera = info.get("val_camera")
-            frames = [f for f in capture.frames("train") if camera is not None and f.camera_id == camera]
-    elif protocol == "self_reenactment":
-        if "test" in capture.splits:
-            frames = capture.frames("test")
-        else:
-            sequence = info.get("test_sequence")
-            frames = [f for f in capture.frames() if sequence is not None and f.sequence == sequence]
-    else:
-        raise InputError(None, "protocol", f"unknown protocol {protocol!r} (have {', '.join(PROTOCOLS)})")
+    frames = _protocol_candidates(capture, protocol)
     if not frames:
-        raise InputError(capture.root, protocol, "the capture holds no frames for this protocol")
+        raise InputError(capture.root, protocol, protocol_unavailable(capture, protocol)
+                         or "the capture holds no frames for this protocol")
     frames = sorted(frames, key=lambda f: (f.timestep_index, f.camera_index))
     return _spread(frames, max_frames)
 
@@ -272,7 +289,10 @@ def evaluate_run(
         avatar, source = run_inference(run, cap)  # MoGaFace runs: modules + image-assisted inference
     avatar = run.load_avatar() if avatar is None else avatar
     source = TrackedParams(cap, run) if source is None else source
-    plans = {name: protocol_frames(cap, name, max_frames) for name in protocols}
+    skipped = {name: reason for name in protocols if (reason := protocol_unavailable(cap, name)) is not None}
+    if skipped and len(skipped) == len(protocols):
+        raise InputError(cap.root, "protocols", "; ".join(f"{k}: {v}" for k, v in skipped.items()))
+    plans = {name: protocol_frames(cap, name, max_frames) for name in protocols if name not in skipped}
     total = sum(len(f) for f in plans.values())
     bar = ProgressBar(total, "eval") if progress and total else None
     keys = ("psnr", "ssim", "lpips") if lpips else ("psnr", "ssim")
@@ -282,6 +302,7 @@ def evaluate_run(
         "background": list(run.background),
         "inference": getattr(source, "description", type(source).__name__),
         "protocols": {},
+        "skipped": skipped,
     }
     for name, frames in plans.items():
         rows = []

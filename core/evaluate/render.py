@@ -69,7 +69,8 @@ def render_run(
         else:
             params = source.params_for(timestep)
         for camera_id in cameras:
-            rgb_black, alpha = render_frame(avatar, params, cap.cameras[camera_id], (0.0, 0.0, 0.0), clamp=False)
+            camera = cap.camera_at(camera_id, timestep)  # its pose at that timestep (per sequence in unions)
+            rgb_black, alpha = render_frame(avatar, params, camera, (0.0, 0.0, 0.0), clamp=False)
             stem = f"{timestep:05d}_{camera_id}"
             write_png(out / f"{stem}.png", np.clip(rgb_black + (1.0 - alpha[..., None]) * background, 0.0, 1.0))
             written.append(out / f"{stem}.png")

@@ -51,6 +51,8 @@ def markdown_table(result: dict) -> str:
             f"| {name.replace('_', ' ')} | {summary['frames']} | {_cell(summary.get('psnr'), 2)} "
             f"| {_cell(summary.get('ssim'), 4)} | {_cell(summary.get('lpips'), 4)} |"
         )
+    for name, reason in result.get("skipped", {}).items():
+        lines.append(f"| {name.replace('_', ' ')} | not run: {reason} | | | |")
     cross = result.get("cross_identity")
     if cross:
         lines += ["", f"Cross-identity reenactment (driver `{cross['driver']}`): {cross['frames']} images, "
