@@ -10,6 +10,11 @@ def add_arguments(parser) -> None:
     )
     parser.add_argument("--contact-sheet", metavar="PNG", help="also write every view of one timestep into this image")
     parser.add_argument("--timestep", type=int, help="timestep of the contact sheet (default: the first)")
+    parser.add_argument(
+        "--head", metavar="MODEL",
+        help="FLAME model file the tracking was made with (default: the capture's own head model, if it has one); "
+        "used to tell from the masks whether cy is measured from the bottom or the top edge",
+    )
 
 
 def run(args) -> int:
@@ -18,6 +23,7 @@ def run(args) -> int:
     summary = validate_capture(args.capture, cache_bytes=args.cache_mib * 2**20)
     for line in summary.lines():
         print(line)
+    print(_cy_line(args))
     if args.contact_sheet:
         from ..data.capture import Capture
         from ..data.contact_sheet import contact_sheet
@@ -27,3 +33,21 @@ def run(args) -> int:
         print(f"contact sheet: {args.contact_sheet}")
     print("ok")
     return 0
+
+
+def _cy_line(args) -> str:
+    """Which way cy is read, and whether the masks and the tracked mesh agree."""
+    import pathlib
+
+    from ..data.capture import Capture
+    from ..data.cy_check import check_cy
+    from ..errors import InputError
+    from ..train.data import capture_head_file
+
+    head = args.head
+    if head is None:
+        try:
+            head = capture_head_file(pathlib.Path(args.capture))
+        except InputError:
+            head = None
+    return check_cy(Capture.open(args.capture), head).line()

@@ -276,6 +276,7 @@ class Capture:
         self._images = _ByteLRU(cache_bytes)
         self.empty_splits: dict[str, str] = {}
         self._at: dict[tuple[str, int], Frame] | None = None
+        self.declared_cy_origin = "bottom"  # how the train split's cy is read (see layout.cy_origin)
 
     # -- opening -------------------------------------------------------------------------------
     @classmethod
@@ -295,21 +296,24 @@ class Capture:
         cameras: dict[str, tuple[int, Camera]] = {}
         per_timestep: dict[int, tuple] = {}
         empty: dict[str, str] = {}
+        origins: dict[str, str] = {}
         for split in layout.SPLITS:
             source = root / layout.split_file(split)
             if split != "train" and not source.exists():
                 continue
-            frames = cls._parse_split(root, split, source, cameras, per_timestep, empty)
+            frames = cls._parse_split(root, split, source, cameras, per_timestep, empty, origins)
             if frames is not None:
                 splits[split] = frames
         ordered = dict(sorted(((cid, cam) for cid, (_, cam) in cameras.items()), key=lambda kv: cameras[kv[0]][0]))
         capture = cls(root, splits, ordered, cache_bytes)
         capture.empty_splits = empty
+        capture.declared_cy_origin = origins["train"]
         return capture
 
     @staticmethod
-    def _parse_split(root, split, source, cameras, per_timestep, empty) -> list[Frame] | None:
+    def _parse_split(root, split, source, cameras, per_timestep, empty, origins) -> list[Frame] | None:
         doc = _load_json(source)
+        origins[split] = layout.cy_origin(doc, source)
         entries = doc.get("frames")
         if entries is None:
             raise CaptureError(source, "frames", "missing key")

@@ -1,0 +1,88 @@
+"""Which way a capture's ``cy`` is measured, judged from its masks and its tracked mesh.
+
+The split files may measure ``cy`` from the bottom edge (VHAP's exporter; our default) or
+from the top (``"cy_origin": "top"``). The two readings differ by ``h − 2·cy`` pixels
+vertically, which nothing in the json reveals. The tracked FLAME mesh does: projected with
+the right reading, its vertices fall inside the foreground masks; with the mirrored one,
+those near the silhouette fall out. This compares the two readings on a few frames.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import pathlib
+
+import numpy as np
+
+from ..camera import Camera
+from .capture import Capture
+
+MARGIN = 0.003  # the smallest difference in mean mask coverage that decides
+
+
+@dataclasses.dataclass
+class CyReport:
+    declared: str  # "bottom" or "top": how the reader reads the files
+    verdict: str  # "confirmed", "mirrored", "undecided", "centred" or "unchecked"
+    coverage: tuple[float, float] | None = None  # mean mask value at the vertices: (as read, mirrored)
+    reason: str = ""
+
+    def line(self) -> str:
+        read = {"bottom": "from the bottom edge (VHAP's convention)", "top": "from the top edge"}[self.declared]
+        text = f"cy: read {read}"
+        if self.coverage is not None:
+            text += f"; tracked mesh inside the masks: {self.coverage[0]:.3f} as read, {self.coverage[1]:.3f} mirrored"
+        return f"{text}; {self.verdict}" + (f" ({self.reason})" if self.reason else "")
+
+
+def mirrored(camera: Camera) -> Camera:
+    """The same camera with its principal point's y read from the other edge."""
+    K = camera.K.copy()
+    K[1, 2] = camera.height - K[1, 2]
+    return dataclasses.replace(camera, K=K)
+
+
+def mask_coverage(vertices: np.ndarray, camera: Camera, mask: np.ndarray) -> float:
+    """Mean mask value at the pixels the vertices project to (vertices outside the image count 0)."""
+    cam = vertices @ camera.w2c[:3, :3].T + camera.w2c[:3, 3]
+    front = cam[:, 2] > 1e-6
+    u = camera.fx * cam[front, 0] / cam[front, 2] + camera.cx
+    v = camera.fy * cam[front, 1] / cam[front, 2] + camera.cy
+    col, row = np.floor(u).astype(int), np.floor(v).astype(int)
+    inside = (col >= 0) & (col < camera.width) & (row >= 0) & (row < camera.height)
+    values = np.zeros(len(vertices))
+    values[np.flatnonzero(front)[inside]] = mask[row[inside], col[inside]]
+    return float(values.mean())
+
+
+def check_cy(capture: Capture, head_file: str | pathlib.Path | None, max_frames: int = 4) -> CyReport:
+    """Compare the two readings of ``cy`` on up to ``max_frames`` frames (needs the head model)."""
+    import torch
+
+    from ..avatar.avatar import flame_params_to_torch
+    from ..flame.model import FlameModel
+
+    declared = capture.declared_cy_origin
+    frames = capture.frames()
+    if all(abs(2 * capture.camera(f).cy - capture.camera(f).height) < 1e-6 for f in frames):
+        return CyReport(declared, "centred", reason="every principal point is at the image centre: both readings agree")
+    if head_file is None or not pathlib.Path(head_file).is_file():
+        return CyReport(declared, "unchecked", reason="no head model to project (pass --head FLAME_MODEL)")
+    picks = [frames[i] for i in np.unique(np.linspace(0, len(frames) - 1, max_frames).round().astype(int))]
+    params = [capture.flame_params(f.timestep_index) for f in picks]
+    offsets = [p[k] for p in params for k in ("static_offset", "dynamic_offset") if k in p]
+    model = FlameModel.load(head_file, n_vertices=offsets[0].shape[0] if offsets else None)
+    as_read, other = [], []
+    with torch.no_grad():
+        for frame, p in zip(picks, params):
+            vertices = model(**flame_params_to_torch(p))[0].double().numpy()
+            mask = capture.load_image(frame)[1]
+            as_read.append(mask_coverage(vertices, capture.camera(frame), mask))
+            other.append(mask_coverage(vertices, mirrored(capture.camera(frame)), mask))
+    coverage = (float(np.mean(as_read)), float(np.mean(other)))
+    if coverage[0] - coverage[1] > MARGIN:
+        return CyReport(declared, "confirmed", coverage)
+    if coverage[1] - coverage[0] > MARGIN:
+        fix = '"cy_origin": "top"' if declared == "bottom" else 'no "cy_origin" key (or "bottom")'
+        return CyReport(declared, "mirrored", coverage, f"the masks fit the other reading: give the split files {fix}")
+    return CyReport(declared, "undecided", coverage, "the masks fit both readings equally")
