@@ -296,3 +296,31 @@ def test_binding_ply_writes_the_motion_file_gaussianavatars_opens(data, head, tm
         assert ga[key].shape == (T, 3)
     assert ga["static_offset"].shape == (1, 5143, 3) and ga["dynamic_offset"].shape == (T, 5143, 3)
     assert np.allclose(ga["dynamic_offset"][1], motion[1]["dynamic_offset"])
+
+
+def test_our_synthetic_capture_reads_as_gaussianavatars_reads_it(tmp_path):
+    """GaussianAvatars' dataset reader, followed from its public code: all three split files,
+    per frame ``file_path``/``transform_matrix``/``w``/``h``/``camera_angle_x``/``timestep_index``,
+    and per timestep ``np.load(flame_param_path)`` whose ``static_offset`` its ``load_meshes`` indexes."""
+    from mogaface.core.data.generator import CaptureSettings, make_capture
+
+    root = tmp_path / "cap"
+    make_capture(root, CaptureSettings(views=2, timesteps=16, size=32, supersample=1), progress=False)
+    meshes = {}
+    for split in ("train", "val", "test"):
+        contents = json.loads((root / f"transforms_{split}.json").read_text())
+        for frame in contents["frames"]:
+            assert (root / frame["file_path"]).is_file()
+            c2w = np.array(frame["transform_matrix"])
+            assert c2w.shape == (4, 4) and frame["w"] == 32 and frame["h"] == 32 and 0 < frame["camera_angle_x"] < 3
+            params = dict(np.load(root / frame["flame_param_path"], allow_pickle=False))
+            meshes[frame["timestep_index"]] = params
+    first = meshes[0]
+    n_vertices = FlameModel.load(root / "head.pkl").n_vertices
+    assert first["static_offset"].shape == (1, n_vertices, 3)  # meshes[0]['static_offset'] in load_meshes
+    for key in ("expr", "rotation", "neck_pose", "jaw_pose", "eyes_pose", "translation"):
+        assert first[key].ndim == 2 and first[key].shape[0] == 1
+    # Our reader gets the principal point back from VHAP's bottom-origin cy.
+    cap = Capture.open(root)
+    frame = json.loads((root / "transforms_train.json").read_text())["frames"][0]
+    assert cap.cameras[frame["camera_id"]].cy == pytest.approx(32 - frame["cy"])

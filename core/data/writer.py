@@ -171,18 +171,20 @@ class CaptureWriter:
         return frame
 
     def finish(self) -> None:
-        """Write ``transforms_{split}.json`` for every non-empty split and ``transforms.json``."""
+        """Write ``transforms_{split}.json`` for every split and ``transforms.json``.
+
+        An empty val or test split is written with no frames (as VHAP does): GaussianAvatars
+        opens all three files."""
         missing = {f["timestep_index"] for frames in self._frames.values() for f in frames} - self._flame_written
         if missing:
             problem = f"no FLAME parameters written for timesteps {sorted(missing)[:10]}"
             raise CaptureError(self.root, "flame_param", problem)
+        if not self._frames["train"]:
+            raise CaptureError(self.root, "frames", "no training frames were added")
         everything = []
         for split, frames in self._frames.items():
-            if frames:
-                write_json(self.root / layout.split_file(split), transforms_document(frames))
-                everything.extend(frames)
-        if not everything:
-            raise CaptureError(self.root, "frames", "no frames were added")
+            write_json(self.root / layout.split_file(split), transforms_document(frames))
+            everything.extend(frames)
         everything.sort(key=lambda f: (f["timestep_index"], f["camera_index"]))
         write_json(self.root / layout.ALL_FRAMES_FILE, transforms_document(everything))
 
