@@ -19,6 +19,7 @@ import torch
 from ..camera import Camera
 from ..errors import InputError
 from ..flame.lbs import axis_angle_to_matrix
+from ..flame.expression_roles import mouth_components
 from ..flame.model import FlameModel
 from ..flame.model_file import write_model_file
 from ..io.atomic import write_json
@@ -147,7 +148,8 @@ def make_capture(
         rest = model()[0].double().numpy()
     cameras, frontal = camera_dome(settings.views, settings.size, rest, rng)
     reported = [perturb_camera(c, settings.camera_noise, rng) for c in cameras]
-    sequences = make_sequences(settings.timesteps, model.n_shape, model.expression_names, seed=settings.seed + 7919 * settings.subject)
+    sequences = make_sequences(settings.timesteps, model.n_shape, model.n_expr, mouth_components(arrays),
+                               seed=settings.seed + 7919 * settings.subject)
     noise = TrackingNoise(expr=settings.expr_noise, pose=settings.pose_noise)
 
     total = sum(s.length for s in sequences)

@@ -116,23 +116,19 @@ def free_sequence(rng, length: int, n_expr: int) -> dict:
     return {"expr": expr, "jaw_pose": _jaw(jaw), "eyes_pose": _eyes(0.2 * gaze[:, 0], 0.1 * gaze[:, 1]), **_head_motion(rng, t, 0.22)}
 
 
-def lip_components(expression_names: list[str]) -> list[int]:
-    """Components whose names say they shape the lips or mouth (all of them if none do)."""
-    keys = ("lip", "mouth", "smile", "pucker", "funnel", "press", "stretch")
-    found = [i for i, name in enumerate(expression_names) if any(k in name.lower() for k in keys)]
-    return found or list(range(len(expression_names)))
+def make_sequences(total_timesteps: int, n_shape: int, n_expr: int, mouth: list[int], seed: int) -> list[Sequence]:
+    """The ground-truth parameters of every sequence of one subject.
 
-
-def make_sequences(total_timesteps: int, n_shape: int, expression_names: list[str], seed: int) -> list[Sequence]:
-    """The ground-truth parameters of every sequence of one subject."""
+    ``mouth``: the expression components the speech moves
+    (:func:`~mogaface.core.flame.expression_roles.mouth_components`).
+    """
     rng = np.random.default_rng(seed)
-    n_expr = len(expression_names)
     counts = split_timesteps(total_timesteps)
     half = (n_expr + 1) // 2
     raw = [
         expression_sequence(rng, counts[0], list(range(half)), n_expr, with_jaw=False),
         expression_sequence(rng, counts[1], list(range(half, n_expr)), n_expr, with_jaw=True),
-        speech_sequence(rng, counts[2], lip_components(expression_names), n_expr),
+        speech_sequence(rng, counts[2], list(mouth), n_expr),
         free_sequence(rng, counts[3], n_expr),
     ]
     sequences = []

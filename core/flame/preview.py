@@ -10,18 +10,16 @@ import torch
 from ..camera import Camera
 from ..data.mesh_render import render_mesh
 from ..errors import ModelFileError
+from .expression_roles import role_expression
 from .model import FlameModel
 
 VIEWS = (("front", 0.0, 0.0), ("three_quarter", 40.0, 8.0), ("profile", 90.0, 0.0))
 
 
-def _expression(model: FlameModel, *keywords: str, amount: float = 1.5) -> torch.Tensor:
-    """An expression vector with every component whose name holds a keyword set to ``amount``."""
-    expr = torch.zeros(1, model.n_expr)
-    for i, name in enumerate(model.expression_names):
-        if any(k in name.lower() for k in keywords):
-            expr[0, i] = amount
-    return expr
+def _expression(model: FlameModel, *roles: str, amount: float = 1.5) -> torch.Tensor:
+    """An expression vector making each role (by component name, or by geometry on FLAME files)."""
+    expr = sum(role_expression(model.arrays, role, amount) for role in roles)
+    return torch.as_tensor(np.asarray(expr, np.float32))[None]
 
 
 def preview_poses(model: FlameModel) -> dict[str, dict[str, torch.Tensor]]:
@@ -30,7 +28,7 @@ def preview_poses(model: FlameModel) -> dict[str, dict[str, torch.Tensor]]:
     return {
         "neutral": {},
         "jaw_open": {"jaw_pose": jaw_open},
-        "smile": {"expr": _expression(model, "smile", "cheek")},
+        "smile": {"expr": _expression(model, "smile")},
         "blink_brows": {"expr": _expression(model, "blink", "brow_raise", amount=1.0)},
         "pucker_look": {"expr": _expression(model, "pucker"), "eyes_pose": torch.tensor([[0.0, 0.3, 0.0] * 2])},
         "turn_speak": {"rotation": torch.tensor([[0.1, 0.35, 0.0]]), "jaw_pose": 0.5 * jaw_open},
