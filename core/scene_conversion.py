@@ -134,6 +134,9 @@ class CaptureScene:
     frame_start: int
     frame_end: int
     n_timesteps: int
+    # Camera ids whose pose differs between frames (a union of sequences: VHAP moves each
+    # sequence's cameras); they are imported at the pose of their first frame.
+    moving_cameras: list[str] = dataclasses.field(default_factory=list)
 
 
 def capture_scene(folder) -> CaptureScene:
@@ -150,13 +153,17 @@ def capture_scene(folder) -> CaptureScene:
     for camera_id, camera in capture.cameras.items():
         frame = first_frame.get(camera_id)
         image = capture.path(frame, "file_path") if frame is not None else None
-        cameras.append(blender_camera(camera, f"Camera {camera_id}", image))
+        pose = capture.camera(frame) if frame is not None else camera
+        cameras.append(blender_camera(pose, f"Camera {camera_id}", image))
+    moving = sorted({f.camera_id for f in capture.frames()
+                     if not np.allclose(capture.camera(f).w2c, capture.camera(first_frame[f.camera_id]).w2c)})
     return CaptureScene(
         root=os.fspath(capture.root),
         cameras=cameras,
         frame_start=timestep_to_frame(min(capture.timesteps)),
         frame_end=timestep_to_frame(max(capture.timesteps)),
         n_timesteps=len(capture.timesteps),
+        moving_cameras=moving,
     )
 
 

@@ -124,7 +124,11 @@ class MOGAFACE_OT_import_capture(bpy.types.Operator):
         scene.frame_end = description.frame_end
         scene.frame_set(description.frame_start)
         scene.mogaface.capture_folder = description.root
-        self.report({"INFO"}, f"Imported {len(cameras)} cameras, {description.n_timesteps} timesteps")
+        message = f"Imported {len(cameras)} cameras, {description.n_timesteps} timesteps"
+        if description.moving_cameras:
+            message += (f"; {len(description.moving_cameras)} cameras move between sequences (a union dataset): "
+                        "placed as in the first sequence")
+        self.report({"INFO"}, message)
         return {"FINISHED"}
 
 

@@ -324,3 +324,14 @@ def test_our_synthetic_capture_reads_as_gaussianavatars_reads_it(tmp_path):
     cap = Capture.open(root)
     frame = json.loads((root / "transforms_train.json").read_text())["frames"][0]
     assert cap.cameras[frame["camera_id"]].cy == pytest.approx(32 - frame["cy"])
+
+
+def test_blender_side_reads_teeth_tracking_and_union_cameras(data, head):
+    from mogaface.core.scene_conversion import capture_scene, head_import
+
+    scene = capture_scene(data["union"])
+    assert len(scene.cameras) == 3 and len(scene.moving_cameras) == 3
+    single = capture_scene(data["sequences"][0])
+    assert single.moving_cameras == []
+    imported = head_import(head, shape_file=data["sequences"][0] / "flame_param" / "00000.npz")
+    assert imported.basis.shape == (5143, 3) and imported.faces.max() == 5142
