@@ -335,3 +335,14 @@ def test_blender_side_reads_teeth_tracking_and_union_cameras(data, head):
     assert single.moving_cameras == []
     imported = head_import(head, shape_file=data["sequences"][0] / "flame_param" / "00000.npz")
     assert imported.basis.shape == (5143, 3) and imported.faces.max() == 5142
+
+
+def test_check_capture_reports_the_cy_convention_and_empty_splits(data, head, capsys):
+    from mogaface.core.cli import main
+
+    assert main(["check-capture", str(data["union"]), "--head", str(head)]) == 0
+    out = capsys.readouterr().out
+    assert "cy: read from the bottom edge (VHAP's convention)" in out and "; confirmed" in out
+    assert main(["check-capture", str(data["mono"])]) == 0
+    out = capsys.readouterr().out
+    assert "split val: empty (no camera is held out" in out and "unchecked (no head model" in out

@@ -30,6 +30,7 @@ class CaptureSummary:
     flame_sizes: dict[str, tuple[int, ...]]  # parameter -> per-timestep shape
     has_canonical: bool
     memory_bound_bytes: int
+    empty_splits: dict[str, str] = dataclasses.field(default_factory=dict)  # split -> why it has no frames
 
     def lines(self) -> list[str]:
         res = ", ".join(f"{w}x{h}" for w, h in self.resolutions)
@@ -45,6 +46,8 @@ class CaptureSummary:
             out.append(
                 f"split {split}: {counts['frames']} frames, {counts['views']} views, {counts['timesteps']} timesteps"
             )
+        for split, reason in self.empty_splits.items():
+            out.append(f"split {split}: empty ({reason})")
         sizes = ", ".join(f"{k} {v}" for k, v in self.flame_sizes.items())
         out.append(f"flame params: {sizes}; canonical: {'yes' if self.has_canonical else 'no'}")
         out.append(f"image cache bound: {self.memory_bound_bytes / 2**20:.0f} MiB")
@@ -81,6 +84,7 @@ def validate_capture(
         flame_sizes=sizes,
         has_canonical=canonical is not None,
         memory_bound_bytes=capture.memory_bound_bytes,
+        empty_splits=dict(capture.empty_splits),
     )
 
 
