@@ -155,7 +155,7 @@ def show_image(context, image):
     render view (Preferences › Interface › Render In, a new window by default). Returns the area,
     or None without a window (background mode)."""
     area = image_editor_area(context.window_manager)
-    if area is None and context.window is not None:
+    if area is None and context.window is not None and not bpy.app.background:
         with context.temp_override(window=context.window):
             bpy.ops.render.view_show("INVOKE_DEFAULT")
         area = image_editor_area(context.window_manager)
