@@ -5,8 +5,12 @@ Image nodes (the avatar layer's premultiplied linear RGBA and its depth) and a Z
 that merges them with the render layer's image and Depth pass; the result goes to the
 compositor's output. Before every render Blender makes (``render_pre``), :func:`render_avatar_layers`
 renders each avatar layer at that frame from the scene camera with the core's one render
-request, writes both EXR files and reloads the images, so F12 and animation renders show the
-avatar without any MoGaFace button.
+request into those two float images, so F12 and animation renders show the avatar without any
+MoGaFace button.
+
+The layers are float image datablocks filled in memory, not files: Blender's compositor reads
+them directly, and no EXR writer has to live in Blender's process (the pip ``OpenEXR`` module
+and the OpenEXR library Blender links can clash there).
 
 Blender 5.0 keeps the compositor in a node group (``scene.compositing_node_group``, output
 through a Group Output node); 4.2–4.4 in ``scene.node_tree`` (``use_nodes``, a Composite node).
@@ -14,8 +18,6 @@ Both are handled here, and only here.
 """
 
 from __future__ import annotations
-
-import os
 
 import bpy
 import numpy as np
@@ -60,30 +62,16 @@ def _set_use_alpha(node) -> None:
         node.use_alpha = True
 
 
-def layer_folder() -> str:
-    """Where avatar layers are written: Blender's temporary folder of this session."""
-    folder = os.path.join(bpy.app.tempdir or os.path.join(os.path.expanduser("~"), ".cache"), "mogaface_layers")
-    os.makedirs(folder, exist_ok=True)
-    return folder
-
-
-def layer_paths(head) -> tuple[str, str]:
-    stem = bpy.path.clean_name(head.name)
-    folder = layer_folder()
-    return os.path.join(folder, f"{stem}_rgba.exr"), os.path.join(folder, f"{stem}_depth.exr")
-
-
-def _layer_image(name: str, path: str, colorspace: str):
-    """An image datablock reading ``path`` (a placeholder file is written first if missing)."""
-    if not os.path.exists(path):
-        from ..core.io.image import write_exr
-
-        write_exr(path, np.zeros((4, 4, 3), np.float32), np.zeros((4, 4), np.float32))
-    image = bpy.data.images.get(name) or bpy.data.images.load(path, check_existing=False)
-    image.name = name
-    image.filepath = path
-    image.colorspace_settings.name = colorspace
-    image.alpha_mode = "PREMUL"
+def layer_image(head, kind: str, create: bool = True):
+    """The float image of ``head``'s avatar layer: ``kind`` "rgba" (premultiplied, scene linear)
+    or "depth" (distance in every colour channel, non-colour data)."""
+    name = f"MoGaFace layer {head.name} {kind}"
+    image = bpy.data.images.get(name)
+    if image is None and create:
+        image = bpy.data.images.new(name, 4, 4, alpha=True, float_buffer=True)
+        image.colorspace_settings.name = "Non-Color" if kind == "depth" else "Linear Rec.709"
+        image.alpha_mode = "PREMUL"
+        image.use_fake_user = False
     return image
 
 
@@ -102,11 +90,10 @@ def setup_layer(scene, heads) -> list:
     image, depth = layers.outputs["Image"], layers.outputs["Depth"]
     combines = []
     for index, head in enumerate(heads):
-        rgba_path, depth_path = layer_paths(head)
         nodes = []
-        for kind, path, colorspace in (("rgba", rgba_path, "Linear Rec.709"), ("depth", depth_path, "Non-Color")):
+        for kind in ("rgba", "depth"):
             node = tree.nodes.new("CompositorNodeImage")
-            node.image = _layer_image(f"MoGaFace layer {head.name} {kind}", path, colorspace)
+            node.image = layer_image(head, kind)
             node.label = f"MoGaFace {head.name} {kind}"
             node.location = (-600 + 250 * index, -350 - 200 * len(nodes))
             nodes.append(node)
@@ -135,33 +122,39 @@ def layer_heads(scene) -> list:
     return [obj for obj in scene.objects if obj.name in names]
 
 
-def write_layer(result, rgba_path: str, depth_path: str) -> None:
-    """A transparent render as the compositor wants it: premultiplied linear RGBA, and depth."""
-    from ..core.io.image import srgb_to_linear, write_exr
+def layer_pixels(result) -> tuple[np.ndarray, np.ndarray]:
+    """A transparent render as the compositor wants it, in Blender's flat pixel order (rows from
+    the bottom): premultiplied linear RGBA, and the depth (:data:`FAR` where the avatar is not)."""
+    from ..core.io.image import srgb_to_linear
 
-    alpha = result.alpha
+    alpha = result.alpha[..., None]
     with np.errstate(divide="ignore", invalid="ignore"):
-        straight = np.where(alpha[..., None] > 0, result.rgb / alpha[..., None], 0.0)
-    linear = srgb_to_linear(np.clip(straight, 0.0, 1.0)) * alpha[..., None]
-    depth = np.where(np.isfinite(result.depth), result.depth, FAR).astype(np.float32)
-    write_exr(rgba_path, linear.astype(np.float32), alpha)
-    write_exr(depth_path, np.repeat(depth[..., None], 3, axis=2))
+        straight = np.where(alpha > 0, result.rgb / alpha, 0.0)
+    linear = srgb_to_linear(np.clip(straight, 0.0, 1.0)) * alpha
+    depth = np.where(np.isfinite(result.depth), result.depth, FAR)[..., None]
+    rgba = np.concatenate([linear, alpha], axis=2)
+    depth = np.concatenate([np.repeat(depth, 3, axis=2), np.ones_like(alpha)], axis=2)
+    return tuple(np.ascontiguousarray(a[::-1], np.float32).reshape(-1) for a in (rgba, depth))
+
+
+def fill_image(image, width: int, height: int, pixels) -> None:
+    if tuple(image.size) != (width, height):
+        image.scale(width, height)
+    image.pixels.foreach_set(pixels)
+    image.update()
 
 
 def render_layer(scene, head) -> None:
-    """Render ``head``'s avatar layer at the scene's frame from its camera, and reload the images."""
+    """Render ``head``'s avatar layer at the scene's frame from its camera into the layer images."""
     from ..core.scene_render import render
     from .avatar import camera_of, head_request
 
     frame = scene.frame_current
     request = head_request(scene, head, camera_of(scene, scene.camera, head), frame, transparent=True, keyed=True)
-    rgba_path, depth_path = layer_paths(head)
-    write_layer(render(request), rgba_path, depth_path)
-    for kind, path in (("rgba", rgba_path), ("depth", depth_path)):
-        image = bpy.data.images.get(f"MoGaFace layer {head.name} {kind}")
-        if image is not None:
-            image.filepath = path
-            image.reload()
+    result = render(request)
+    height, width = result.alpha.shape
+    for kind, pixels in zip(("rgba", "depth"), layer_pixels(result)):
+        fill_image(layer_image(head, kind), width, height, pixels)
 
 
 _reported: set = set()

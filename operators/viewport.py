@@ -188,7 +188,8 @@ def _quad():
         info.sampler(0, "FLOAT_2D", "color_tex")
         info.sampler(1, "FLOAT_2D", "depth_tex")
         info.fragment_out(0, "VEC4", "fragColor")
-        info.depth_write("ANY")
+        if hasattr(info, "depth_write"):  # Blender 4.4+; 4.2/4.3 write gl_FragDepth without the hint
+            info.depth_write("ANY")
         info.vertex_source(_VERTEX)
         info.fragment_source(_FRAGMENT)
         shader = gpu.shader.create_from_info(info)
@@ -243,14 +244,14 @@ def draw_avatars() -> None:
         return
     for head in heads:
         state = _views.setdefault((region.as_pointer(), head.session_uid), ViewState())
-        try:
-            update_view(state, head, region, region_3d, scene)
-        except Exception as error:  # a draw handler must never raise: report once, keep the last image
-            message = f"MoGaFace viewport: {head.name}: {error}"
-            if state.error != message:
-                state.error = message
-                print(message)
-        draw_image(state)
+        for step in (lambda: update_view(state, head, region, region_3d, scene), lambda: draw_image(state)):
+            try:
+                step()
+            except Exception as error:  # a draw handler must never raise: report once, keep the last image
+                message = f"MoGaFace viewport: {head.name}: {error}"
+                if state.error != message:
+                    state.error = message
+                    print(message)
     _ensure_poll()
 
 

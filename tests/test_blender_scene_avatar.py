@@ -320,8 +320,10 @@ def test_setup_builds_the_compositor_and_f12_renders_show_the_avatar_in_depth(sc
         for frame in (1, 2):
             scn.frame_set(frame)
             frames[frame] = render_to(f"f12_{frame}.exr")
-        rgba_path, _ = compositor.layer_paths(head)
-        layer = read_exr(rgba_path)  # frame 2's layer, written by the render_pre handler
+        layer_image = compositor.layer_image(head, "rgba", create=False)  # frame 2's, by the render_pre handler
+        layer = np.zeros(len(layer_image.pixels), np.float32)
+        layer_image.pixels.foreach_get(layer)
+        layer = layer.reshape(SIZE, SIZE, 4)[::-1]
     finally:
         for plane in (wall, card):
             bpy.data.objects.remove(plane)
