@@ -106,6 +106,18 @@ def render(request: RenderRequest) -> RenderResult:
     return RenderResult(request, rgb, alpha, depth)
 
 
+def linear_premultiplied(result: RenderResult) -> np.ndarray:
+    """``(H,W,4)`` float32: a transparent render's colour in linear light, premultiplied by alpha,
+    as Blender composes (the 3D view's colour buffer, the compositor's images)."""
+    from .io.image import srgb_to_linear
+
+    alpha = result.alpha[..., None]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        straight = np.where(alpha > 0, result.rgb / alpha, 0.0)
+    linear = srgb_to_linear(np.clip(straight, 0.0, 1.0)) * alpha
+    return np.concatenate([linear, alpha], axis=2).astype(np.float32)
+
+
 # -- the 3D viewport ------------------------------------------------------------------------------
 
 

@@ -222,7 +222,7 @@ class MOGAFACE_OT_load_avatar(bpy.types.Operator):
         obj[core.AVATAR_PATH_PROPERTY] = str(path)
         obj[BACKGROUND_PROPERTY] = list(background)
         if getattr(obj, "mogaface_show_avatar", False):
-            obj.display_type = "WIRE"  # the avatar is drawn in the viewport; the mesh would cover it
+            obj.display_type = "BOUNDS"  # the avatar is drawn in the viewport; the mesh would cover it
         context.scene.mogaface.avatar_file = str(path)
         self.report({"INFO"}, f"{obj.name}: avatar with {len(avatar.gaussians)} Gaussians")
         return {"FINISHED"}

@@ -125,15 +125,11 @@ def layer_heads(scene) -> list:
 def layer_pixels(result) -> tuple[np.ndarray, np.ndarray]:
     """A transparent render as the compositor wants it, in Blender's flat pixel order (rows from
     the bottom): premultiplied linear RGBA, and the depth (:data:`FAR` where the avatar is not)."""
-    from ..core.io.image import srgb_to_linear
+    from ..core.scene_render import linear_premultiplied
 
-    alpha = result.alpha[..., None]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        straight = np.where(alpha > 0, result.rgb / alpha, 0.0)
-    linear = srgb_to_linear(np.clip(straight, 0.0, 1.0)) * alpha
+    rgba = linear_premultiplied(result)
     depth = np.where(np.isfinite(result.depth), result.depth, FAR)[..., None]
-    rgba = np.concatenate([linear, alpha], axis=2)
-    depth = np.concatenate([np.repeat(depth, 3, axis=2), np.ones_like(alpha)], axis=2)
+    depth = np.concatenate([np.repeat(depth, 3, axis=2), np.ones_like(depth)], axis=2)
     return tuple(np.ascontiguousarray(a[::-1], np.float32).reshape(-1) for a in (rgba, depth))
 
 

@@ -63,11 +63,15 @@ def viewport_request(head, view_matrix, projection, size: tuple[int, int], frame
 
 
 def viewport_image(result, view, projection) -> ViewportImage:
-    """A finished render as the draw's pixel buffers (rows flipped, depth in window units)."""
-    from ..core.scene_render import depth_buffer_values
+    """A finished render as the draw's pixel buffers (rows flipped, depth in window units).
+
+    The 3D view composes in scene-linear light (its view transform comes after), so the avatar's
+    sRGB colours are made linear, premultiplied, as for the compositor's layer.
+    """
+    from ..core.scene_render import depth_buffer_values, linear_premultiplied
 
     height, width = result.alpha.shape
-    rgba = np.ascontiguousarray(result.rgba[::-1], np.float32).reshape(-1)
+    rgba = np.ascontiguousarray(linear_premultiplied(result)[::-1], np.float32).reshape(-1)
     depth = depth_buffer_values(result.depth - view.depth_offset, projection)
     return ViewportImage(width, height, rgba, np.ascontiguousarray(depth[::-1]).reshape(-1), result.request.key())
 
@@ -282,9 +286,10 @@ def _ensure_poll() -> None:
 
 
 def _show_changed(obj, context) -> None:
-    """Showing the avatar draws the head mesh as wire, so the mesh does not cover the avatar."""
+    """Showing the avatar draws the head mesh as its bounds only, so the mesh does not cover the
+    avatar (the head stays selectable and movable)."""
     if is_head(obj):
-        obj.display_type = "WIRE" if getattr(obj, SHOW_PROPERTY) else "TEXTURED"
+        obj.display_type = "BOUNDS" if getattr(obj, SHOW_PROPERTY) else "TEXTURED"
 
 
 _handle = {"draw": None}
