@@ -90,7 +90,7 @@ class MOGAFACE_PT_head(_SubPanel, bpy.types.Panel):
         op.shape_file = settings.identity_file
         obj = context.active_object
         if not is_head(obj):
-            layout.label(text="Select a head to edit its pose and expressions")
+            wrapped_label(layout, context, "Select a head to edit its pose and expressions")
             return
         draw_pose(layout, obj)
         key = obj.data.shape_keys

@@ -388,8 +388,7 @@ class MOGAFACE_OT_render_animation(_RenderBase, bpy.types.Operator):
             _redraw_sidebar(context)
             return {"PASS_THROUGH"}
         context.window_manager.event_timer_remove(self._timer)
-        context.workspace.status_text_set(None)
-        _redraw_sidebar(context)
+        clear_status_text()
         return self._finish(context, job)
 
 

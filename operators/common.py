@@ -35,3 +35,5 @@ def clear_status_text() -> None:
 
     for window in getattr(bpy.context.window_manager, "windows", ()):
         window.workspace.status_text_set(None)
+        for area in window.screen.areas:  # the status bar redraws with the next redraw of the window
+            area.tag_redraw()
