@@ -12,6 +12,7 @@ import bpy
 from ..operators.dependencies import interpreter
 from ..operators.head_rig import is_head
 from .preferences import draw_dependencies
+from .text import wrapped_label
 
 # Operators that later stages provide: (idname, button text), by panel.
 STAGE_OPERATORS = {
@@ -21,6 +22,8 @@ STAGE_OPERATORS = {
         ("mogaface.render_frame", "Render Frame"),
         ("mogaface.render_animation", "Render Animation"),
         ("mogaface.export_ply", "Export PLY"),
+        ("mogaface.setup_render_layer", "Avatar in Renders"),
+        ("mogaface.gaussians_to_mesh", "Gaussians to Mesh"),
     ),
 }
 
@@ -87,20 +90,41 @@ class MOGAFACE_PT_head(_SubPanel, bpy.types.Panel):
         op.shape_file = settings.identity_file
         obj = context.active_object
         if not is_head(obj):
-            layout.label(text="Select a head to edit its pose and expressions")
+            wrapped_label(layout, context, "Select a head to edit its pose and expressions")
             return
-        column = layout.column(align=True)
-        for prop, text in (
-            ("mogaface_rotation", "Rotation"),
-            ("mogaface_translation", "Translation"),
-            ("mogaface_neck_pose", "Neck"),
-            ("mogaface_jaw_pose", "Jaw"),
-            ("mogaface_eyes_pose", "Eyes"),
-        ):
-            if prop in obj:
-                column.prop(obj, f'["{prop}"]', text=text)
+        draw_pose(layout, obj)
         key = obj.data.shape_keys
         layout.template_list("MESH_UL_shape_keys", "", key, "key_blocks", obj, "active_shape_key_index", rows=4)
+
+
+#: The pose properties as labelled rows: (property, first index, count, label).
+POSE_ROWS = (
+    ("mogaface_rotation", 0, 3, "Rotation"),
+    ("mogaface_translation", 0, 3, "Translation"),
+    ("mogaface_neck_pose", 0, 3, "Neck"),
+    ("mogaface_jaw_pose", 0, 3, "Jaw"),
+    ("mogaface_eyes_pose", 0, 3, "Left Eye"),
+    ("mogaface_eyes_pose", 3, 3, "Right Eye"),
+)
+
+
+def draw_pose(layout, obj) -> None:
+    """The head's pose as named rows of three values (axis-angle, or metres for translation)."""
+    column = layout.column(align=True)
+    for prop, first, count, text in POSE_ROWS:
+        if prop not in obj or len(obj[prop]) < first + count:
+            continue
+        row = column.row(align=True)
+        row.label(text=text)
+        for index in range(first, first + count):
+            row.prop(obj, f'["{prop}"]', index=index, text="")
+
+
+def preset_description(settings) -> str:
+    """The one-line description of the scene's training preset."""
+    from ..operators.train import PRESET_ITEMS
+
+    return next((description for key, _, description in PRESET_ITEMS if key == settings.preset), "")
 
 
 class MOGAFACE_PT_training(_SubPanel, bpy.types.Panel):
@@ -112,6 +136,7 @@ class MOGAFACE_PT_training(_SubPanel, bpy.types.Panel):
         settings = context.scene.mogaface
         layout.prop(settings, "run_folder")
         layout.prop(settings, "preset")
+        wrapped_label(layout, context, preset_description(settings), icon="INFO")
         layout.prop(settings, "iterations")
         layout.prop(settings, "seed")
         from ..operators.train import current_worker, last_progress
@@ -127,7 +152,7 @@ class MOGAFACE_PT_training(_SubPanel, bpy.types.Panel):
         else:
             draw_stage_operators(layout, "training")
         if progress is not None:
-            layout.label(text=progress.message, icon="ERROR" if progress.state == "failed" else "INFO")
+            wrapped_label(layout, context, progress.message, icon="ERROR" if progress.state == "failed" else "INFO")
 
 
 class MOGAFACE_PT_avatar(_SubPanel, bpy.types.Panel):
@@ -136,12 +161,36 @@ class MOGAFACE_PT_avatar(_SubPanel, bpy.types.Panel):
 
     def draw(self, context):
         layout = self.layout
-        layout.prop(context.scene.mogaface, "avatar_file")
+        settings = context.scene.mogaface
+        layout.prop(settings, "avatar_file")
         if operator_available("mogaface.load_avatar"):
-            layout.operator("mogaface.load_avatar", icon="SHADERFX").filepath = context.scene.mogaface.avatar_file
-        for idname, text in STAGE_OPERATORS["avatar"][1:]:
-            if operator_available(idname):
-                layout.operator(idname, text=text)
+            layout.operator("mogaface.load_avatar", icon="SHADERFX").filepath = settings.avatar_file
+        obj = context.active_object
+        if is_head(obj) and "mogaface_avatar_path" in obj and hasattr(obj, "mogaface_show_avatar"):
+            box = layout.box()
+            box.prop(obj, "mogaface_show_avatar", text="Show in Viewport")
+            column = box.column(align=True)
+            column.active = obj.mogaface_show_avatar
+            column.prop(settings, "viewport_resolution", text="Resolution")
+            column.prop(settings, "viewport_navigate_resolution")
+        draw_render_buttons(layout, context)
+
+
+def draw_render_buttons(layout, context) -> None:
+    """Render buttons, or the running animation render's progress and Cancel."""
+    from ..operators.avatar import current_render_job
+
+    job = current_render_job()
+    if job is not None:
+        layout.progress(factor=job.fraction, text=f"Rendering {job.text()}")
+        layout.operator("mogaface.render_cancel", icon="CANCEL")
+        return
+    icons = {"mogaface.render_frame": "RENDER_STILL", "mogaface.render_animation": "RENDER_ANIMATION",
+             "mogaface.export_ply": "EXPORT", "mogaface.setup_render_layer": "NODE_COMPOSITING",
+             "mogaface.gaussians_to_mesh": "POINTCLOUD_DATA"}
+    for idname, text in STAGE_OPERATORS["avatar"][1:]:
+        if operator_available(idname):
+            layout.operator(idname, text=text, icon=icons.get(idname, "NONE"))
 
 
 class MOGAFACE_PT_reenactment(_SubPanel, bpy.types.Panel):
@@ -155,5 +204,5 @@ class MOGAFACE_PT_reenactment(_SubPanel, bpy.types.Panel):
         row.enabled = is_head(context.active_object)
         op = row.operator("mogaface.import_tracking", icon="ANIM")
         op.directory = settings.tracking_folder
-        layout.label(text="Keys the active head's expressions and pose;")
-        layout.label(text="another subject's tracking reenacts this head.")
+        wrapped_label(layout, context, "Keys the active head's expressions and pose; another subject's tracking "
+                      "reenacts this head.")

@@ -8,6 +8,7 @@ import bpy
 from bpy.props import IntProperty, StringProperty
 
 from ..operators.dependencies import install_command, missing_modules, top_package
+from .text import wrapped_label
 
 
 class MoGaFacePreferences(bpy.types.AddonPreferences):
@@ -38,8 +39,9 @@ def draw_dependencies(layout, python: str) -> bool:
         return True
     box = layout.box()
     box.alert = True
-    box.label(text=f"Missing Python packages: {', '.join(missing)}", icon="ERROR")
+    context = bpy.context
+    wrapped_label(box, context, f"Missing Python packages: {', '.join(missing)}", icon="ERROR")
     box.operator("mogaface.install_dependencies", icon="IMPORT")
-    box.label(text="or install them yourself, then restart Blender:")
-    box.label(text=install_command(missing, python))
+    wrapped_label(box, context, "or install them yourself, then restart Blender:")
+    wrapped_label(box, context, install_command(missing, python))
     return False

@@ -5,6 +5,8 @@ from __future__ import annotations
 import bpy
 from bpy.props import EnumProperty, IntProperty, StringProperty
 
+from ..operators.train import PRESET_ITEMS
+
 
 class MoGaFaceSceneSettings(bpy.types.PropertyGroup):
     """Where this scene's capture, head, tracking and training run live, and how to train."""
@@ -24,8 +26,12 @@ class MoGaFaceSceneSettings(bpy.types.PropertyGroup):
     run_folder: StringProperty(name="Run", subtype="DIR_PATH", description="Folder for a training run's checkpoints")
     avatar_file: StringProperty(name="Avatar", subtype="FILE_PATH", description="A trained avatar file")
     iterations: IntProperty(name="Steps", default=0, min=0, description="Training steps (0: the preset's)")
-    preset: EnumProperty(
-        name="Preset", default="demo", description="Training settings preset (docs/training.md)",
-        items=(("quick", "Quick", "200 steps"), ("demo", "Demo", "1000 steps"), ("full", "Full", "the defaults")),
-    )
+    preset: EnumProperty(name="Preset", default="demo", description="Training settings preset (docs/training.md)",
+                         items=PRESET_ITEMS)
     seed: IntProperty(name="Seed", default=0, min=0, description="Random seed of training")
+    viewport_resolution: IntProperty(
+        name="Viewport Resolution", default=512, min=64, max=4096,
+        description="Longest side in pixels of the avatar drawn in a still 3D view")
+    viewport_navigate_resolution: IntProperty(
+        name="While Navigating", default=160, min=32, max=4096,
+        description="Longest side in pixels of the avatar while the view moves (faster)")

@@ -14,8 +14,12 @@ from ..operators.import_tracking import MOGAFACE_OT_import_tracking
 from ..operators.install_dependencies import MOGAFACE_OT_install_dependencies
 from ..operators.dependencies import add_site_packages, remove_site_packages
 from ..operators.avatar import (
-    MOGAFACE_OT_export_ply, MOGAFACE_OT_load_avatar, MOGAFACE_OT_render_animation, MOGAFACE_OT_render_frame,
+    MOGAFACE_OT_export_ply, MOGAFACE_OT_load_avatar, MOGAFACE_OT_render_animation, MOGAFACE_OT_render_cancel,
+    MOGAFACE_OT_render_frame, cancel_render_job,
 )
+from ..operators import viewport
+from ..operators.compositor import MOGAFACE_OT_setup_render_layer, render_avatar_layers
+from ..operators.gaussian_points import MOGAFACE_OT_gaussians_to_mesh
 from ..operators.train import MOGAFACE_OT_train, MOGAFACE_OT_train_cancel, cancel_running_job
 from . import panels
 from .preferences import MoGaFacePreferences
@@ -34,6 +38,9 @@ CLASSES: list = [
     MOGAFACE_OT_render_frame,
     MOGAFACE_OT_render_animation,
     MOGAFACE_OT_export_ply,
+    MOGAFACE_OT_render_cancel,
+    MOGAFACE_OT_setup_render_layer,
+    MOGAFACE_OT_gaussians_to_mesh,
     MOGAFACE_OT_install_dependencies,
     panels.MOGAFACE_PT_main,
     panels.MOGAFACE_PT_capture,
@@ -46,6 +53,7 @@ CLASSES: list = [
 HANDLERS = (
     (bpy.app.handlers.frame_change_post, update_heads_on_frame_change),
     (bpy.app.handlers.depsgraph_update_post, update_heads_on_edit),
+    (bpy.app.handlers.render_pre, render_avatar_layers),
 )
 
 
@@ -54,6 +62,7 @@ def register():
     for cls in CLASSES:
         bpy.utils.register_class(cls)
     bpy.types.Scene.mogaface = bpy.props.PointerProperty(type=MoGaFaceSceneSettings)
+    viewport.register()
     for handlers, function in HANDLERS:
         if function not in handlers:
             handlers.append(function)
@@ -67,6 +76,8 @@ def _same_function(a, b) -> bool:
 
 def unregister():
     cancel_running_job()  # a training child never outlives the extension
+    cancel_render_job()
+    viewport.unregister()
     for handlers, function in HANDLERS:
         for registered in [h for h in handlers if _same_function(h, function)]:
             handlers.remove(registered)

@@ -46,3 +46,19 @@ def write_fcurve(container, data_path: str, index: int, co, group: str | None = 
     fcurve.keyframe_points.foreach_set("interpolation", [_LINEAR] * count)
     fcurve.update()
     return fcurve
+
+
+def id_fcurves(id_data) -> list:
+    """The F-curves animating ``id_data``: of its action slot's channelbag (Blender ≥ 4.4) or its action."""
+    anim = getattr(id_data, "animation_data", None)
+    action = anim.action if anim is not None else None
+    if action is None:
+        return []
+    if not hasattr(action, "slots"):  # Blender 4.2/4.3
+        return list(action.fcurves)
+    from bpy_extras import anim_utils
+
+    if anim.action_slot is None:
+        return []
+    channelbag = anim_utils.action_get_channelbag_for_slot(action, anim.action_slot)
+    return [] if channelbag is None else list(channelbag.fcurves)

@@ -14,7 +14,7 @@ import bpy
 import numpy as np
 from bpy.props import BoolProperty, EnumProperty, IntProperty, StringProperty
 
-from .common import core_or_report, run_core
+from .common import clear_status_text, core_or_report, run_core
 from .head_rig import expression_values, head_objects, is_head, pose_values, rig_of
 
 BACKGROUND_PROPERTY = "mogaface_avatar_background"
@@ -55,28 +55,71 @@ def camera_of(scene, camera_obj, head):
                             (render.pixel_aspect_x, render.pixel_aspect_y), camera_id=camera_obj.name)
 
 
-def head_params(head, avatar) -> dict:
-    """The head's FLAME parameters as it is shown now (after ``frame_set``), fitted to the avatar."""
+def head_values(head, frame: float | None = None) -> dict:
+    """What the head shows: identity, expression values and pose, unfitted.
+
+    ``frame=None``: as shown now (after ``frame_set``). A frame number: what its keyframes give
+    at that frame (F-curves evaluated, the timeline untouched), as renders of other frames need.
+    """
     from ..core import scene_conversion as sc
 
     n_expr = rig_of(head).model.n_expr
+    values = {"shape": np.asarray(head.get(sc.SHAPE_PROPERTY, []), np.float64),
+              "expr": expression_values(head, n_expr), **pose_values(head)}
     offset = head.get(sc.STATIC_OFFSET_PROPERTY)
-    return sc.head_flame_params(
-        np.asarray(head.get(sc.SHAPE_PROPERTY, []), np.float64),
-        None if offset is None else np.asarray(offset, np.float64),
-        expression_values(head, n_expr), pose_values(head), avatar.flame.n_shape, avatar.flame.n_expr,
-    )
+    if offset is not None:
+        values["static_offset"] = np.asarray(offset, np.float64)
+    if frame is not None:
+        _apply_fcurves(head, frame, values, n_expr)
+    return values
+
+
+def _apply_fcurves(head, frame: float, values: dict, n_expr: int) -> None:
+    """Overwrite ``values`` with the head's F-curves (expression keys, pose properties) at ``frame``."""
+    from ..core.scene_conversion import POSE_PROPERTIES
+    from .animation import id_fcurves
+
+    by_property = {prop: name for name, (prop, _) in POSE_PROPERTIES.items()}
+    for fcurve in id_fcurves(head):
+        name = by_property.get(fcurve.data_path[2:-2]) if fcurve.data_path.startswith('["') else None
+        if name is not None and fcurve.array_index < len(values[name]):
+            values[name][fcurve.array_index] = fcurve.evaluate(frame)
+    blocks = head.data.shape_keys.key_blocks
+    index = {block.name: i - 1 for i, block in enumerate(blocks[1:1 + n_expr], start=1)}
+    for fcurve in id_fcurves(head.data.shape_keys):
+        if fcurve.data_path.startswith('key_blocks["') and fcurve.data_path.endswith('"].value'):
+            i = index.get(fcurve.data_path[len('key_blocks["'):-len('"].value')])
+            if i is not None:
+                values["expr"][i] = fcurve.evaluate(frame)
+
+
+def head_params(head, avatar) -> dict:
+    """The head's FLAME parameters as it is shown now (after ``frame_set``), fitted to the avatar."""
+    from ..core.scene_render import fitted_params
+
+    return fitted_params(head_values(head), avatar)
+
+
+def head_request(scene, head, camera, frame: int, transparent: bool = False, keyed: bool = False):
+    """The render request of the head's avatar seen by ``camera`` (a core Camera): as shown now,
+    or with ``keyed`` as its keyframes give at ``frame``."""
+    from ..core import scene_conversion as sc
+    from ..core.scene_render import RenderRequest
+
+    background = None if transparent else tuple(head.get(BACKGROUND_PROPERTY, (1.0, 1.0, 1.0)))
+    scale = float(np.cbrt(abs(np.linalg.det(np.array(head.matrix_world)[:3, :3])))) or 1.0
+    values = head_values(head, frame if keyed else None)
+    return RenderRequest(head[sc.AVATAR_PATH_PROPERTY], values, camera, background, scale, frame)
 
 
 def render_head(context, head, camera_obj, frame: int):
     """Render the head's avatar at ``frame`` from ``camera_obj``: ``(rgb, alpha)`` numpy."""
-    from ..core import scene_conversion as sc
+    from ..core.scene_render import render
 
     scene = context.scene
     scene.frame_set(frame)
-    avatar = sc.load_avatar(head[sc.AVATAR_PATH_PROPERTY])
-    background = tuple(head.get(BACKGROUND_PROPERTY, (1.0, 1.0, 1.0)))
-    return sc.render_avatar(avatar, head_params(head, avatar), camera_of(scene, camera_obj, head), background)
+    result = render(head_request(scene, head, camera_of(scene, camera_obj, head), frame))
+    return result.rgb, result.alpha
 
 
 def store_image(name: str, rgb, alpha):
@@ -98,14 +141,28 @@ def store_image(name: str, rgb, alpha):
     return image
 
 
-def show_image(context, image) -> None:
-    """Show ``image`` in the first Image Editor of the screen, if there is one."""
-    screen = getattr(context, "screen", None)
-    for area in getattr(screen, "areas", ()):
-        if area.type == "IMAGE_EDITOR":
-            area.spaces.active.image = image
-            area.tag_redraw()
-            return
+def image_editor_area(window_manager):
+    """The first Image Editor area of any open window, or None."""
+    for window in getattr(window_manager, "windows", ()):
+        for area in window.screen.areas:
+            if area.type == "IMAGE_EDITOR":
+                return area
+    return None
+
+
+def show_image(context, image):
+    """Show ``image`` in an Image Editor: the first one open, else one opened as Blender opens its
+    render view (Preferences › Interface › Render In, a new window by default). Returns the area,
+    or None without a window (background mode)."""
+    area = image_editor_area(context.window_manager)
+    if area is None and context.window is not None and not bpy.app.background:
+        with context.temp_override(window=context.window):
+            bpy.ops.render.view_show("INVOKE_DEFAULT")
+        area = image_editor_area(context.window_manager)
+    if area is not None:
+        area.spaces.active.image = image
+        area.tag_redraw()
+    return area
 
 
 def write_files(folder: str, stem: str, rgb, alpha, file_format: str) -> list[str]:
@@ -164,6 +221,8 @@ class MOGAFACE_OT_load_avatar(bpy.types.Operator):
             return {"CANCELLED"}
         obj[core.AVATAR_PATH_PROPERTY] = str(path)
         obj[BACKGROUND_PROPERTY] = list(background)
+        if getattr(obj, "mogaface_show_avatar", False):
+            obj.display_type = "BOUNDS"  # the avatar is drawn in the viewport; the mesh would cover it
         context.scene.mogaface.avatar_file = str(path)
         self.report({"INFO"}, f"{obj.name}: avatar with {len(avatar.gaussians)} Gaussians")
         return {"FINISHED"}
@@ -188,18 +247,30 @@ class _RenderBase:
         head = _head_with_avatar(self, context, self.head)
         return None if head is None else (head, camera)
 
-    def _render(self, context, head, camera, frame: int):
+    def _request(self, context, head, camera, frame: int):
+        """The request of ``frame`` (main thread: it moves the scene to that frame)."""
+        scene = context.scene
+        scene.frame_set(frame)
+        return head_request(scene, head, camera_of(scene, camera, head), frame)
+
+    def _store(self, camera, result):
+        """Put a finished render into its image (and files); returns the image or None."""
         from ..core import scene_conversion as sc
 
-        result = run_core(self, render_head, context, head, camera, frame)
-        if result is None:
-            return None
-        rgb, alpha = result
-        image = store_image(sc.render_image_name(camera.name, frame), rgb, alpha)
+        frame = result.request.frame
+        image = store_image(sc.render_image_name(camera.name, frame), result.rgb, result.alpha)
         if self.directory:
-            run_core(self, write_files, self.directory, f"{camera.name}_{frame:04d}".replace(" ", "_"),
-                     rgb, alpha, self.file_format)
+            written = run_core(self, write_files, self.directory, f"{camera.name}_{frame:04d}".replace(" ", "_"),
+                               result.rgb, result.alpha, self.file_format)
+            if written is None:
+                return None
         return image
+
+    def _render(self, context, head, camera, frame: int):
+        from ..core.scene_render import render
+
+        result = run_core(self, lambda: render(self._request(context, head, camera, frame)))
+        return None if result is None else self._store(camera, result)
 
 
 class MOGAFACE_OT_render_frame(_RenderBase, bpy.types.Operator):
@@ -221,8 +292,17 @@ class MOGAFACE_OT_render_frame(_RenderBase, bpy.types.Operator):
         return {"FINISHED"}
 
 
+#: The one running Render Animation job (a RenderJob), for the panel's progress and Cancel.
+_animation = {"job": None}
+
+
+def current_render_job():
+    return _animation["job"]
+
+
 class MOGAFACE_OT_render_animation(_RenderBase, bpy.types.Operator):
-    """Render the avatar at every frame of the scene's range from the active camera into images"""
+    """Render the avatar at every frame of the scene's range from the active camera into images,
+    in the background with progress (Esc or Cancel stops it)"""
 
     bl_idname = "mogaface.render_animation"
     bl_label = "Render Animation"
@@ -232,33 +312,116 @@ class MOGAFACE_OT_render_animation(_RenderBase, bpy.types.Operator):
     frame_end: IntProperty(name="End", default=0, description="Last frame (0: the scene's)")
     frame_step: IntProperty(name="Step", default=1, min=1)
 
-    def execute(self, context):
+    _timer = None
+
+    def _job(self, context):
+        if _animation["job"] is not None:
+            self.report({"ERROR"}, "An animation is already being rendered: cancel it first")
+            return None
         prepared = self._prepare(context)
         if prepared is None:
-            return {"CANCELLED"}
+            return None
+        head, camera = prepared
         scene = context.scene
         start = self.frame_start or scene.frame_start
         end = self.frame_end or scene.frame_end
         frames = list(range(start, end + 1, self.frame_step))
         if not frames:
             self.report({"ERROR"}, f"Empty frame range {start}..{end}")
+            return None
+        images = []
+
+        def make_request(frame):  # the keys at that frame: the timeline stays where the user left it
+            return head_request(scene, head, camera_of(scene, camera, head), frame, keyed=True)
+
+        def on_result(result):
+            image = self._store(camera, result)
+            if image is None:
+                job.cancel()
+            else:
+                images.append(image)
+
+        from .render_job import RenderJob
+
+        job = RenderJob(frames, make_request, on_result)
+        job.images = images
+        _animation["job"] = job
+        return job
+
+    def _finish(self, context, job) -> set:
+        _animation["job"] = None
+        if job.error is not None:
+            self.report({"ERROR"}, job.error)
             return {"CANCELLED"}
-        current = scene.frame_current
-        wm = context.window_manager
-        wm.progress_begin(0, len(frames))
-        image = None
-        try:
-            for index, frame in enumerate(frames):
-                image = self._render(context, *prepared, frame)
-                if image is None:
-                    return {"CANCELLED"}
-                wm.progress_update(index + 1)
-        finally:
-            wm.progress_end()
-            scene.frame_set(current)
-        show_image(context, image)
+        if job.images:
+            show_image(context, job.images[-1])
+        frames = job.frames
+        if job.cancelled:
+            self.report({"WARNING"}, f"Render cancelled after {job.done} of {len(frames)} frames")
+            return {"CANCELLED"}
         self.report({"INFO"}, f"Rendered {len(frames)} frames ({frames[0]}..{frames[-1]})")
         return {"FINISHED"}
+
+    def execute(self, context):
+        job = self._job(context)
+        if job is None:
+            return {"CANCELLED"}
+        if bpy.app.background or context.window is None:  # timers never run headless
+            return self._finish(context, job.run())
+        wm = context.window_manager
+        self._timer = wm.event_timer_add(0.05, window=context.window)
+        wm.modal_handler_add(self)
+        return {"RUNNING_MODAL"}
+
+    def invoke(self, context, event):
+        return self.execute(context)
+
+    def modal(self, context, event):
+        job = _animation["job"]
+        if event.type == "ESC" and job is not None:
+            job.cancel()
+        if event.type not in ("TIMER", "ESC"):
+            return {"PASS_THROUGH"}
+        running = job is not None and job.step()
+        if running:
+            context.workspace.status_text_set(f"MoGaFace rendering: {job.text()} (Esc to cancel)")
+            _redraw_sidebar(context)
+            return {"PASS_THROUGH"}
+        context.window_manager.event_timer_remove(self._timer)
+        clear_status_text()
+        return self._finish(context, job)
+
+
+def _redraw_sidebar(context) -> None:
+    for window in context.window_manager.windows:
+        for area in window.screen.areas:
+            if area.type == "VIEW_3D":
+                area.tag_redraw()
+
+
+class MOGAFACE_OT_render_cancel(bpy.types.Operator):
+    """Stop rendering the animation after the current frame"""
+
+    bl_idname = "mogaface.render_cancel"
+    bl_label = "Cancel Rendering"
+    bl_options = {"REGISTER"}
+
+    @classmethod
+    def poll(cls, context):
+        return _animation["job"] is not None
+
+    def execute(self, context):
+        _animation["job"].cancel()
+        return {"FINISHED"}
+
+
+def cancel_render_job() -> None:
+    """Stop a running animation render (the extension is being disabled)."""
+    job = _animation["job"]
+    if job is not None:
+        job.cancel()
+        _animation["job"] = None
+        clear_status_text()
 
 
 class MOGAFACE_OT_export_ply(bpy.types.Operator):

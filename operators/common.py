@@ -27,3 +27,13 @@ def run_core(operator, function, *args, **kwargs):
     except OSError as error:
         operator.report({"ERROR"}, f"{getattr(error, 'filename', None) or ''}: {error.strerror or error}")
     return None
+
+
+def clear_status_text() -> None:
+    """Take a job's progress off every window's status bar (a job ends, or the extension goes)."""
+    import bpy
+
+    for window in getattr(bpy.context.window_manager, "windows", ()):
+        window.workspace.status_text_set(None)
+        for area in window.screen.areas:  # the status bar redraws with the next redraw of the window
+            area.tag_redraw()

@@ -11,7 +11,16 @@ from bpy.props import BoolProperty, StringProperty
 
 from .animation import fcurve_container, write_fcurve
 from .common import core_or_report, run_core
+from .animation import id_fcurves
 from .head_rig import is_head, rig_of, update_head
+
+
+def existing_keys(obj) -> int:
+    """How many keyframes on ``obj``'s pose and expressions an import would replace."""
+    curves = [c for c in id_fcurves(obj) if c.data_path.startswith('["mogaface_')]
+    if obj.data.shape_keys is not None:
+        curves += [c for c in id_fcurves(obj.data.shape_keys) if c.data_path.startswith("key_blocks[")]
+    return sum(len(c.keyframe_points) for c in curves)
 
 
 class MOGAFACE_OT_import_tracking(bpy.types.Operator):
@@ -31,10 +40,16 @@ class MOGAFACE_OT_import_tracking(bpy.types.Operator):
         return bpy.data.objects.get(self.target) if self.target else context.active_object
 
     def invoke(self, context, event):
-        if self.directory:
-            return self.execute(context)
-        context.window_manager.fileselect_add(self)
-        return {"RUNNING_MODAL"}
+        if not self.directory:
+            context.window_manager.fileselect_add(self)
+            return {"RUNNING_MODAL"}
+        obj = self._target(context)
+        count = existing_keys(obj) if is_head(obj) else 0
+        if count:
+            return context.window_manager.invoke_confirm(
+                self, event, title="Replace Keyframes?", confirm_text="Replace",
+                message=f"{obj.name} has {count} keyframes on its expressions and pose; importing replaces them")
+        return self.execute(context)
 
     def execute(self, context):
         obj = self._target(context)
@@ -45,6 +60,7 @@ class MOGAFACE_OT_import_tracking(bpy.types.Operator):
         core = core_or_report(self, context)
         if core is None:
             return {"CANCELLED"}
+        replaced = existing_keys(obj)
         key = obj.data.shape_keys
         rig = run_core(self, rig_of, obj)
         if rig is None:
@@ -67,5 +83,7 @@ class MOGAFACE_OT_import_tracking(bpy.types.Operator):
         scene.mogaface.tracking_folder = bpy.path.abspath(self.directory)
         if channels.note:
             self.report({"WARNING"}, channels.note)
+        if replaced:
+            self.report({"WARNING"}, f"Replaced {replaced} existing keyframes on {obj.name}")
         self.report({"INFO"}, f"Keyed {len(channels.frames)} timesteps on {obj.name}")
         return {"FINISHED"}

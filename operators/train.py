@@ -14,8 +14,17 @@ import os
 import bpy
 from bpy.props import EnumProperty, IntProperty, StringProperty
 
-from .common import core_or_report
+from .common import clear_status_text, core_or_report
 from .dependencies import interpreter, top_package
+
+#: Training presets (core.train.config.PRESETS) offered in the UI, with a one-line description each.
+PRESET_ITEMS = (
+    ("quick", "Quick", "Smoke run: 200 steps, a minute or two"),
+    ("demo", "Demo", "1000 steps, a few minutes: a recognisable avatar"),
+    ("full", "Full", "The defaults: about 15 minutes on two cores at 256 px"),
+    ("mogaface", "MoGaFace", "The full MoGaFace method (correction, bank, texture attention), default length"),
+    ("mogaface-demo", "MoGaFace Demo", "The full MoGaFace method at the demo's length"),
+)
 
 #: The one running job (the UI trains one run at a time): a TrainWorker, or None.
 _job = {"worker": None, "last": None}
@@ -38,9 +47,15 @@ def _threads(context) -> int | None:
     return threads or None
 
 
-def finish_job(operator, progress) -> set:
-    """Report how a job ended and forget it; the operator's return value."""
+def finish_job(operator, progress, settings=None) -> set:
+    """Report how a job ended and forget it; the operator's return value. A finished run's
+    avatar goes into the scene's Avatar field (``settings``: ``scene.mogaface``)."""
+    worker = _job["worker"]
     _job["last"], _job["worker"] = progress, None
+    if progress.state == "done" and settings is not None and worker is not None:
+        avatar = worker.run / "avatar.pt"
+        if avatar.exists():
+            settings.avatar_file = str(avatar)
     if progress.state == "done":
         operator.report({"INFO"}, f"Training {progress.message}")
         return {"FINISHED"}
@@ -52,9 +67,11 @@ def finish_job(operator, progress) -> set:
 
 
 def cancel_running_job() -> None:
-    """Cancel a running job and wait for its checkpoint (used when the extension is disabled)."""
+    """Cancel a running job and wait for its checkpoint (used when the extension is disabled);
+    its progress leaves the status bar."""
     worker = _job["worker"]
     if worker is not None:
+        clear_status_text()
         worker.cancel()
         try:
             worker.wait(interval=0.1, timeout=30)
@@ -79,10 +96,7 @@ class MOGAFACE_OT_train(bpy.types.Operator):
 
     capture: StringProperty(name="Capture", subtype="DIR_PATH", description="Capture folder (empty: the scene's)")
     run: StringProperty(name="Run", subtype="DIR_PATH", description="Run folder (empty: the scene's)")
-    preset: EnumProperty(
-        name="Preset", default="demo",
-        items=(("quick", "Quick", "200 steps"), ("demo", "Demo", "1000 steps"), ("full", "Full", "the defaults")),
-    )
+    preset: EnumProperty(name="Preset", default="demo", items=PRESET_ITEMS)
     steps: IntProperty(name="Steps", default=0, min=0, description="Total steps (0: the preset's)")
     seed: IntProperty(name="Seed", default=-1, min=-1, description="Random seed (-1: the scene's)")
     resume: EnumProperty(
@@ -136,7 +150,7 @@ class MOGAFACE_OT_train(bpy.types.Operator):
             def show(progress):
                 print(f"[train] {progress.text()}", flush=True)
 
-            return finish_job(self, worker.wait(interval=0.2, on_progress=show))
+            return finish_job(self, worker.wait(interval=0.2, on_progress=show), context.scene.mogaface)
         self._worker = worker
         self._timer = context.window_manager.event_timer_add(0.5, window=context.window)
         context.window_manager.modal_handler_add(self)
@@ -155,7 +169,7 @@ class MOGAFACE_OT_train(bpy.types.Operator):
             return {"PASS_THROUGH"}
         context.window_manager.event_timer_remove(self._timer)
         context.workspace.status_text_set(None)
-        result = finish_job(self, progress)
+        result = finish_job(self, progress, context.scene.mogaface)
         _redraw(context)
         return result
 

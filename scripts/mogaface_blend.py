@@ -22,6 +22,16 @@ import sys
 import time
 
 
+#: The training presets offered here (as in the panel), with a one-line description each.
+PRESETS = (
+    ("quick", "smoke run, 200 steps"),
+    ("demo", "1000 steps, a recognisable avatar"),
+    ("full", "the defaults, about 15 minutes on two cores"),
+    ("mogaface", "the full MoGaFace method, default length"),
+    ("mogaface-demo", "the full MoGaFace method at the demo's length"),
+)
+
+
 def script_arguments(argv=None) -> list[str]:
     """The script's own arguments: after ``--`` (Blender binary), else everything (``python``)."""
     argv = list(sys.argv if argv is None else argv)
@@ -40,7 +50,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--run", type=pathlib.Path, required=True, help="run folder (trained, or written by --train)")
     parser.add_argument("--blend", type=pathlib.Path, required=True, help="the .blend file to write")
     parser.add_argument("--train", action="store_true", help="train into --run first (a separate process)")
-    parser.add_argument("--preset", default="demo", choices=["quick", "demo", "full"], help="training preset")
+    parser.add_argument("--preset", default="demo", choices=[name for name, _ in PRESETS],
+                        help="training preset: " + "; ".join(f"{name}: {text}" for name, text in PRESETS))
     parser.add_argument("--steps", type=int, default=0, help="training steps (0: the preset's)")
     parser.add_argument("--python", help="interpreter for the training process (default: this one)")
     parser.add_argument("--tracking", type=pathlib.Path,

@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import importlib
+import inspect
 import json
 import sys
 
 BENCHMARKS = {
     "splat": "the CPU Gaussian splat engine against its torch reference",
     "train": "the full training step (render, loss, backward, Adam) in steps per second",
+    "viewport": "the avatar in the 3D viewport: frames per second of its render request at 256 and 512 px",
 }
 
 
@@ -17,6 +19,7 @@ def add_arguments(parser):
     parser.add_argument("--threads", type=int, default=2, help="CPU threads for numba and torch")
     parser.add_argument("--quick", action="store_true", help="fewer sizes and repeats (smoke run)")
     parser.add_argument("--out", help="also write the JSON report to this file")
+    parser.add_argument("--avatar", help="viewport: the avatar (run folder or avatar.pt; default out/demo/run)")
 
 
 def run(args) -> int:
@@ -25,7 +28,8 @@ def run(args) -> int:
     except ModuleNotFoundError as error:
         print(f"error: benchmarks are not part of this install ({error})", file=sys.stderr)
         return 2
-    report = module.run(threads=args.threads, quick=args.quick)
+    extra = {"avatar": args.avatar} if args.avatar and "avatar" in inspect.signature(module.run).parameters else {}
+    report = module.run(threads=args.threads, quick=args.quick, **extra)
     text = json.dumps(report, indent=2)
     print(text)
     if args.out:

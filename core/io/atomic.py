@@ -6,6 +6,22 @@ import contextlib
 import os
 import pathlib
 import tempfile
+import threading
+
+_umask_lock = threading.Lock()
+
+
+def current_umask() -> int:
+    """The process's umask (read by setting it and putting it back, under a lock)."""
+    with _umask_lock:
+        mask = os.umask(0o077)
+        os.umask(mask)
+    return mask
+
+
+def _usual_permissions(path) -> None:
+    """Give a ``mkstemp`` file (always 0600) the mode ``open`` would have given: 0666 less the umask."""
+    os.chmod(path, 0o666 & ~current_umask())
 
 
 @contextlib.contextmanager
@@ -20,6 +36,7 @@ def atomic_path(path: str | os.PathLike):
     fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f".partial{path.suffix}", dir=path.parent)
     os.close(fd)
     try:
+        _usual_permissions(tmp)
         yield pathlib.Path(tmp)
         os.replace(tmp, path)
     except BaseException:

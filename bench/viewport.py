@@ -1,0 +1,129 @@
+"""Benchmark of the avatar in the 3D viewport: frames per second of its render request at 256² and 512².
+
+One viewport frame is what the draw handler's render thread does: the view's camera from its
+view and projection matrices, the avatar's render (colour, alpha, depth) and the pixel buffers the
+draw uploads (rows flipped, depth as window depth). The reference, in the same run, is the plain
+render Render Frame makes (the core's one render at the same size): their ratio is the viewport
+path's own cost. The GPU upload and draw are not included (they need a window).
+
+The avatar: ``--avatar`` (a run folder or ``avatar.pt``; the demo's is ``out/demo/run``), else
+``out/demo/run`` when present, else a stand-in: the procedural head with one opaque Gaussian per
+triangle (12 620 Gaussians). The view: a 50 mm lens, the head filling about 60% of the height.
+"""
+
+from __future__ import annotations
+
+import os
+import pathlib
+import platform
+import statistics
+import time
+
+DEMO_RUN = pathlib.Path("out/demo/run")
+
+
+def _stand_in_avatar(folder: pathlib.Path) -> pathlib.Path:
+    import torch
+
+    from mogaface.core.avatar.avatar import Avatar
+    from mogaface.core.flame.model_file import write_model_file
+    from mogaface.core.flame.procedural import build_head
+
+    folder.mkdir(parents=True, exist_ok=True)
+    write_model_file(folder / "head.pkl", build_head(subject=0, seed=0))
+    avatar = Avatar.initial(folder / "head.pkl")
+    with torch.no_grad():
+        avatar.gaussians.opacity_logit.fill_(4.0)
+    avatar.save(folder / "avatar.pt")
+    return folder / "avatar.pt"
+
+
+def _view_matrices(width: int, height: int):
+    """A Blender-style view (world→view) and OpenGL projection looking at the head's face."""
+    import numpy as np
+
+    lens, sensor = 50.0, 36.0
+    fx = lens / sensor * 2.0  # projection[0,0] for a horizontal sensor fit
+    projection = np.zeros((4, 4))
+    near, far = 0.01, 100.0
+    projection[0, 0] = fx * (1.0 if width >= height else height / width)
+    projection[1, 1] = projection[0, 0] * width / height
+    projection[2, 2] = -(far + near) / (far - near)
+    projection[2, 3] = -2 * far * near / (far - near)
+    projection[3, 2] = -1.0
+    # the face looks along Blender's -y; the camera 0.55 m in front, looking along +y
+    c2w = np.array([[1.0, 0, 0, 0.0], [0, 0, -1, -0.55], [0, 1, 0, 0.02], [0, 0, 0, 1]])
+    return np.linalg.inv(c2w), projection
+
+
+def _median_fps(function, repeats: int) -> tuple[float, float]:
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        function()
+        times.append(time.perf_counter() - start)
+    return round(1.0 / statistics.median(times), 2), round(1.0 / min(times), 2)
+
+
+def run(threads: int = 2, quick: bool = False, avatar: str | None = None) -> dict:
+    import numpy as np
+    import torch
+
+    from mogaface.core.scene_conversion import avatar_location, load_avatar, render_avatar
+    from mogaface.core.scene_render import RenderRequest, depth_buffer_values, render, view_camera
+
+    torch.set_num_threads(threads)
+    try:
+        import numba
+
+        numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+    except ImportError:
+        pass
+    source = avatar or (str(DEMO_RUN) if DEMO_RUN.exists() else None)
+    if source is None:
+        import tempfile
+
+        path, label = _stand_in_avatar(pathlib.Path(tempfile.mkdtemp(prefix="mogaface-bench-viewport-"))), "stand-in"
+    else:
+        path, label = avatar_location(source)[0], str(source)
+    model = load_avatar(path)
+    values = {"expr": np.zeros(model.flame.n_expr), "jaw_pose": np.array([0.1, 0.0, 0.0])}
+    repeats = 3 if quick else 9
+    results = []
+    for size in ([256] if quick else [256, 512]):
+        view, projection = _view_matrices(size, size)
+
+        def viewport_frame():
+            camera = view_camera(view, projection, np.eye(4), size, size)
+            result = render(RenderRequest(str(path), values, camera.camera))
+            np.ascontiguousarray(result.rgba[::-1])
+            depth_buffer_values(result.depth[::-1] - camera.depth_offset, projection)
+            return result
+
+        warm = viewport_frame()  # numba kernels load or compile
+        camera = view_camera(view, projection, np.eye(4), size, size).camera
+        from mogaface.core.scene_render import fitted_params
+
+        params = fitted_params(values, model)
+        fps, best = _median_fps(viewport_frame, repeats)
+        ref_fps, ref_best = _median_fps(lambda: render_avatar(model, params, camera, (1, 1, 1)), repeats)
+        results.append({"size": size, "viewport_fps": fps, "viewport_fps_best": best,
+                        "render_frame_fps": ref_fps, "render_frame_fps_best": ref_best,
+                        "viewport_over_render_frame_time": round(ref_fps / fps, 3),
+                        "avatar_coverage": round(float((warm.alpha > 0.5).mean()), 3)})
+    if len(results) == 2:
+        results[1]["time_ratio_vs_256"] = round(results[0]["viewport_fps"] / results[1]["viewport_fps"], 2)
+    return {
+        "benchmark": "viewport",
+        "avatar": label,
+        "gaussians": len(model.gaussians),
+        "threads": threads,
+        "quick": quick,
+        "load_average_1min": round(os.getloadavg()[0], 2),
+        "machine": {"cpu_count": os.cpu_count(), "platform": platform.platform()},
+        "units": {"fps": "frames per second, from the median (and best) of repeats; one frame = the view's "
+                         "camera, the avatar's render with depth, the draw's pixel buffers (no GPU upload)"},
+        "note": "wall-clock on a shared machine: a 1-minute load average above the thread count means "
+                "other processes competed for the cores; compare the ratios",
+        "results": results,
+    }

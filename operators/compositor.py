@@ -1,0 +1,205 @@
+"""The avatar in Blender's own renders (F12, Ctrl F12), Cycles and EEVEE alike.
+
+``mogaface.setup_render_layer`` sets up the compositor once: per head with an avatar, two
+Image nodes (the avatar layer's premultiplied linear RGBA and its depth) and a Z Combine node
+that merges them with the render layer's image and Depth pass; the result goes to the
+compositor's output. Before every render Blender makes (``render_pre``), :func:`render_avatar_layers`
+renders each avatar layer at that frame from the scene camera with the core's one render
+request into those two float images, so F12 and animation renders show the avatar without any
+MoGaFace button.
+
+The layers are float image datablocks filled in memory, not files: Blender's compositor reads
+them directly, and no EXR writer has to live in Blender's process (the pip ``OpenEXR`` module
+and the OpenEXR library Blender links can clash there).
+
+Blender 5.0 keeps the compositor in a node group (``scene.compositing_node_group``, output
+through a Group Output node); 4.2–4.4 in ``scene.node_tree`` (``use_nodes``, a Composite node).
+Both are handled here, and only here.
+"""
+
+from __future__ import annotations
+
+import bpy
+import numpy as np
+
+from .common import core_or_report, run_core
+
+NODE_TAG = "mogaface_layer_head"  # custom property on our nodes: the head they show
+#: Depth written where the avatar is absent (finite: Z Combine compares numbers).
+FAR = 1.0e10
+
+
+def compositor_tree(scene, create: bool = True):
+    """The scene's compositor node tree (made if missing and ``create``)."""
+    if hasattr(scene, "compositing_node_group"):  # Blender 5.0+
+        tree = scene.compositing_node_group
+        if tree is None and create:
+            tree = bpy.data.node_groups.new(f"{scene.name} Compositing", "CompositorNodeTree")
+            scene.compositing_node_group = tree
+        return tree
+    if create:
+        scene.use_nodes = True
+    return scene.node_tree
+
+
+def _output_socket(tree):
+    """The input socket of the compositor's final image (Group Output or Composite)."""
+    if hasattr(bpy.types, "CompositorNodeComposite"):
+        node = next((n for n in tree.nodes if n.bl_idname == "CompositorNodeComposite"), None)
+        node = node or tree.nodes.new("CompositorNodeComposite")
+        return node.inputs[0]
+    if not any(item.item_type == "SOCKET" and item.in_out == "OUTPUT" for item in tree.interface.items_tree):
+        tree.interface.new_socket("Image", in_out="OUTPUT", socket_type="NodeSocketColor")
+    node = next((n for n in tree.nodes if n.bl_idname == "NodeGroupOutput"), None)
+    node = node or tree.nodes.new("NodeGroupOutput")
+    return node.inputs[0]
+
+
+def _set_use_alpha(node) -> None:
+    if "Use Alpha" in node.inputs:  # Blender 5.0: an input socket
+        node.inputs["Use Alpha"].default_value = True
+    else:
+        node.use_alpha = True
+
+
+def layer_image(head, kind: str, create: bool = True):
+    """The float image of ``head``'s avatar layer: ``kind`` "rgba" (premultiplied, scene linear)
+    or "depth" (distance in every colour channel, non-colour data)."""
+    name = f"MoGaFace layer {head.name} {kind}"
+    image = bpy.data.images.get(name)
+    if image is None and create:
+        image = bpy.data.images.new(name, 4, 4, alpha=True, float_buffer=True)
+        image.colorspace_settings.name = "Non-Color" if kind == "depth" else "Linear Rec.709"
+        image.alpha_mode = "PREMUL"
+        image.use_fake_user = False
+    return image
+
+
+def setup_layer(scene, heads) -> list:
+    """Build (or rebuild) the compositor chain for ``heads``; returns the Z Combine nodes."""
+    tree = compositor_tree(scene)
+    for node in [n for n in tree.nodes if NODE_TAG in n]:
+        tree.nodes.remove(node)
+    for view_layer in scene.view_layers:
+        view_layer.use_pass_z = True
+    layers = next((n for n in tree.nodes if n.bl_idname == "CompositorNodeRLayers"), None)
+    if layers is None:
+        layers = tree.nodes.new("CompositorNodeRLayers")
+        layers.location = (-600, 0)
+    output = _output_socket(tree)
+    image, depth = layers.outputs["Image"], layers.outputs["Depth"]
+    combines = []
+    for index, head in enumerate(heads):
+        nodes = []
+        for kind in ("rgba", "depth"):
+            node = tree.nodes.new("CompositorNodeImage")
+            node.image = layer_image(head, kind)
+            node.label = f"MoGaFace {head.name} {kind}"
+            node.location = (-600 + 250 * index, -350 - 200 * len(nodes))
+            nodes.append(node)
+        combine = tree.nodes.new("CompositorNodeZcombine")
+        combine.label = f"MoGaFace {head.name}"
+        combine.location = (-300 + 250 * index, 0)
+        _set_use_alpha(combine)
+        tree.links.new(image, combine.inputs[0])
+        tree.links.new(depth, combine.inputs[1])
+        tree.links.new(nodes[0].outputs["Image"], combine.inputs[2])
+        tree.links.new(nodes[1].outputs["Image"], combine.inputs[3])
+        for node in (*nodes, combine):
+            node[NODE_TAG] = head.name
+        image, depth = combine.outputs[0], combine.outputs[1]
+        combines.append(combine)
+    tree.links.new(image, output)
+    return combines
+
+
+def layer_heads(scene) -> list:
+    """Heads whose avatar layer is in the scene's compositor."""
+    tree = compositor_tree(scene, create=False)
+    if tree is None:
+        return []
+    names = {node[NODE_TAG] for node in tree.nodes if NODE_TAG in node}
+    return [obj for obj in scene.objects if obj.name in names]
+
+
+def layer_pixels(result) -> tuple[np.ndarray, np.ndarray]:
+    """A transparent render as the compositor wants it, in Blender's flat pixel order (rows from
+    the bottom): premultiplied linear RGBA, and the depth (:data:`FAR` where the avatar is not)."""
+    from ..core.scene_render import linear_premultiplied
+
+    rgba = linear_premultiplied(result)
+    depth = np.where(np.isfinite(result.depth), result.depth, FAR)[..., None]
+    depth = np.concatenate([np.repeat(depth, 3, axis=2), np.ones_like(depth)], axis=2)
+    return tuple(np.ascontiguousarray(a[::-1], np.float32).reshape(-1) for a in (rgba, depth))
+
+
+def fill_image(image, width: int, height: int, pixels) -> None:
+    if tuple(image.size) != (width, height):
+        image.scale(width, height)
+    image.pixels.foreach_set(pixels)
+    image.update()
+
+
+def render_layer(scene, head) -> None:
+    """Render ``head``'s avatar layer at the scene's frame from its camera into the layer images."""
+    from ..core.scene_render import render
+    from .avatar import camera_of, head_request
+
+    frame = scene.frame_current
+    request = head_request(scene, head, camera_of(scene, scene.camera, head), frame, transparent=True, keyed=True)
+    result = render(request)
+    height, width = result.alpha.shape
+    for kind, pixels in zip(("rgba", "depth"), layer_pixels(result)):
+        fill_image(layer_image(head, kind), width, height, pixels)
+
+
+_reported: set = set()
+
+
+@bpy.app.handlers.persistent
+def render_avatar_layers(scene, depsgraph=None):
+    """``render_pre`` handler: render every avatar layer of the scene for the frame about to render.
+
+    Never raises (a handler must not): a layer that cannot be rendered keeps its last image and
+    the problem is printed once.
+    """
+    if scene.camera is None:
+        return
+    for head in layer_heads(scene):
+        try:
+            render_layer(scene, head)
+        except Exception as error:  # noqa: BLE001 - reported, never raised in a handler
+            message = f"MoGaFace: cannot render the avatar layer of {head.name!r}: {error}"
+            if message not in _reported:
+                _reported.add(message)
+                print(message)
+
+
+class MOGAFACE_OT_setup_render_layer(bpy.types.Operator):
+    """Show the avatars in Blender's renders (F12): an avatar layer per head, merged by depth in the compositor"""
+
+    bl_idname = "mogaface.setup_render_layer"
+    bl_label = "Avatar in Renders"
+    bl_options = {"REGISTER", "UNDO"}
+
+    def execute(self, context):
+        from .avatar import avatar_heads
+
+        if core_or_report(self, context) is None:
+            return {"CANCELLED"}
+        scene = context.scene
+        heads = avatar_heads(scene)
+        if not heads:
+            self.report({"ERROR"}, "No head with an avatar in the scene: use Load Avatar first")
+            return {"CANCELLED"}
+        if run_core(self, setup_layer, scene, heads) is None:
+            return {"CANCELLED"}
+        for head in heads:
+            head.hide_render = True  # the avatar stands in for the mesh in renders
+        if scene.camera is not None:
+            run_core(self, render_avatar_layers, scene)
+        names = ", ".join(head.name for head in heads)
+        hint = "" if scene.view_settings.view_transform == "Standard" else \
+            " (View Transform 'Standard' shows the avatar's colours as trained)"
+        self.report({"INFO"}, f"Renders now show the avatar of {names}; the head mesh is hidden from renders{hint}")
+        return {"FINISHED"}

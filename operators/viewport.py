@@ -1,0 +1,315 @@
+"""The avatar, live in the 3D viewport: a draw handler that shows our splat engine's render.
+
+Each redraw of a 3D view builds the render request of every shown avatar from the view's own
+matrices (:func:`viewport_request`); a request that differs from the last one goes to a render
+thread, and the view keeps drawing the last finished image (:class:`ViewportImage`) until the new
+one arrives (a timer then asks for a redraw). While the view moves, requests are made at a
+lower resolution; once it has been still for :data:`SETTLE_S`, at full resolution.
+
+The image is drawn as a full-view quad through Blender's ``gpu`` module; its fragment shader
+writes the avatar's depth as fragment depth, so scene geometry in front hides it and geometry
+behind it is hidden. Everything up to the pixel buffer (:func:`viewport_image`) is plain data and
+runs without a window; only :func:`draw_image` needs a GPU context.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import bpy
+import numpy as np
+from bpy.props import BoolProperty
+
+from .head_rig import is_head
+
+#: Seconds a view must be still before it is drawn at full resolution.
+SETTLE_S = 0.3
+#: Per-object switch (registered on ``bpy.types.Object``).
+SHOW_PROPERTY = "mogaface_show_avatar"
+
+
+@dataclasses.dataclass
+class ViewportImage:
+    """What the draw uploads: ``rgba`` premultiplied and ``depth`` window depths in [0, 1], both
+    flat float32 in OpenGL row order (bottom row first), ``width`` x ``height``; ``key`` names the
+    request it answers."""
+
+    width: int
+    height: int
+    rgba: np.ndarray
+    depth: np.ndarray
+    key: str
+
+
+def draw_size(region_width: int, region_height: int, max_side: int) -> tuple[int, int]:
+    """The render size for a region: its own, scaled down so the longer side is at most ``max_side``."""
+    factor = min(1.0, max_side / max(region_width, region_height, 1))
+    return max(1, round(region_width * factor)), max(1, round(region_height * factor))
+
+
+def viewport_request(head, view_matrix, projection, size: tuple[int, int], frame: int = 0):
+    """The render request of ``head``'s avatar seen by a 3D view, and the view's camera.
+
+    ``view_matrix``/``projection``: ``RegionView3D.view_matrix`` / ``window_matrix``.
+    """
+    from ..core import scene_conversion as sc
+    from ..core.scene_render import RenderRequest, view_camera
+    from .avatar import head_values
+
+    view = view_camera(np.array(view_matrix), np.array(projection), np.array(head.matrix_world), *size)
+    request = RenderRequest(head[sc.AVATAR_PATH_PROPERTY], head_values(head), view.camera, None, view.scale, frame)
+    return request, view
+
+
+def viewport_image(result, view, projection) -> ViewportImage:
+    """A finished render as the draw's pixel buffers (rows flipped, depth in window units).
+
+    The 3D view composes in scene-linear light (its view transform comes after), so the avatar's
+    sRGB colours are made linear, premultiplied, as for the compositor's layer.
+    """
+    from ..core.scene_render import depth_buffer_values, linear_premultiplied
+
+    height, width = result.alpha.shape
+    rgba = np.ascontiguousarray(linear_premultiplied(result)[::-1], np.float32).reshape(-1)
+    depth = depth_buffer_values(result.depth - view.depth_offset, projection)
+    return ViewportImage(width, height, rgba, np.ascontiguousarray(depth[::-1]).reshape(-1), result.request.key())
+
+
+def shown_heads(scene) -> list:
+    """Heads of ``scene`` whose avatar is switched on for the viewport."""
+    from .avatar import avatar_heads
+
+    return [obj for obj in avatar_heads(scene) if getattr(obj, SHOW_PROPERTY, False) and obj.visible_get()]
+
+
+class ViewState:
+    """One (view, head) pair: the request in flight and the last finished image."""
+
+    def __init__(self):
+        self.image: ViewportImage | None = None
+        self.texture = None  # (key, color texture, depth texture)
+        self.future = None
+        self.pending_key: str | None = None
+        self.view_key = None
+        self.view_changed = 0.0
+        self.error: str | None = None
+
+    def submit(self, request, view, projection) -> None:
+        from ..core.scene_render import render
+
+        projection = np.array(projection)
+
+        def work():
+            return viewport_image(render(request), view, projection)
+
+        self.pending_key = request.key()
+        self.future = _viewport_executor().submit(work)
+
+    def collect(self) -> bool:
+        """Take a finished render; True if a new image arrived."""
+        from ..core.errors import MogafaceError
+
+        if self.future is None or not self.future.done():
+            return False
+        future, self.future = self.future, None
+        try:
+            self.image, self.error = future.result(), None
+        except (MogafaceError, OSError, ValueError) as error:
+            self.error = str(error)
+            print(f"MoGaFace viewport: {error}")
+        return True
+
+
+_views: dict = {}
+_executor = None
+
+
+def _viewport_executor():
+    import concurrent.futures
+
+    global _executor
+    if _executor is None:
+        _executor = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="mogaface-viewport")
+    return _executor
+
+
+def update_view(state: ViewState, head, region, region_3d, scene, now: float | None = None) -> None:
+    """Collect a finished image and, if the view, frame or head changed, ask for a new one."""
+    now = time.monotonic() if now is None else now
+    state.collect()
+    view_matrix, projection = np.array(region_3d.view_matrix), np.array(region_3d.window_matrix)
+    view_key = (view_matrix.round(6).tobytes(), projection.round(6).tobytes(), region.width, region.height)
+    if view_key != state.view_key:
+        state.view_key, state.view_changed = view_key, now
+    settings = scene.mogaface
+    moving = now - state.view_changed < SETTLE_S
+    side = settings.viewport_navigate_resolution if moving else settings.viewport_resolution
+    request, view = viewport_request(head, view_matrix, projection, draw_size(region.width, region.height, side),
+                                     scene.frame_current)
+    key = request.key()
+    shown = state.image.key if state.image is not None else None
+    if state.future is None and key not in (shown, state.pending_key):
+        state.submit(request, view, projection)
+
+
+# -- drawing --------------------------------------------------------------------------------------
+
+_shader = {}
+
+_VERTEX = """
+void main()
+{
+  uv = pos * 0.5 + 0.5;
+  gl_Position = vec4(pos, 0.0, 1.0);
+}
+"""
+
+_FRAGMENT = """
+void main()
+{
+  vec4 color = texture(color_tex, uv);
+  if (color.a < 1.0 / 255.0) {
+    discard;
+  }
+  gl_FragDepth = texture(depth_tex, uv).r;
+  fragColor = color;
+}
+"""
+
+
+def _quad():
+    """The full-view quad and its shader (built once, in a GPU context)."""
+    if not _shader:
+        import gpu
+        from gpu_extras.batch import batch_for_shader
+
+        info = gpu.types.GPUShaderCreateInfo()
+        interface = gpu.types.GPUStageInterfaceInfo("mogaface_avatar_interface")
+        interface.smooth("VEC2", "uv")
+        info.vertex_in(0, "VEC2", "pos")
+        info.vertex_out(interface)
+        info.sampler(0, "FLOAT_2D", "color_tex")
+        info.sampler(1, "FLOAT_2D", "depth_tex")
+        info.fragment_out(0, "VEC4", "fragColor")
+        if hasattr(info, "depth_write"):  # Blender 4.4+; 4.2/4.3 write gl_FragDepth without the hint
+            info.depth_write("ANY")
+        info.vertex_source(_VERTEX)
+        info.fragment_source(_FRAGMENT)
+        shader = gpu.shader.create_from_info(info)
+        quad = ((-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0))
+        _shader["shader"] = shader
+        _shader["batch"] = batch_for_shader(shader, "TRI_FAN", {"pos": quad})
+    return _shader["shader"], _shader["batch"]
+
+
+def textures(image: ViewportImage):
+    """GPU textures of an image's colour and depth."""
+    import gpu
+
+    size = (image.width, image.height)
+    color = gpu.types.GPUTexture(size, format="RGBA32F", data=gpu.types.Buffer("FLOAT", image.rgba.size, image.rgba))
+    depth = gpu.types.GPUTexture(size, format="R32F", data=gpu.types.Buffer("FLOAT", image.depth.size, image.depth))
+    return color, depth
+
+
+def draw_image(state: ViewState) -> None:
+    """Draw the state's last image over the view, depth-tested against the scene."""
+    import gpu
+
+    image = state.image
+    if image is None:
+        return
+    if state.texture is None or state.texture[0] != image.key:
+        state.texture = (image.key, *textures(image))
+    _, color, depth = state.texture
+    shader, batch = _quad()
+    gpu.state.depth_test_set("LESS_EQUAL")
+    gpu.state.depth_mask_set(True)
+    gpu.state.blend_set("ALPHA_PREMULT")
+    shader.bind()
+    shader.uniform_sampler("color_tex", color)
+    shader.uniform_sampler("depth_tex", depth)
+    batch.draw(shader)
+    gpu.state.blend_set("NONE")
+    gpu.state.depth_mask_set(False)
+    gpu.state.depth_test_set("NONE")
+
+
+def draw_avatars() -> None:
+    """``SpaceView3D`` draw handler (``POST_VIEW``): every shown avatar of the scene. Never raises."""
+    context = bpy.context
+    region, region_3d, scene = context.region, context.region_data, context.scene
+    if region is None or region_3d is None or scene is None or not hasattr(scene, "mogaface"):
+        return
+    try:
+        heads = shown_heads(scene)
+    except ReferenceError:
+        return
+    for head in heads:
+        state = _views.setdefault((region.as_pointer(), head.session_uid), ViewState())
+        for step in (lambda: update_view(state, head, region, region_3d, scene), lambda: draw_image(state)):
+            try:
+                step()
+            except Exception as error:  # a draw handler must never raise: report once, keep the last image
+                message = f"MoGaFace viewport: {head.name}: {error}"
+                if state.error != message:
+                    state.error = message
+                    print(message)
+    _ensure_poll()
+
+
+def _busy() -> bool:
+    now = time.monotonic()
+    return any(state.future is not None or now - state.view_changed < SETTLE_S + 0.1 for state in _views.values())
+
+
+def _poll_renders():
+    """Timer: redraw 3D views when a render finished or a view settled; stops when nothing is pending."""
+    ready = any(state.future is not None and state.future.done() for state in _views.values())
+    now = time.monotonic()
+    settled = any(SETTLE_S <= now - state.view_changed < SETTLE_S + 0.1 for state in _views.values())
+    if ready or settled:
+        for window in bpy.context.window_manager.windows:
+            for area in window.screen.areas:
+                if area.type == "VIEW_3D":
+                    area.tag_redraw()
+    return 0.05 if _busy() else None
+
+
+def _ensure_poll() -> None:
+    if _busy() and not bpy.app.timers.is_registered(_poll_renders):
+        bpy.app.timers.register(_poll_renders, first_interval=0.05)
+
+
+# -- the per-object switch and registration -------------------------------------------------------
+
+
+def _show_changed(obj, context) -> None:
+    """Showing the avatar draws the head mesh as its bounds only, so the mesh does not cover the
+    avatar (the head stays selectable and movable)."""
+    if is_head(obj):
+        obj.display_type = "BOUNDS" if getattr(obj, SHOW_PROPERTY) else "TEXTURED"
+
+
+_handle = {"draw": None}
+
+
+def register() -> None:
+    setattr(bpy.types.Object, SHOW_PROPERTY, BoolProperty(
+        name="Show Avatar", default=True, update=_show_changed,
+        description="Draw this head's avatar in the 3D viewport (rendered by MoGaFace's splat engine)"))
+    if _handle["draw"] is None:
+        _handle["draw"] = bpy.types.SpaceView3D.draw_handler_add(draw_avatars, (), "WINDOW", "POST_VIEW")
+
+
+def unregister() -> None:
+    if _handle["draw"] is not None:
+        bpy.types.SpaceView3D.draw_handler_remove(_handle["draw"], "WINDOW")
+        _handle["draw"] = None
+    if bpy.app.timers.is_registered(_poll_renders):
+        bpy.app.timers.unregister(_poll_renders)
+    _views.clear()
+    _shader.clear()
+    if hasattr(bpy.types.Object, SHOW_PROPERTY):
+        delattr(bpy.types.Object, SHOW_PROPERTY)
