@@ -219,3 +219,40 @@ def test_a_killed_rank_is_reported_and_the_run_resumes(capture, config_file, tmp
     assert trainer.step == saved
     result = trainer.run(until=saved + 2)
     assert result["step"] == saved + 2 and not result["complete"]
+
+
+def test_launcher_prefix_replaces_the_interpreter():
+    from mogaface.core.errors import InputError
+    from mogaface.core.launcher import with_launcher
+    from mogaface.core.worker import train_command
+
+    command = train_command("/usr/bin/python3", "/data/cap", "/data/run", preset="demo", threads=1)
+    assert with_launcher(command, "") == command
+    launched = with_launcher(command, "torchrun --nproc_per_node 2 --nnodes 1")
+    assert launched[:5] == ["torchrun", "--nproc_per_node", "2", "--nnodes", "1"]
+    assert launched[5:] == command[command.index("-m"):] and "/usr/bin/python3" not in launched
+    with pytest.raises(InputError, match="launcher"):
+        with_launcher(command, "torchrun 'unclosed")
+
+
+def test_a_worker_started_by_torchrun_reports_progress_and_cancels_with_a_checkpoint(capture, config_file, tmp_path):
+    """What the Blender panel and the headless script do with a launcher in the preferences."""
+    from mogaface.core.launcher import with_launcher
+    from mogaface.core.worker import TrainWorker, train_command
+
+    run = tmp_path / "run"
+    launcher = f"{sys.executable} -m torch.distributed.run --standalone --nproc_per_node 2"
+    command = with_launcher(train_command(sys.executable, capture, run, steps=100000, extra=["--config",
+                                                                                           str(config_file)]),
+                            launcher)
+    worker = TrainWorker(command, run, env={**os.environ, "OMP_NUM_THREADS": "1"}).start()
+    deadline = time.monotonic() + 300
+    while worker.poll().step < 3 and not worker.progress.finished and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert worker.progress.step >= 3, worker.stderr_tail()
+    worker.cancel()
+    progress = worker.wait(interval=0.2, timeout=240)
+    assert progress.state == "cancelled", (progress.message, worker.stderr_tail())
+    stopped = [e for e in worker.events if e["event"] == "stopped"]
+    assert len(stopped) == 1  # one writer
+    assert load_checkpoint(list_checkpoints(run / "checkpoints")[-1])["step"] == stopped[0]["step"]

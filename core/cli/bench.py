@@ -7,6 +7,7 @@ import json
 import sys
 
 BENCHMARKS = {
+    "distributed": "data-parallel training: ranks against threads, all-reduce volume and time per step",
     "splat": "the CPU Gaussian splat engine against its torch reference",
     "train": "the full training step (render, loss, backward, Adam) in steps per second",
 }
