@@ -9,6 +9,7 @@ import sys
 BENCHMARKS = {
     "distributed": "data-parallel training: ranks against threads, all-reduce volume and time per step",
     "splat": "the CPU Gaussian splat engine against its torch reference",
+    "step": "one training step stage by stage (FLAME, binding, render, loss, optimiser, MoGaFace modules)",
     "train": "the full training step (render, loss, backward, Adam) in steps per second",
 }
 

@@ -64,7 +64,7 @@ class CorrectionTraining:
         if self.model.texture is not None:
             groups.append({"params": list(self.model.texture.parameters()), "lr": settings.texture_lr,
                            "name": "texture"})
-        self.optimizer = torch.optim.Adam(groups)
+        self.optimizer = torch.optim.Adam(groups, fused=True)
 
     def encoder_frames(self, frame, generator: torch.Generator) -> list:
         """Other training views of the frame's timestamp: one (single) or up to ``encoder_views`` (multi)."""

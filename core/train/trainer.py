@@ -169,7 +169,7 @@ class Trainer:
             if flame.finetune:
                 rate = {"expr": flame.expression_lr, "translation": flame.translation_lr}.get(name, flame.joints_lr)
                 groups.append({"params": [value], "lr": rate, "name": f"flame.{name}"})
-        self.optimizer = torch.optim.Adam(groups, lr=0.0, eps=1e-15)
+        self.optimizer = torch.optim.Adam(groups, lr=0.0, eps=1e-15, fused=True)  # one kernel per group
 
     # -- state ----------------------------------------------------------------------------------
     def state(self) -> dict:
@@ -254,8 +254,8 @@ class Trainer:
                                                  self.background, self.step, self.view_generator(index))
         losses = image_loss(out.rgb, target, cfg.loss.ssim_weight)
         visible = out.visible
-        losses["position"] = position_hinge(gaussians.local_position[visible], cfg.loss.position_threshold)
-        losses["scaling"] = scaling_hinge(gaussians.local_log_scale[visible], cfg.loss.scaling_threshold)
+        losses["position"] = position_hinge(gaussians.local_position, cfg.loss.position_threshold, visible)
+        losses["scaling"] = scaling_hinge(gaussians.local_log_scale, cfg.loss.scaling_threshold, visible)
         total = losses["rgb"] + cfg.loss.position_weight * losses["position"] \
             + cfg.loss.scaling_weight * losses["scaling"]
         if correction is not None:
