@@ -5,8 +5,9 @@ densification off. The trainer runs unchanged; the functions that make up a step
 with a stopwatch that counts each stage's exclusive time (a stage called inside another is
 subtracted from it), so the stages plus "other" add up to the whole step. "other" is what no
 wrapper covers: Python and torch dispatch between the stages, the frame sampler, the learning
-rate update, the bank's pre-step reads. Reports milliseconds per step for each stage and its share,
-with the load average.
+rate update, the bank's pre-step reads. Reports milliseconds per step for each stage, and the
+changed parts of the step timed against the paths they replaced (``changes_old_vs_new``, ratios in
+the same run), with the load average.
 """
 
 from __future__ import annotations
@@ -109,6 +110,76 @@ def profile(trainer, steps: int) -> dict:
             "render_share": round(render / total, 3), "stages_ms": stages}
 
 
+def _median_ms(function, repeats: int) -> float:
+    function()
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        function()
+        times.append(time.perf_counter() - start)
+    return 1000 * statistics.median(times)
+
+
+def path_ratios(trainer, repeats: int) -> dict:
+    """The step's changed parts against the paths they replaced, timed here on this avatar's tensors.
+
+    ``old_ms / new_ms`` per change: Adam's per-tensor loop against the fused kernel; the binding
+    hinges of the visible Gaussians by gathering rows against a masked mean (forward + backward);
+    the densification statistics by gathered rows against whole-array updates.
+    """
+    import torch
+
+    from mogaface.core.avatar.densify import DensifyStrategy
+    from mogaface.core.train import losses
+
+    g = trainer.avatar.gaussians
+    n = len(g)
+    generator = torch.Generator().manual_seed(0)
+    out = {}
+
+    def adam(**kind):
+        params = [torch.nn.Parameter(t.detach().clone()) for t in g.parameters()]
+        for p in params:
+            p.grad = torch.randn(p.shape, generator=generator)
+        optimizer = torch.optim.Adam([{"params": [p], "lr": 1e-3} for p in params], eps=1e-15, **kind)
+        return optimizer.step
+
+    old, new = _median_ms(adam(foreach=False), repeats), _median_ms(adam(fused=True), repeats)
+    out["optimiser: per-tensor Adam -> fused Adam"] = {"old_ms": round(old, 2), "new_ms": round(new, 2),
+                                                      "ratio": round(old / new, 2)}
+    visible = torch.rand(n, generator=generator) > 0.3
+    local = g.local_position.detach().clone().requires_grad_()
+    log_scale = g.local_log_scale.detach().clone().requires_grad_()
+
+    def gathered():
+        total = losses.position_hinge(local[visible]) + losses.scaling_hinge(log_scale[visible])
+        torch.autograd.grad(total, [local, log_scale])
+
+    def masked():
+        total = losses.position_hinge(local, mask=visible) + losses.scaling_hinge(log_scale, mask=visible)
+        torch.autograd.grad(total, [local, log_scale])
+
+    old, new = _median_ms(gathered, repeats), _median_ms(masked, repeats)
+    out["hinges: gathered rows -> masked mean"] = {"old_ms": round(old, 2), "new_ms": round(new, 2),
+                                                  "ratio": round(old / new, 2)}
+    grads = torch.randn(n, 2, generator=generator)
+    radii = torch.where(visible, torch.randint(1, 9, (n,), generator=generator, dtype=torch.int32), 0)
+    strategy = DensifyStrategy(trainer.strategy.schedule, n, len(trainer.avatar.flame.faces))
+
+    def observe_gathered():
+        seen = radii > 0
+        scaled = grads[seen] * torch.tensor([128.0, 128.0])
+        strategy.grad_accum[seen] += scaled.norm(dim=-1)
+        strategy.grad_count[seen] += 1
+        strategy.max_radii[seen] = torch.maximum(strategy.max_radii[seen], radii[seen].float())
+
+    old = _median_ms(observe_gathered, repeats)
+    new = _median_ms(lambda: strategy.observe(1, grads, radii, 256, 256), repeats)
+    out["densification statistics: gathered rows -> whole arrays"] = {
+        "old_ms": round(old, 2), "new_ms": round(new, 2), "ratio": round(old / new, 2)}
+    return out
+
+
 def run(threads: int = 2, quick: bool = False) -> dict:
     import torch
 
@@ -134,6 +205,8 @@ def run(threads: int = 2, quick: bool = False) -> dict:
                 trainer.train_step()
             results.append({"variant": variant, "gaussians": len(trainer.avatar.gaussians), "steps": steps,
                             **profile(trainer, steps)})
+            if variant == "freeze":
+                changes = path_ratios(trainer, 5 if quick else 20)
             trainer.events.close()
     return {
         "benchmark": "step",
@@ -143,4 +216,5 @@ def run(threads: int = 2, quick: bool = False) -> dict:
         "load_average_after": [round(x, 2) for x in os.getloadavg()],
         "machine": {"cpu_count": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version()},
         "results": results,
+        "changes_old_vs_new": changes,
     }
