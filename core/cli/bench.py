@@ -19,6 +19,8 @@ def add_arguments(parser):
     parser.add_argument("--threads", type=int, default=2, help="CPU threads for numba and torch")
     parser.add_argument("--quick", action="store_true", help="fewer sizes and repeats (smoke run)")
     parser.add_argument("--out", help="also write the JSON report to this file")
+    parser.add_argument("--scale", choices=["small", "real"],
+                        help="train only: 'real' times the full method at 802x550, 16 cameras, 100k Gaussians")
 
 
 def run(args) -> int:
@@ -27,7 +29,11 @@ def run(args) -> int:
     except ModuleNotFoundError as error:
         print(f"error: benchmarks are not part of this install ({error})", file=sys.stderr)
         return 2
-    report = module.run(threads=args.threads, quick=args.quick)
+    if args.scale is not None and args.name != "train":
+        print("error: --scale applies to the train benchmark only", file=sys.stderr)
+        return 2
+    options = {"scale": args.scale} if args.scale is not None else {}
+    report = module.run(threads=args.threads, quick=args.quick, **options)
     text = json.dumps(report, indent=2)
     print(text)
     if args.out:
