@@ -292,13 +292,13 @@ class Trainer:
         gaussians.active_sh_degree = self.strategy.schedule.sh_degree(self.step)
         batch = cfg.train.batch
         frames = [self._next_frame() for _ in range(batch)]
-        self._step_posed.clear()
         names = self._loss_names()
         views = {j: self._render_view(frames[j], j) for j in comm.share(batch)}
         sums = torch.zeros(len(names), dtype=torch.float64)
         if views:
             total = sum(view["losses"]["loss"] for view in views.values()) / batch
             total.backward()
+            self._step_posed.clear()  # the step's meshes (and their graphs) are spent
             for view in views.values():
                 values = {k: float(v.detach()) for k, v in view["losses"].items()}
                 values["psnr"] = psnr(view["out"].rgb, view["target"])
