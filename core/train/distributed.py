@@ -23,6 +23,7 @@ import torch
 from ..errors import InputError
 
 DEFAULT_TIMEOUT_S = 300.0
+FINISH_TIMEOUT_S = 6 * 3600.0  # rank 0's end-of-run evaluation may take long on a big capture
 
 
 class Communicator:
@@ -109,12 +110,24 @@ class Communicator:
 
             dist.barrier()
 
+    def wait_for_writer(self, timeout_s: float = FINISH_TIMEOUT_S) -> None:
+        """Hold every rank until rank 0 has written the results, so the ranks leave together
+        (a rank that left early could make the launcher end the group while rank 0 still writes)."""
+        if self.world > 1:
+            import torch.distributed as dist
+
+            dist.monitored_barrier(timeout=datetime.timedelta(seconds=timeout_s))
+
     def close(self) -> None:
+        """Leave the process group; a peer that already left is no error at this point."""
         if self.world > 1:
             import torch.distributed as dist
 
             if dist.is_initialized():
-                dist.destroy_process_group()
+                try:
+                    dist.destroy_process_group()
+                except RuntimeError:
+                    pass
 
 
 def communicator_from_environment(timeout_s: float = DEFAULT_TIMEOUT_S) -> Communicator:

@@ -393,6 +393,7 @@ class Trainer:
                     self.checkpoint()
             if self._stop_signal is not None or (self.step < cfg.steps and not out_of_time):
                 self.checkpoint()
+                self.comm.wait_for_writer()
                 if self._stop_signal is not None:
                     self.events.emit("stopped", step=self.step, signal=signal.Signals(self._stop_signal).name)
                 return {"step": self.step, "stopped": self._stop_signal, "complete": False}
@@ -401,6 +402,7 @@ class Trainer:
             self.checkpoint()
             if self.comm.is_writer:
                 self.finish()
+            self.comm.wait_for_writer()
             return {"step": self.step, "stopped": None, "complete": True}
         finally:
             self.events.close()
