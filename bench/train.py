@@ -59,7 +59,12 @@ def _time_steps(trainer, warmup, steps):
     return times
 
 
-def run(threads: int = 2, quick: bool = False) -> dict:
+def run(threads: int = 2, quick: bool = False, scale: str = "small") -> dict:
+    """``scale="real"``: the full method at a real capture's size instead (see :mod:`.train_real`)."""
+    if scale == "real":
+        from .train_real import run as run_real
+
+        return run_real(threads=threads, quick=quick)
     from mogaface.core.train import config as config_module
     from mogaface.core.train.trainer import Trainer
 

@@ -23,11 +23,18 @@ class MoGaFacePreferences(bpy.types.AddonPreferences):
         description="Interpreter for training and rendering workers (needs torch, numpy, numba)",
     )
     threads: IntProperty(name="Threads", default=0, min=0, max=1024, description="CPU threads for workers (0: all)")
+    launcher: StringProperty(
+        name="Launcher",
+        default="",
+        description="Start training through this command line instead of the Python above, e.g. "
+                    "'torchrun --nproc_per_node 2' (data-parallel; other machines are yours to set up)",
+    )
 
     def draw(self, context):
         layout = self.layout
         layout.prop(self, "python_path")
         layout.prop(self, "threads")
+        layout.prop(self, "launcher")
         if draw_dependencies(layout, self.python_path):
             layout.operator("mogaface.install_dependencies", text="Reinstall Dependencies", icon="IMPORT")
 

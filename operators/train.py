@@ -41,6 +41,11 @@ def last_progress():
     return worker.progress if worker is not None else _job["last"]
 
 
+def _preference(context, name: str, default):
+    addon = context.preferences.addons.get(top_package())
+    return getattr(getattr(addon, "preferences", None), name, default) if addon else default
+
+
 def _threads(context) -> int | None:
     addon = context.preferences.addons.get(top_package())
     threads = getattr(getattr(addon, "preferences", None), "threads", 0) if addon else 0
@@ -130,6 +135,9 @@ class MOGAFACE_OT_train(bpy.types.Operator):
             interpreter(context), capture, run, preset=self.preset, steps=steps,
             seed=settings.seed if self.seed < 0 else self.seed, threads=_threads(context), resume=resume,
         )
+        from ..core.launcher import with_launcher
+
+        command = with_launcher(command, _preference(context, "launcher", ""))  # e.g. torchrun --nproc_per_node 2
         os.makedirs(run, exist_ok=True)
         worker = TrainWorker(command, run)
         try:

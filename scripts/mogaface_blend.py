@@ -54,6 +54,8 @@ def build_parser() -> argparse.ArgumentParser:
                         help="training preset: " + "; ".join(f"{name}: {text}" for name, text in PRESETS))
     parser.add_argument("--steps", type=int, default=0, help="training steps (0: the preset's)")
     parser.add_argument("--python", help="interpreter for the training process (default: this one)")
+    parser.add_argument("--launcher", help="start training through this command line, e.g. "
+                        "'torchrun --nproc_per_node 2' (data-parallel; see docs/training.md)")
     parser.add_argument("--tracking", type=pathlib.Path,
                         help="flame_param folder to key on the head (default: the run's corrected tracking, "
                         "RUN/flame_param_corrected or RUN/flame_param)")
@@ -117,10 +119,11 @@ def build_scene(args, log=print) -> dict:
     _call(ops.import_capture, filepath=str(args.capture.resolve()))
     log(f"[blend] imported the capture's cameras from {args.capture}")
     if args.train:
-        if args.python:
-            addon = bpy.context.preferences.addons.get(mogaface.__name__)
-            if addon is not None:
-                addon.preferences.python_path = args.python
+        addon = bpy.context.preferences.addons.get(mogaface.__name__)
+        if addon is not None and args.python:
+            addon.preferences.python_path = args.python
+        if addon is not None and args.launcher:
+            addon.preferences.launcher = args.launcher
         _call(ops.train, capture=str(args.capture.resolve()), run=str(run), preset=args.preset, steps=args.steps,
               resume="NEW")
         log(f"[blend] trained into {run}")

@@ -80,6 +80,20 @@ def test_cancel_stops_with_a_checkpoint(trained):
     assert not bpy.ops.mogaface.train_cancel.poll()  # nothing left running
 
 
+def test_train_operator_starts_a_data_parallel_run_through_the_launcher(trained, tmp_path):
+    prefs = bpy.context.preferences.addons[MODULE].preferences
+    prefs.launcher = f"{sys.executable} -m torch.distributed.run --standalone --nproc_per_node 2"
+    try:
+        run = tmp_path / "run"
+        assert bpy.ops.mogaface.train(capture=str(trained["capture"]), run=str(run), preset="quick",
+                                      steps=3) == {"FINISHED"}
+    finally:
+        prefs.launcher = ""
+    assert trained["train"].last_progress().state == "done"
+    events = [json.loads(line) for line in (run / "events.jsonl").read_text().splitlines()]
+    assert [e["event"] for e in events].count("start") == 1 and events[-1]["event"] == "done"
+
+
 def test_a_crashing_training_is_reported_with_its_message(trained, tmp_path):
     with pytest.raises(RuntimeError, match=r"exit code 2.*not-a-capture"):
         bpy.ops.mogaface.train(capture=str(tmp_path / "not-a-capture"), run=str(tmp_path / "run"), steps=2)

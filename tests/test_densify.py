@@ -154,3 +154,22 @@ def test_state_dict_round_trip():
     other = DensifyStrategy(schedule(), 1, 4)
     other.load_state_dict(strategy.state_dict())
     assert torch.equal(other.grad_accum, strategy.grad_accum) and other.resets_done == 2
+
+
+def test_observe_accumulates_exactly_what_the_visible_rows_give():
+    """Whole-array updates equal gathering the visible rows (3DGS's NDC-scaled gradient norms)."""
+    g = torch.Generator().manual_seed(5)
+    n = 40
+    strategy = DensifyStrategy(DensifySchedule(), n, 10)
+    accum, count, radii_max = torch.zeros(n), torch.zeros(n), torch.zeros(n)
+    for _ in range(3):
+        grads = torch.randn(n, 2, generator=g)
+        radii = torch.randint(0, 4, (n,), generator=g, dtype=torch.int32)
+        grads[radii == 0] = float("nan")  # invisible rows' gradients must not leak in
+        strategy.observe(1, grads, radii, 64, 48)
+        visible = radii > 0
+        accum[visible] += (grads[visible] * torch.tensor([32.0, 24.0])).norm(dim=-1)
+        count[visible] += 1
+        radii_max[visible] = torch.maximum(radii_max[visible], radii[visible].float())
+    assert torch.equal(strategy.grad_accum, accum) and torch.equal(strategy.grad_count, count)
+    assert torch.equal(strategy.max_radii, radii_max) and count.sum() > 0

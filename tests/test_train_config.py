@@ -37,6 +37,8 @@ def test_precedence_defaults_preset_file_flags(tmp_path):
     ("[lr]\nposition = \"fast\"\n", "lr.position", "expected a number"),
     ("[flame]\nfinetune = 1\n", "flame.finetune", "expected true or false"),
     ("[train]\nsteps = 0\n", "train.steps", "must be positive"),
+    ("[train]\nbatch = 0\n", "train.batch", "must lie in [1, 256]"),
+    ("[train]\nbatch = 257\n", "train.batch", "must lie in [1, 256]"),
     ("[train]\nsteps = \n", None, "not a readable TOML file"),
 ])
 def test_bad_settings_name_the_file_and_key(tmp_path, text, field, words):

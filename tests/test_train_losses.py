@@ -40,6 +40,21 @@ def test_scaling_hinge_values():
     assert float(losses.scaling_hinge(log_scale, 0.6)) == pytest.approx(2.0, abs=1e-5)
 
 
+def test_hinges_over_a_mask_equal_the_hinges_of_the_masked_rows():
+    g = torch.Generator().manual_seed(3)
+    local = torch.randn(50, 3, generator=g).mul(1.5).requires_grad_()
+    log_scale = torch.randn(50, 3, generator=g).requires_grad_()
+    mask = torch.rand(50, generator=g) > 0.4
+    for hinge, x, t in ((losses.position_hinge, local, 1.0), (losses.scaling_hinge, log_scale, 0.6)):
+        masked = hinge(x, t, mask)
+        gathered = hinge(x[mask], t)
+        assert masked.item() > 0 and masked.item() == pytest.approx(gathered.item(), rel=1e-6)
+        a, = torch.autograd.grad(masked, x)
+        b, = torch.autograd.grad(gathered, x)
+        assert torch.allclose(a, b, atol=1e-7) and not a[~mask].any()
+        assert hinge(x, t, torch.zeros(50, dtype=torch.bool)).item() == 0.0
+
+
 def test_image_loss_mix():
     pred, target = torch.rand(16, 16, 3), torch.rand(16, 16, 3)
     parts = losses.image_loss(pred, target, 0.2)

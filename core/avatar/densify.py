@@ -163,11 +163,12 @@ class DensifyStrategy:
         """Accumulate one view's screen-space gradient norms (3DGS's NDC units) of visible Gaussians."""
         if step > self.schedule.stop or means2d_grad is None:
             return
+        # Whole-array updates (adding exact zeros off the visible set): no gathers and scatters.
         visible = radii > 0
-        scaled = means2d_grad[visible] * torch.tensor([0.5 * width, 0.5 * height])
-        self.grad_accum[visible] += scaled.norm(dim=-1)
-        self.grad_count[visible] += 1
-        self.max_radii[visible] = torch.maximum(self.max_radii[visible], radii[visible].float())
+        norms = (means2d_grad * torch.tensor([0.5 * width, 0.5 * height])).norm(dim=-1)
+        self.grad_accum += torch.where(visible, norms, 0.0)
+        self.grad_count += visible
+        self.max_radii = torch.maximum(self.max_radii, torch.where(visible, radii.float(), 0.0))
 
     def after_step(self, step: int, gaussians: BoundGaussians, optimizer, face_scale: torch.Tensor,
                    extent: float, generator: torch.Generator) -> dict:

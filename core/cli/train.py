@@ -17,6 +17,7 @@ def add_arguments(parser):
     parser.add_argument("--steps", type=int, help="total optimisation steps (overrides the config)")
     parser.add_argument("--seed", type=int, help="random seed (overrides the config)")
     parser.add_argument("--threads", type=int, help="CPU threads (overrides the config)")
+    parser.add_argument("--batch", type=int, help="training images per step over all ranks (overrides the config)")
     parser.add_argument("--head", type=pathlib.Path, help="head model file (default: the capture's)")
     parser.add_argument("--events", choices=["file", "stdout"], default="file",
                         help="'stdout': also print every event as a JSON line on stdout (for other programs)")
@@ -24,7 +25,7 @@ def add_arguments(parser):
 
 
 def _overrides(args) -> dict:
-    train = {k: getattr(args, k) for k in ("steps", "seed", "threads") if getattr(args, k) is not None}
+    train = {k: getattr(args, k) for k in ("steps", "seed", "threads", "batch") if getattr(args, k) is not None}
     return {"train": train} if train else {}
 
 
@@ -58,6 +59,16 @@ def _listeners(args):
 
 
 def run(args) -> int:
+    from ..train.distributed import communicator_from_environment
+
+    comm = communicator_from_environment()  # torchrun's process group, or a single process
+    try:
+        return _train(args, comm)
+    finally:
+        comm.close()
+
+
+def _train(args, comm) -> int:
     from ..train import config as config_module
     from ..train.trainer import Trainer
 
@@ -72,12 +83,12 @@ def run(args) -> int:
     else:
         config = config_module.resolve(args.preset, args.config, overrides)
     trainer = Trainer(args.capture, args.out, config, resume=args.resume, head_file=args.head,
-                      listeners=_listeners(args))
+                      listeners=_listeners(args) if comm.is_writer else None, comm=comm)
     trainer.install_signal_handlers()
     result = trainer.run()
     if result["stopped"] is not None:
         return 128 + int(result["stopped"])
-    if not args.quiet:
+    if not args.quiet and comm.is_writer:
         print(f"wrote {args.out} (step {result['step']})", file=sys.stderr)
     return 0
 

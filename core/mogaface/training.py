@@ -28,7 +28,9 @@ class StepCorrection:
     consistency: torch.Tensor  # scalar
     centring: torch.Tensor  # scalar: the correction's drift against its running mean
     inputs: list  # the encoder's frames
-    commit: callable  # call after the optimizer step (bank write, running feature)
+    row: int  # the timestamp's bank row
+    slots: torch.Tensor | None  # the bank slots written (None without the bank)
+    blended: torch.Tensor | None  # their new EMA values (None without the bank)
     rendered: torch.Tensor | None = None  # scalar: the self-supervised loss on renders, when on
 
 
@@ -62,7 +64,7 @@ class CorrectionTraining:
         if self.model.texture is not None:
             groups.append({"params": list(self.model.texture.parameters()), "lr": settings.texture_lr,
                            "name": "texture"})
-        self.optimizer = torch.optim.Adam(groups)
+        self.optimizer = torch.optim.Adam(groups, fused=True)
 
     def encoder_frames(self, frame, generator: torch.Generator) -> list:
         """Other training views of the frame's timestamp: one (single) or up to ``encoder_views`` (multi)."""
@@ -80,11 +82,9 @@ class CorrectionTraining:
         per_view, feature = model.correct(images, tracked_expr.detach())
         row = model.row[frame.timestep_index]
         zero = per_view.sum() * 0
+        slots = blended = None
         if model.bank is None:
             delta, consistency = per_view.mean(0), zero
-
-            def commit():
-                model.observe_feature(feature)
         else:
             bank = model.bank
             slots = torch.tensor([model.slot[f.camera_id] for f in inputs])
@@ -92,14 +92,42 @@ class CorrectionTraining:
             momentum = momentum_at(step, self.total_steps, self.settings.momentum_start, self.settings.momentum_end)
             blended = bank.blend(row, slots, per_view, momentum)
             delta = bank.mean_with(row, slots, blended)
+        centring = (model.correction_mean.detach().clone() * delta).sum()
+        return StepCorrection(delta, feature, consistency, centring, inputs, row, slots, blended)
 
-            def commit():
-                bank.store(row, slots, blended)
-                model.observe_feature(feature)
-        running = model.correction_mean
-        centring = (running.detach().clone() * delta).sum()
-        model.observe_correction(delta)
-        return StepCorrection(delta, feature, consistency, centring, inputs, commit)
+    # -- what a step leaves behind (bank writes, running means) ----------------------------------
+    def record_size(self) -> int:
+        """Length of one view's :meth:`record`: row, slot mask, bank values, feature, correction."""
+        model = self.model
+        views, n_expr = len(model.cameras), int(model.spec["n_expr"])
+        return 1 + views + views * n_expr + int(model.spec["feature_dim"]) + n_expr
+
+    def record(self, correction: StepCorrection) -> torch.Tensor:
+        """One view's step outcome as a flat tensor, so ranks can sum the records of their views."""
+        model = self.model
+        views, n_expr = len(model.cameras), int(model.spec["n_expr"])
+        mask = torch.zeros(views)
+        values = torch.zeros(views, n_expr)
+        if correction.slots is not None:
+            mask[correction.slots] = 1.0
+            values[correction.slots] = correction.blended.detach()
+        return torch.cat([torch.tensor([float(correction.row)]), mask, values.reshape(-1),
+                          correction.feature.detach().reshape(-1), correction.expr_delta.detach().reshape(-1)])
+
+    @torch.no_grad()
+    def commit(self, record: torch.Tensor) -> None:
+        """Apply one view's record after the optimiser step: bank write, running feature and correction."""
+        model = self.model
+        views, n_expr, d = len(model.cameras), int(model.spec["n_expr"]), int(model.spec["feature_dim"])
+        row = int(round(float(record[0])))
+        mask = record[1:1 + views] > 0.5
+        values = record[1 + views:1 + views + views * n_expr].view(views, n_expr)
+        rest = record[1 + views + views * n_expr:]
+        if model.bank is not None and mask.any():
+            slots = torch.nonzero(mask)[:, 0]
+            model.bank.store(row, slots, values[slots])
+        model.observe_feature(rest[:d])
+        model.observe_correction(rest[d:d + n_expr])
 
     def rendered_loss(self, avatar, params: dict, inputs: list, background, generator: torch.Generator):
         """The self-supervised correction loss on renders from the first ``rendered_views`` encoder cameras."""

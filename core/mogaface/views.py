@@ -1,8 +1,9 @@
 """Downsampled view images for the encoder, cached apart from the capture's full-size images.
 
 The capture's byte-bounded cache holds full frames for the loss; the encoder needs only small
-copies, kept here as uint8 ``(3, S, S)`` tensors (48 KiB each at 128²), so every training image
-of a default capture fits and no view is decoded twice.
+copies, kept here as uint8 ``(3, S, S)`` tensors (48 KiB each at 128²), up to ``max_bytes`` (128 MiB:
+every training image of a default capture, 2400 views), so memory stays flat however long the
+capture is; beyond the bound views are decoded each time.
 """
 
 from __future__ import annotations
@@ -15,10 +16,10 @@ import torch.nn.functional as F
 class ViewImages:
     """``frames → (B, 3, S, S)`` float tensors in [0, 1] for the encoder."""
 
-    def __init__(self, capture, size: int = 128, max_items: int = 20000):
+    def __init__(self, capture, size: int = 128, max_bytes: int = 128 * 1024 * 1024):
         self.capture = capture
         self.size = size
-        self.max_items = max_items
+        self.max_items = max_bytes // (3 * size * size)
         self._cache: dict[tuple, torch.Tensor] = {}
 
     def _load(self, frame) -> torch.Tensor:

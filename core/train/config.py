@@ -21,7 +21,9 @@ def _setting(default, doc: str):
 
 @dataclasses.dataclass
 class TrainSection:
-    steps: int = _setting(4000, "optimisation steps in all (one random training image per step)")
+    steps: int = _setting(4000, "optimisation steps in all")
+    batch: int = _setting(1, "training images per step over all ranks (their mean loss); with torchrun each "
+                             "rank renders its share, so one process with batch B steps as B ranks of one")
     seed: int = _setting(0, "seed of every random choice (frame order, splits)")
     threads: int = _setting(2, "CPU threads for torch and numba")
     log_every: int = _setting(10, "steps between 'iter' progress events")
@@ -149,8 +151,13 @@ class TrainConfig:
             raise InputError(source, "lr.position_final_ratio", "must lie in (0, 1]")
         if not 0 <= self.loss.ssim_weight <= 1:
             raise InputError(source, "loss.ssim_weight", "must lie in [0, 1]")
+        if not 1 <= self.train.batch <= MAX_BATCH:
+            raise InputError(source, "train.batch", f"must lie in [1, {MAX_BATCH}] (got {self.train.batch})")
         _check_mogaface(self.mogaface, source)
         return self
+
+
+MAX_BATCH = 256  # views per step; more would hold that many renders' autograd graphs at once
 
 
 def _check_mogaface(m: MogafaceSection, source) -> None:

@@ -65,18 +65,26 @@ def image_loss(pred: torch.Tensor, target: torch.Tensor, ssim_weight: float = 0.
     return {"l1": l1_value, "ssim": ssim_value, "rgb": rgb}
 
 
-def position_hinge(local_position: torch.Tensor, threshold: float = 1.0) -> torch.Tensor:
-    """Mean ``relu(|μ_local| − threshold)``: keeps Gaussians near their triangle (in its units)."""
-    if local_position.shape[0] == 0:
-        return local_position.sum() * 0
-    return F.relu(local_position.norm(dim=-1) - threshold).mean()
+def _masked_mean(values: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
+    """Mean over the rows ``mask`` keeps (all when None; 0 when none): a weighted sum, no gather."""
+    if mask is None:
+        return values.mean() if values.shape[0] else values.sum() * 0
+    weights = mask.to(values.dtype)
+    return (values * weights).sum() / weights.sum().clamp_min(1.0)
 
 
-def scaling_hinge(local_log_scale: torch.Tensor, threshold: float = 0.6) -> torch.Tensor:
-    """Mean over Gaussians of ``|relu(exp(s_local) − threshold)|``: no Gaussian much larger than its triangle."""
-    if local_log_scale.shape[0] == 0:
-        return local_log_scale.sum() * 0
-    return F.relu(torch.exp(local_log_scale) - threshold).norm(dim=-1).mean()
+def position_hinge(local_position: torch.Tensor, threshold: float = 1.0,
+                   mask: torch.Tensor | None = None) -> torch.Tensor:
+    """Mean ``relu(|μ_local| − threshold)`` over the rows ``mask`` keeps (e.g. the visible Gaussians):
+    keeps Gaussians near their triangle (in its units)."""
+    return _masked_mean(F.relu(local_position.norm(dim=-1) - threshold), mask)
+
+
+def scaling_hinge(local_log_scale: torch.Tensor, threshold: float = 0.6,
+                  mask: torch.Tensor | None = None) -> torch.Tensor:
+    """Mean over the rows ``mask`` keeps of ``|relu(exp(s_local) − threshold)|``: no Gaussian much
+    larger than its triangle."""
+    return _masked_mean(F.relu(torch.exp(local_log_scale) - threshold).norm(dim=-1), mask)
 
 
 def psnr(pred: torch.Tensor, target: torch.Tensor) -> float:

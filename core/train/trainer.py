@@ -31,6 +31,7 @@ from . import config as config_module
 from .checkpoint import latest_checkpoint, load_checkpoint, save_checkpoint
 from .config import TrainConfig
 from .data import TrainingData, capture_head_file
+from .distributed import Communicator
 from .events import EventLog, Listener
 from .losses import image_loss, position_hinge, psnr, scaling_hinge
 from .mogaface_part import build_mogaface, finish_mogaface, mogaface_render
@@ -61,12 +62,15 @@ def position_lr(config: TrainConfig, extent: float, step: int) -> float:
 class Trainer:
     """A training run in a run folder: create it fresh, or resume it from its latest checkpoint.
 
-    ``listeners`` receive every progress event (dicts) besides ``RUN/events.jsonl``.
+    ``listeners`` receive every progress event (dicts) besides ``RUN/events.jsonl``. ``comm`` places
+    the trainer among the ranks of a data-parallel run (default: a single process); only rank 0
+    writes the run folder and emits events.
     """
 
     def __init__(self, capture: str | os.PathLike, run: str | os.PathLike, config: TrainConfig | None = None, *,
                  resume: bool = False, head_file: str | os.PathLike | None = None,
-                 listeners: list[Listener] | None = None):
+                 listeners: list[Listener] | None = None, comm: Communicator | None = None):
+        self.comm = comm or Communicator()
         self.run_folder = RunFolder.at(run)
         checkpoint = None
         if resume:
@@ -91,28 +95,34 @@ class Trainer:
         self._position = 0
         self._stop_signal: int | None = None
         self._posed_cache: dict[int, torch.Tensor] = {}
+        self._step_posed: dict[int, torch.Tensor] = {}
 
-        self.run_folder.root.mkdir(parents=True, exist_ok=True)
+        writer = self.comm.is_writer
+        if writer:
+            self.run_folder.root.mkdir(parents=True, exist_ok=True)
         if checkpoint is None:
             self._start_fresh(head_file)
         else:
             self._restore(checkpoint)
-        self.events = EventLog(self.run_folder.events, listeners)
+        self.events = EventLog(self.run_folder.events if writer else None, listeners if writer else None)
 
     # -- setting up ----------------------------------------------------------------------------
     def _start_fresh(self, head_file) -> None:
         source = pathlib.Path(head_file) if head_file is not None else capture_head_file(self.data.root)
         head = self.run_folder.head(source.suffix or ".pkl")
-        with atomic_path(head) as tmp:
-            shutil.copyfile(source, tmp)
-        write_text(self.run_folder.config, config_module.to_toml(self.config))
+        if self.comm.is_writer:
+            with atomic_path(head) as tmp:
+                shutil.copyfile(source, tmp)
+            write_text(self.run_folder.config, config_module.to_toml(self.config))
+        self.comm.barrier()  # the other ranks read the head model rank 0 copied
         self.table = self.data.flame_table()
         self.avatar = Avatar.initial(head, self.config.densify.max_sh_degree, n_vertices=self.table.n_vertices)
         self._build_optimizer()
         self.mogaface = build_mogaface(self.config, self.data, self.table, self.avatar)
         self.strategy = DensifyStrategy(densify_schedule(self.config), len(self.avatar.gaussians),
                                         len(self.avatar.flame.faces))
-        self._write_run_json(complete=False)
+        if self.comm.is_writer:
+            self._write_run_json(complete=False)
 
     def _restore(self, state: dict) -> None:
         self.avatar = Avatar.from_state(state["avatar"], self.run_folder.root, source=self.run_folder.checkpoints)
@@ -133,12 +143,14 @@ class Trainer:
         self.strategy = DensifyStrategy(densify_schedule(self.config), len(self.avatar.gaussians),
                                         len(self.avatar.flame.faces))
         self.strategy.load_state_dict(state["densify"])
+        self.comm.keep_statistics_once(self.strategy)  # the checkpoint's totals count once (rank 0)
         self.generator.set_state(state["rng"]["torch"])
         self._order = state["sampler"]["order"].clone()
         self._position = int(state["sampler"]["position"])
         self.step = int(state["step"])
         self.elapsed = float(state["elapsed_s"])
-        write_text(self.run_folder.config, config_module.to_toml(self.config))  # e.g. a new --steps
+        if self.comm.is_writer:
+            write_text(self.run_folder.config, config_module.to_toml(self.config))  # e.g. a new --steps
 
     def _build_optimizer(self) -> None:
         lr = self.config.lr
@@ -157,7 +169,7 @@ class Trainer:
             if flame.finetune:
                 rate = {"expr": flame.expression_lr, "translation": flame.translation_lr}.get(name, flame.joints_lr)
                 groups.append({"params": [value], "lr": rate, "name": f"flame.{name}"})
-        self.optimizer = torch.optim.Adam(groups, lr=0.0, eps=1e-15)
+        self.optimizer = torch.optim.Adam(groups, lr=0.0, eps=1e-15, fused=True)  # one kernel per group
 
     # -- state ----------------------------------------------------------------------------------
     def state(self) -> dict:
@@ -176,10 +188,15 @@ class Trainer:
             **({"mogaface": self.mogaface.state_dict()} if self.mogaface is not None else {}),
         }
 
-    def checkpoint(self) -> pathlib.Path:
-        path = save_checkpoint(self.run_folder.checkpoints, self.step, self.state(),
-                               keep=self.config.train.keep_checkpoints)
-        self.events.emit("checkpoint", step=self.step, path=str(path.relative_to(self.run_folder.root)))
+    def checkpoint(self) -> pathlib.Path | None:
+        """Write a checkpoint (rank 0; every rank must call this at the same step). Returns its path."""
+        self.comm.reduce_statistics(self.strategy)
+        path = None
+        if self.comm.is_writer:
+            path = save_checkpoint(self.run_folder.checkpoints, self.step, self.state(),
+                                   keep=self.config.train.keep_checkpoints)
+            self.events.emit("checkpoint", step=self.step, path=str(path.relative_to(self.run_folder.root)))
+        self.comm.keep_statistics_once(self.strategy)
         return path
 
     # -- one step -------------------------------------------------------------------------------
@@ -194,8 +211,11 @@ class Trainer:
 
     def _posed_vertices(self, timestep: int) -> torch.Tensor:
         """The mesh of a timestep; cached when the FLAME parameters are fixed."""
-        if self.config.flame.finetune:
-            return self.avatar.posed_vertices(self.table.params(timestep))
+        if self.config.flame.finetune:  # evaluated once per timestep per step, shared by its views
+            vertices = self._step_posed.get(timestep)
+            if vertices is None:
+                vertices = self._step_posed[timestep] = self.avatar.posed_vertices(self.table.params(timestep))
+            return vertices
         vertices = self._posed_cache.get(timestep)
         if vertices is None:
             with torch.no_grad():
@@ -203,15 +223,26 @@ class Trainer:
             self._posed_cache[timestep] = vertices
         return vertices
 
-    def train_step(self) -> dict:
-        """Run step ``self.step`` (0-based) and advance; returns its losses and what densification did."""
+    def view_generator(self, index: int) -> torch.Generator:
+        """The random source of view ``index`` of the current step (encoder views, rendered offsets).
+
+        Derived from the seed, the step and the view's place in the batch alone, so whichever rank
+        renders the view draws the same numbers.
+        """
+        return torch.Generator().manual_seed(hash((self.config.train.seed, self.step, index)) & (2**63 - 1))
+
+    def _loss_names(self) -> list[str]:
+        names = ["l1", "ssim", "rgb", "position", "scaling"]
+        if self.mogaface is not None:
+            names.append("consistency")
+            names += ["centring"] if self.config.mogaface.centring_weight else []
+            names += ["rendered"] if self.config.mogaface.rendered_weight else []
+        return [*names, "loss", "psnr"]
+
+    def _render_view(self, frame, index: int) -> dict:
+        """Render one training image of the step and score it; returns its losses and render."""
         cfg = self.config
         gaussians = self.avatar.gaussians
-        for group in self.optimizer.param_groups:
-            if group["name"] == "local_position":
-                group["lr"] = position_lr(cfg, self.extent, self.step)
-        gaussians.active_sh_degree = self.strategy.schedule.sh_degree(self.step)
-        frame = self._next_frame()
         camera = self.data.capture.camera(frame)
         target = self.data.target(frame)
         correction = None
@@ -219,12 +250,12 @@ class Trainer:
             vertices = self._posed_vertices(frame.timestep_index)
             out = self.avatar.render_posed(vertices, camera, self.background)
         else:
-            vertices, out, correction = mogaface_render(self.mogaface, self.avatar, self.table, frame, camera,
-                                                        self.background, self.step, self.generator)
+            _, out, correction = mogaface_render(self.mogaface, self.avatar, self.table, frame, camera,
+                                                 self.background, self.step, self.view_generator(index))
         losses = image_loss(out.rgb, target, cfg.loss.ssim_weight)
         visible = out.visible
-        losses["position"] = position_hinge(gaussians.local_position[visible], cfg.loss.position_threshold)
-        losses["scaling"] = scaling_hinge(gaussians.local_log_scale[visible], cfg.loss.scaling_threshold)
+        losses["position"] = position_hinge(gaussians.local_position, cfg.loss.position_threshold, visible)
+        losses["scaling"] = scaling_hinge(gaussians.local_log_scale, cfg.loss.scaling_threshold, visible)
         total = losses["rgb"] + cfg.loss.position_weight * losses["position"] \
             + cfg.loss.scaling_weight * losses["scaling"]
         if correction is not None:
@@ -236,23 +267,69 @@ class Trainer:
             if correction.rendered is not None:
                 losses["rendered"] = correction.rendered
                 total = total + cfg.mogaface.rendered_weight * correction.rendered
-        total.backward()
-        self.strategy.observe(self.step + 1, out.means2d.grad, out.radii, camera.width, camera.height)
+        losses["loss"] = total
+        return {"losses": losses, "out": out, "camera": camera, "target": target, "correction": correction}
+
+    def _trainable(self) -> list[torch.Tensor]:
+        """Every parameter an optimiser steps, in the same order on every rank."""
+        params = [p for group in self.optimizer.param_groups for p in group["params"] if p.requires_grad]
+        if self.mogaface is not None:
+            params += [p for group in self.mogaface.optimizer.param_groups for p in group["params"]]
+        return params
+
+    def train_step(self) -> dict:
+        """Run step ``self.step`` (0-based) and advance; returns its losses and what densification did.
+
+        A step scores ``train.batch`` training images (their mean loss); with several ranks each
+        renders its share and the gradients are summed over the ranks before the optimiser step.
+        """
+        cfg = self.config
+        comm = self.comm
+        gaussians = self.avatar.gaussians
+        for group in self.optimizer.param_groups:
+            if group["name"] == "local_position":
+                group["lr"] = position_lr(cfg, self.extent, self.step)
+        gaussians.active_sh_degree = self.strategy.schedule.sh_degree(self.step)
+        batch = cfg.train.batch
+        frames = [self._next_frame() for _ in range(batch)]
+        names = self._loss_names()
+        views = {j: self._render_view(frames[j], j) for j in comm.share(batch)}
+        sums = torch.zeros(len(names), dtype=torch.float64)
+        if views:
+            total = sum(view["losses"]["loss"] for view in views.values()) / batch
+            total.backward()
+            self._step_posed.clear()  # the step's meshes (and their graphs) are spent
+            for view in views.values():
+                values = {k: float(v.detach()) for k, v in view["losses"].items()}
+                values["psnr"] = psnr(view["out"].rgb, view["target"])
+                sums += torch.tensor([values[name] for name in names], dtype=torch.float64)
+                grad = view["out"].means2d.grad
+                camera = view["camera"]
+                # Each view's own screen gradient (the batch mean divides it by ``batch``), as gsplat.
+                self.strategy.observe(self.step + 1, None if grad is None else grad * batch, view["out"].radii,
+                                      camera.width, camera.height)
+        sums = comm.reduce_step(self._trainable(), sums)
         self.optimizer.step()
         self.optimizer.zero_grad(set_to_none=True)
-        if correction is not None:
+        if self.mogaface is not None:
             self.mogaface.optimizer_step()
-            correction.commit()
+            records = torch.zeros(batch, self.mogaface.record_size())
+            for j, view in views.items():
+                records[j] = self.mogaface.record(view["correction"])
+            for record in comm.reduce_rows(records):
+                self.mogaface.commit(record)
         self.step += 1
         report = {}
         if self.strategy.schedule.densifies_at(self.step) or self.strategy.schedule.resets_opacity_at(self.step):
+            if self.strategy.schedule.densifies_at(self.step):
+                comm.reduce_statistics(self.strategy)
             with torch.no_grad():
-                face_scale = triangle_frames(vertices.detach(), self.avatar.flame.faces).scale
+                # The triangle sizes of the step's first timestep, tracked pose: the same on every rank.
+                vertices = self.avatar.posed_vertices(self.table.params(frames[0].timestep_index))
+                face_scale = triangle_frames(vertices, self.avatar.flame.faces).scale
                 report = self.strategy.after_step(self.step, gaussians, self.optimizer, face_scale, self.extent,
                                                   self.generator)
-        values = {k: float(v.detach()) for k, v in losses.items()}
-        values["loss"] = float(total.detach())
-        values["psnr"] = psnr(out.rgb, target)
+        values = dict(zip(names, (sums / batch).tolist()))
         return {"losses": values, "densify": report}
 
     # -- the loop -------------------------------------------------------------------------------
@@ -283,8 +360,14 @@ class Trainer:
         budget = cfg.max_minutes * 60 if cfg.max_minutes > 0 else math.inf
         out_of_time = False
         try:
-            while self.step < end and self._stop_signal is None:
-                if self.elapsed >= budget:
+            while self.step < end:
+                # Every rank stops at the same step: a signal to any, or rank 0's clock.
+                signum, timed = self.comm.agree([self._stop_signal or 0,
+                                                 float(self.comm.is_writer and self.elapsed >= budget)])
+                if signum:
+                    self._stop_signal = int(signum)
+                    break
+                if timed:
                     out_of_time = True
                     break
                 result = self.train_step()
@@ -303,20 +386,23 @@ class Trainer:
                                      it_s=rate, eta_s=(cfg.steps - self.step) / max(rate, 1e-9),
                                      elapsed_s=self.elapsed)
                     window_start, window_steps = now, 0
-                if self.config.eval.every and self.step % self.config.eval.every == 0:
+                if self.config.eval.every and self.step % self.config.eval.every == 0 and self.comm.is_writer:
                     self._quick_check()
                     last = time.monotonic()
                 if cfg.checkpoint_every and self.step % cfg.checkpoint_every == 0 and self.step < cfg.steps:
                     self.checkpoint()
             if self._stop_signal is not None or (self.step < cfg.steps and not out_of_time):
                 self.checkpoint()
+                self.comm.wait_for_writer()
                 if self._stop_signal is not None:
                     self.events.emit("stopped", step=self.step, signal=signal.Signals(self._stop_signal).name)
                 return {"step": self.step, "stopped": self._stop_signal, "complete": False}
             if out_of_time:
                 self.events.emit("time_limit", step=self.step, elapsed_s=self.elapsed)
             self.checkpoint()
-            self.finish()
+            if self.comm.is_writer:
+                self.finish()
+            self.comm.wait_for_writer()
             return {"step": self.step, "stopped": None, "complete": True}
         finally:
             self.events.close()
