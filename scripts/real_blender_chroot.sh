@@ -2,7 +2,7 @@
 # The real Blender program (Debian trixie's Blender 4.3.2, Python 3.13) in a cached chroot.
 #
 #   scripts/real_blender_chroot.sh ensure              build the chroot if missing (idempotent)
-#   scripts/real_blender_chroot.sh run CHECKOUT WORK -- CMD...
+#   [MOGAFACE_EXTRA_BIND=HOST:INSIDE] scripts/real_blender_chroot.sh run CHECKOUT WORK -- CMD...
 #                                                      run CMD inside it with CHECKOUT bind-mounted
 #                                                      read-only at /src and WORK read-write at /work;
 #                                                      everything mounted is unmounted on exit
@@ -73,7 +73,7 @@ mount_system() {
 in_chroot_plain() {
     mount_system
     chroot "$CHROOT" env -i HOME=/root PATH="$CHROOT_PATH" LANG=C.UTF-8 \
-        SSL_CERT_FILE=/etc/ssl/certs/ca-certificates.crt "$@"
+        SSL_CERT_FILE=/etc/ssl/certs/ca-certificates.crt PIP_CERT=/etc/ssl/certs/ca-certificates.crt "$@"
 }
 
 run() {
@@ -89,6 +89,12 @@ run() {
     mount_into "$CHROOT/src" --bind "$checkout"
     mount -o remount,bind,ro "$CHROOT/src"
     mount_into "$CHROOT/work" --bind "$work"
+    if [ -n "${MOGAFACE_EXTRA_BIND:-}" ]; then  # HOST:INSIDE, read-write (e.g. a pip cache)
+        mkdir -p "${MOGAFACE_EXTRA_BIND%%:*}"
+        mount_into "$CHROOT${MOGAFACE_EXTRA_BIND#*:}" --bind "${MOGAFACE_EXTRA_BIND%%:*}"
+    fi
+    cp -L /etc/hosts "$CHROOT/etc/hosts"
+    cp -L /etc/resolv.conf "$CHROOT/etc/resolv.conf"
     in_chroot_plain "$@"
 }
 
