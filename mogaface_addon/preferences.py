@@ -48,7 +48,7 @@ def draw_dependencies(layout) -> bool:
 
     if current_install() is not None:
         box = layout.box()
-        box.label(text="Installing Python packages (Blender stays usable)", icon="IMPORT")
+        box.label(text="Installing Python packages", icon="IMPORT")
         box.progress(factor=progress.fraction, text=progress.message)
         box.operator("mogaface.install_dependencies_cancel", icon="CANCEL")
         return False
@@ -60,7 +60,7 @@ def draw_dependencies(layout) -> bool:
     box = layout.box()
     box.alert = True
     box.label(text=f"Missing Python packages: {', '.join(missing)}", icon="ERROR")
-    box.label(text="Training and rendering need them; importing captures and heads needs numpy only.")
+    box.label(text="Training and the avatar need them")
     box.operator("mogaface.install_dependencies", icon="IMPORT")
-    box.label(text="Downloads about 1 GB (CPU build of torch) into the extension's folder.")
+    box.label(text="Runs in the background; can be cancelled")
     return False

@@ -68,7 +68,7 @@ test -f /work/user/extensions/user_default/mogaface/__init__.py
 say "the extension in a window: dependencies, import, train, render, export"
 xvfb-run -a -s "-screen 0 1600x1000x24" blender --enable-event-simulate --python /src/tests/real_blender/ui_check.py -- \
     '{"work": "/work", "images": "/work/images", "capture": "/work/capture", "head": "/work/head.npz",
-      "torch_index": "$torch_index", "steps": 30}'
+      "torch_index": "$torch_index", "steps": 600}'
 python3 -c "import json, sys; r = json.load(open('/work/results.json')); print(json.dumps(r, indent=1)); sys.exit(0 if r.get('ok') else 1)"
 say "headless: --factory-startup, then a .blend"
 blender -b --factory-startup --python /src/scripts/mogaface_blend.py -- /work/capture --run /work/run \

@@ -47,23 +47,26 @@ def override():
 
 
 def show_panel():
-    """A generator step: the 3D View's sidebar on the MoGaFace tab.
+    """A generator step: the 3D View's sidebar on the MoGaFace tab, the splash closed.
 
-    The active tab cannot be set from Python; like a user, Ctrl+wheel over the sidebar cycles it
-    (Blender runs with --enable-event-simulate for this).
+    The active tab cannot be set from Python (read-only in 4.3); like a user, click the tabs
+    (Blender runs with --enable-event-simulate), top to bottom until MoGaFace is active.
     """
     window, area, _ = window_and_view()
     area.spaces.active.show_region_ui = True
-    area.tag_redraw()
+    window.event_simulate(type="ESC", value="PRESS")  # the splash screen
+    window.event_simulate(type="ESC", value="RELEASE")
     yield 0.5
-    for _ in range(8):
-        region = next(r for r in area.regions if r.type == "UI")
+    region = next(r for r in area.regions if r.type == "UI")
+    x = region.x + region.width - 8  # the tab strip on the sidebar's right edge
+    for dy in range(10, region.height, 20):
         if region.active_panel_category == "MoGaFace":
             return
-        x, y = region.x + region.width // 2, region.y + region.height // 2
+        y = region.y + region.height - dy
         window.event_simulate(type="MOUSEMOVE", value="NOTHING", x=x, y=y)
-        window.event_simulate(type="WHEELDOWNMOUSE", value="PRESS", x=x, y=y, ctrl=True)
-        yield 0.5
+        window.event_simulate(type="LEFTMOUSE", value="PRESS", x=x, y=y)
+        window.event_simulate(type="LEFTMOUSE", value="RELEASE", x=x, y=y)
+        yield 0.2
     log(f"the sidebar shows {region.active_panel_category!r}, not MoGaFace")
 
 
@@ -97,6 +100,12 @@ def stages():
     prefs = bpy.context.preferences.addons[MODULE].preferences
     missing = deps.missing_modules()
     RESULTS["missing_at_start"] = missing
+    if not (missing == [] and ARGS.get("reuse_packages")):  # reuse: re-running the later stages only
+        yield from install_stages(deps, install, prefs, missing)
+    yield from scene_stages()
+
+
+def install_stages(deps, install, prefs, missing):
     check("torch" in missing, f"torch should be missing in a fresh Blender, found missing={missing}")
     shot("1-missing-packages")
     stage("panel offers Install Dependencies")
@@ -136,6 +145,9 @@ def stages():
     shot("3-packages-ready")
     stage("Install Dependencies")
 
+
+def scene_stages():
+
     # Import the capture and a head: plain operators.
     with override():
         check(bpy.ops.mogaface.import_capture(filepath=ARGS["capture"]) == {"FINISHED"}, "import capture")
@@ -153,7 +165,7 @@ def stages():
         result = bpy.ops.mogaface.train("INVOKE_DEFAULT", capture=ARGS["capture"], run=run, preset="quick",
                                         steps=ARGS["steps"], resume="NEW")
         check(result == {"RUNNING_MODAL"}, f"train gave {result}: {train.last_progress()}")
-    yield from wait_until(lambda: train.current_worker() is None or train.current_worker().progress.step >= 3,
+    yield from wait_until(lambda: train.current_worker() is None or train.current_worker().progress.step >= 5,
                           1800, "training progress")
     check(train.current_worker() is not None, f"training ended early: {train.last_progress()}")
     yield from show_panel()
