@@ -490,6 +490,42 @@ def test_without_numpy_the_extension_enables_and_offers_the_install(scenario):
         assert outcome(out, name).startswith("REPORTED") and "Missing Python packages: numpy." in outcome(out, name)
 
 
+def test_the_train_operator_takes_its_interpreter_from_its_python_property(scenario, tmp_path):
+    missing = tmp_path / "no-such-python"
+    with pytest.raises(RuntimeError, match=f"Cannot start {missing}"):
+        bpy.ops.mogaface.train(capture=str(scenario["capture"]), run=str(tmp_path / "run"), python=str(missing))
+
+
+FACTORY_STARTUP_SCRIPT = """
+import importlib.util, os, sys, tempfile
+folder = tempfile.mkdtemp()
+for name in ("BLENDER_USER_RESOURCES", "BLENDER_USER_CONFIG", "BLENDER_USER_SCRIPTS"):
+    os.environ[name] = folder
+import bpy
+bpy.ops.extensions.package_install_files(filepath=sys.argv[1], repo="user_default", enable_on_install=True)
+bpy.ops.wm.read_factory_settings(use_empty=True)  # what --factory-startup gives: every extension off
+assert not any(name.endswith("mogaface") for name in bpy.context.preferences.addons.keys())
+spec = importlib.util.spec_from_file_location("mogaface_blend", sys.argv[2])
+script = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(script)
+module = script._mogaface_module()
+print("MODULE", module.__name__, hasattr(bpy.types, "MOGAFACE_OT_import_head"))
+args = script.build_parser().parse_args(["capture", "--run", "run", "--blend", "out.blend", "--python", "/opt/py"])
+print("PYTHON", args.python)
+import shutil
+shutil.rmtree(folder, ignore_errors=True)
+"""
+
+
+def test_headless_script_enables_the_installed_extension_after_a_factory_startup(scenario):
+    (archive,) = (scenario["root"] / "dist").glob("mogaface-*.zip")
+    result = subprocess.run([sys.executable, "-c", FACTORY_STARTUP_SCRIPT, str(archive),
+                             str(ROOT / "scripts" / "mogaface_blend.py")],
+                            capture_output=True, text=True, timeout=180, cwd=scenario["root"])
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert f"MODULE {MODULE} True" in result.stdout and "PYTHON /opt/py" in result.stdout
+
+
 def test_saved_blend_reopens_with_everything(scenario):
     path = scenario["root"] / "scene.blend"
     name = scenario["head_object"].name
@@ -518,3 +554,4 @@ def test_disabling_leaves_nothing_registered(scenario):
         assert not any(h.__module__.startswith(MODULE) for h in handlers)
     assert "mogaface" not in dir(bpy.ops)
     assert not any(path.endswith("mogaface" + os.sep + "site-packages") for path in sys.path)
+
