@@ -12,7 +12,8 @@
 # animation, export a PLY; headless: scripts/mogaface_blend.py with --factory-startup and with a
 # .blend; then disable and remove the extension (its user folder must be gone).
 #
-# Environment: MOGAFACE_CHECK_TORCH_INDEX (default: the CPU build's index; "" for PyPI's torch),
+# Environment: MOGAFACE_CHECK_TORCH_INDEX (default: the CPU build's index when it can be reached,
+# else "" = PyPI's torch, said in the log),
 # MOGAFACE_CHECK_WORK (default: a fresh folder under /var/cache/mogaface), MOGAFACE_PIP_CACHE
 # (default /var/cache/mogaface/pip-cache: downloads are reused between runs).
 set -euo pipefail
@@ -27,7 +28,7 @@ while [ $# -gt 0 ]; do
         *) echo "usage: $0 [--images DIR] [--keep]" >&2; exit 2 ;;
     esac
 done
-torch_index="${MOGAFACE_CHECK_TORCH_INDEX-https://download.pytorch.org/whl/cpu}"
+cpu_index=https://download.pytorch.org/whl/cpu
 pip_cache="${MOGAFACE_PIP_CACHE:-/var/cache/mogaface/pip-cache}"
 work="${MOGAFACE_CHECK_WORK:-$(mkdir -p /var/cache/mogaface && mktemp -d /var/cache/mogaface/check.XXXXXX)}"
 chroot_sh="$root/scripts/real_blender_chroot.sh"
@@ -39,6 +40,14 @@ cleanup() { [ "$keep" = 1 ] || rm -rf "$work"; }
 trap cleanup EXIT
 
 say "work folder $work (load $(cut -d' ' -f1-3 /proc/loadavg))"
+if [ -n "${MOGAFACE_CHECK_TORCH_INDEX+set}" ]; then
+    torch_index="$MOGAFACE_CHECK_TORCH_INDEX"
+elif "$python" -c "import urllib.request; urllib.request.urlopen('$cpu_index/', timeout=15)" 2>/dev/null; then
+    torch_index="$cpu_index"
+else  # the product never falls back silently; the check says so and tests with PyPI's torch
+    torch_index=""
+    say "$cpu_index cannot be reached from here: checking with PyPI's torch (the CUDA build on Linux)"
+fi
 bash "$chroot_sh" ensure
 mkdir -p "$work/dist" "$work/images" "$pip_cache"
 
