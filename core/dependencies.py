@@ -53,6 +53,8 @@ DEFAULT_TORCH_INDEX = "https://download.pytorch.org/whl/cpu"
 
 PROBE = "import importlib.util, sys; print(*sys.version_info[:2], importlib.util.find_spec('numpy') is not None)"
 
+CANCEL_GRACE_S = 10.0
+
 PIP_FLAGS = ("--disable-pip-version-check", "--no-input", "--only-binary=:all:")
 
 
@@ -192,10 +194,13 @@ class InstallJob:
             self._cancelled = True
             process = self._process
         if process is not None and process.poll() is None:
+            # SIGINT: pip stops like on Ctrl+C and removes its temporary files (downloads of
+            # gigabytes would stay in the temporary folder after SIGTERM); killed if it lingers.
             try:
-                os.killpg(process.pid, signal.SIGTERM) if hasattr(os, "killpg") else process.terminate()
+                os.killpg(process.pid, signal.SIGINT) if hasattr(os, "killpg") else process.terminate()
             except OSError:
                 pass
+            threading.Timer(CANCEL_GRACE_S, _kill, args=(process,)).start()
 
     def wait(self, interval: float = 0.2, on_progress=None) -> InstallProgress:
         """Block until the job ends (headless use), calling ``on_progress`` when the state changes."""
@@ -319,6 +324,14 @@ class InstallJob:
             os.replace(self.target, old)
         os.replace(staging, self.target)
         shutil.rmtree(old, ignore_errors=True)
+
+
+def _kill(process: subprocess.Popen) -> None:
+    if process.poll() is None:
+        try:
+            os.killpg(process.pid, signal.SIGKILL) if hasattr(os, "killpg") else process.kill()
+        except OSError:
+            pass
 
 
 class _Failure(Exception):
