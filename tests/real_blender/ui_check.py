@@ -148,7 +148,9 @@ def install_stages(deps, install, prefs, missing):
 
 def scene_stages():
 
-    # Import the capture and a head: plain operators.
+    # Import the capture and a head: plain operators (the default cube would hide the head).
+    if "Cube" in bpy.data.objects:
+        bpy.data.objects.remove(bpy.data.objects["Cube"])
     with override():
         check(bpy.ops.mogaface.import_capture(filepath=ARGS["capture"]) == {"FINISHED"}, "import capture")
         check(bpy.ops.mogaface.import_head(filepath=ARGS["head"]) == {"FINISHED"}, "import head")
