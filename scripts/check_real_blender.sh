@@ -15,7 +15,7 @@
 # Environment: MOGAFACE_CHECK_TORCH_INDEX (default: the CPU build's index when it can be reached,
 # else "" = PyPI's torch, said in the log),
 # MOGAFACE_CHECK_WORK (default: a fresh folder under /var/cache/mogaface), MOGAFACE_PIP_CACHE
-# (default /var/cache/mogaface/pip-cache: downloads are reused between runs).
+# (default /var/cache/mogaface/pip-cache: pip's cache folder, kept between runs).
 set -euo pipefail
 
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
