@@ -129,3 +129,21 @@ def test_a_job_runs_in_the_background_and_cancel_keeps_the_old_folder(tmp_path):
 def test_a_job_with_a_missing_interpreter_fails_with_its_name(tmp_path):
     progress = dependencies.InstallJob(str(tmp_path / "no-python"), tmp_path / "site").start().wait(interval=0.05)
     assert progress.state == "failed" and "Cannot run" in progress.message and "no-python" in progress.message
+
+
+def test_blenders_own_numpy_is_never_replaced(tmp_path):
+    """With numpy present, numpy is not asked for; if the other pins still need another one, say so."""
+    python, log = fake_python(tmp_path)
+    script = pathlib.Path(python)
+    text = script.read_text().replace('print("3 13 False")', 'print("3 11 True")')
+    script.write_text(text)
+    target = tmp_path / "site-packages"
+    progress = dependencies.InstallJob(python, target, torch_index="").start().wait(interval=0.05)
+    assert progress.state == "done", progress.message
+    resolve = json.loads(log.read_text().splitlines()[1])
+    assert not any(arg.startswith("numpy") for arg in resolve)
+    assert not any(p.startswith("numpy") for p in progress.packages)
+    script.write_text(text.replace('pins = [a for a in args if "==" in a]',
+                                   'pins = [a for a in args if "==" in a] + ["numpy==2.4.0"]'))
+    progress = dependencies.InstallJob(python, target, torch_index="").start().wait(interval=0.05)
+    assert progress.state == "failed" and "Blender's numpy" in progress.message and "numpy==2.4.0" in progress.message
