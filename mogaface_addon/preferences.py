@@ -59,8 +59,8 @@ def draw_dependencies(layout) -> bool:
         return True
     box = layout.box()
     box.alert = True
-    box.label(text=f"Missing Python packages: {', '.join(missing)}", icon="ERROR")
+    box.label(text=f"Missing: {', '.join(missing)}", icon="ERROR")
     box.label(text="Training and the avatar need them")
     box.operator("mogaface.install_dependencies", icon="IMPORT")
-    box.label(text="Runs in the background; can be cancelled")
+    box.label(text="Runs in the background")
     return False

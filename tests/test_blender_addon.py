@@ -348,7 +348,7 @@ def test_panels_draw_every_section_and_name_missing_packages(scenario, monkeypat
     preferences = importlib.import_module(MODULE + ".mogaface_addon.preferences")
     monkeypatch.setattr(preferences, "missing_modules", lambda: ["numba", "torch"])
     labels = [entry[1] for entry in draw_panels(["MOGAFACE_PT_main"])]
-    assert "Missing Python packages: numba, torch" in labels
+    assert "Missing: numba, torch" in labels
     assert ("operator", "mogaface.install_dependencies", True) in draw_panels(["MOGAFACE_PT_main"])
 
 
@@ -479,12 +479,12 @@ def test_without_torch_captures_and_heads_import_and_training_offers_the_install
     assert outcome(out, "capture") == "RESULT capture ['FINISHED']" and outcome(out, "head") == "RESULT head ['FINISHED']"
     train = outcome(out, "train")
     assert train.startswith("REPORTED") and "Missing Python packages: torch. Click Install Dependencies" in train
-    assert "BUTTON: mogaface.install_dependencies" in out and "LABEL: Missing Python packages: torch" in out
+    assert "BUTTON: mogaface.install_dependencies" in out and "LABEL: Missing: torch" in out
 
 
 def test_without_numpy_the_extension_enables_and_offers_the_install(scenario):
     out = run_without(scenario, ["numpy", "torch", "numba"])
-    assert "LABEL: Missing Python packages: numpy, torch, numba" in out
+    assert "LABEL: Missing: numpy, torch, numba" in out
     assert "BUTTON: mogaface.install_dependencies" in out
     for name in ("capture", "head"):
         assert outcome(out, name).startswith("REPORTED") and "Missing Python packages: numpy." in outcome(out, name)
