@@ -1,50 +1,342 @@
-"""The pinned packages the core needs inside Blender, and the pip command that installs them.
+"""Installing the core's packages for Blender's Python: what to install, and a cancellable job.
 
-Blender-free: the add-on's "Install Dependencies" operator calls :func:`install`; nothing is
-read or imported at import time.
+Blender-free: the add-on's *Install Dependencies* operator starts an :class:`InstallJob` and polls
+it from a timer, so Blender stays responsive; headless code calls :meth:`InstallJob.wait`.
+
+The job never installs what the interpreter already has (Blender's own numpy above all) and
+chooses versions that have wheels for that interpreter's Python:
+
+1. *torch* (only with a torch index, the CPU build's by default): ``pip install --dry-run``
+   against that index alone gives the exact build, e.g. ``torch==2.13.0+cpu``. An unreachable
+   index is an error here, instead of a silent fall-back to PyPI's torch, which on Linux is the
+   CUDA build (≈ 3 GB).
+2. *Resolve*: ``pip install --dry-run --report -`` of the pins in the interpreter's own
+   environment lists exactly what it lacks, with every dependency pinned.
+3. *Install*: ``pip install --no-deps --target NEW`` of that list, then ``NEW`` replaces the
+   target folder (a failed or cancelled run leaves the old folder as it was).
+
+Every pip runs isolated (``python -I``), binary wheels only (nothing is compiled), and a
+failure is explained by its cause (:func:`explain_failure`), not by pip's last line.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import json
+import os
+import re
+import shutil
+import signal
 import subprocess
+import sys
+import threading
+import time
 
-# Same pins as requirements.txt (tests check they agree).
-PINNED = (
-    "torch==2.13.0",
-    "numpy==1.26.4",
-    "numba==0.68.1",
-    "llvmlite==0.50.0",
-    "scipy==1.17.1",
-    "scikit-image==0.26.0",
-    "trimesh==5.2.0",
-    "OpenEXR==3.5.3",
-    "pillow==13.0.0",
-)
+#: The pins for every Python version (the same as requirements.txt; tests check they agree).
+PINNED = {
+    "torch": "2.13.0",
+    "numba": "0.68.1",
+    "llvmlite": "0.50.0",
+    "scipy": "1.17.1",
+    "scikit-image": "0.26.0",
+    "trimesh": "5.2.0",
+    "OpenEXR": "3.5.3",
+    "pillow": "13.0.0",
+}
 
-INSTALL_TIMEOUT_S = 3600.0
+#: numpy only when the interpreter has none, in the newest version with wheels for its Python
+#: that numba and scipy accept: 1.26.4 has no wheels for Python 3.13 and later.
+NUMPY_BY_PYTHON = (((3, 13), "2.3.5"), ((3, 0), "1.26.4"))
+
+#: Where the CPU-only torch build comes from by default (PyPI's Linux torch is the CUDA build).
+DEFAULT_TORCH_INDEX = "https://download.pytorch.org/whl/cpu"
+
+PROBE = "import importlib.util, sys; print(*sys.version_info[:2], importlib.util.find_spec('numpy') is not None)"
+
+CANCEL_GRACE_S = 10.0
+
+PIP_FLAGS = ("--disable-pip-version-check", "--no-input", "--only-binary=:all:")
 
 
-def requirements() -> list[str]:
-    """The pinned requirement lines, e.g. ``torch==2.13.0``."""
-    return list(PINNED)
+def numpy_pin(python_version: tuple[int, int]) -> str:
+    """The numpy version to install for a Python ``(major, minor)`` that has no numpy."""
+    return next(version for since, version in NUMPY_BY_PYTHON if tuple(python_version) >= since)
 
 
-def install_command(python: str, target: str) -> list[str]:
-    """argv that pip-installs the pinned packages for ``python`` into the folder ``target``."""
-    return [str(python), "-m", "pip", "install", "--disable-pip-version-check", "--no-input",
-            "--upgrade", "--target", str(target), *requirements()]
+def requirements(python_version: tuple[int, int], has_numpy: bool, torch_version: str | None = None) -> list[str]:
+    """The requirement lines for an interpreter: the pins, numpy only when it lacks one."""
+    pins = dict(PINNED, torch=torch_version or PINNED["torch"])
+    lines = [f"{name}=={version}" for name, version in pins.items()]
+    if not has_numpy:
+        lines.append(f"numpy=={numpy_pin(python_version)}")
+    return lines
 
 
-def install(python: str, target: str, timeout: float = INSTALL_TIMEOUT_S, lines: int = 5) -> tuple[bool, str]:
-    """Run the install in a child process; (success, message), the message ends with pip's last stderr lines."""
-    try:
-        result = subprocess.run(install_command(python, target), capture_output=True, text=True,
-                                timeout=timeout, stdin=subprocess.DEVNULL)
-    except subprocess.TimeoutExpired:
-        return False, f"pip did not finish within {timeout:.0f} s"
-    except OSError as error:
-        return False, f"Cannot run {python}: {error.strerror or error}"
-    if result.returncode == 0:
-        return True, f"Installed {len(PINNED)} packages into {target}"
-    tail = [line for line in (result.stderr or result.stdout).splitlines() if line.strip()][-lines:]
-    return False, f"pip failed (exit {result.returncode}): " + " | ".join(tail)
+def index_flags(torch_index: str) -> list[str]:
+    """pip's index options: the user's own pip configuration, plus the torch index if any."""
+    return ["--extra-index-url", torch_index] if torch_index else []
+
+
+def pip_command(python: str, *arguments: str) -> list[str]:
+    """``python -I -m pip …`` (isolated: nothing imported from the working directory)."""
+    return [str(python), "-I", "-m", "pip", *arguments]
+
+
+def torch_command(python: str, torch_index: str) -> list[str]:
+    """Step 1: which torch build the torch index has for this interpreter (report on stdout)."""
+    return pip_command(python, "install", "--dry-run", "--quiet", "--no-deps", "--ignore-installed", *PIP_FLAGS,
+                       "--report", "-", "--index-url", torch_index, f"torch=={PINNED['torch']}")
+
+
+def resolve_command(python: str, lines: list[str], torch_index: str) -> list[str]:
+    """Step 2: what the interpreter lacks of ``lines``, dependencies included (report on stdout)."""
+    return pip_command(python, "install", "--dry-run", "--quiet", *PIP_FLAGS, *index_flags(torch_index),
+                       "--report", "-", *lines)
+
+
+def install_command(python: str, target, pins: list[str], torch_index: str) -> list[str]:
+    """Step 3: install exactly ``pins`` (``name==version``) into the folder ``target``."""
+    return pip_command(python, "install", "--no-deps", "--progress-bar", "off", *PIP_FLAGS,
+                       *index_flags(torch_index), "--target", os.fspath(target), *pins)
+
+
+def planned(report: dict) -> list[str]:
+    """``name==version`` of every package a pip ``--report`` says would be installed."""
+    return [f"{item['metadata']['name']}=={item['metadata']['version']}" for item in report.get("install", [])]
+
+
+# -- errors --------------------------------------------------------------------------------------
+_NETWORK = ("NewConnectionError", "Name or service not known", "Temporary failure in name resolution",
+            "Max retries exceeded", "ProxyError", "ConnectTimeoutError", "Network is unreachable",
+            "ReadTimeoutError", "Connection refused")
+
+
+def explain_failure(output: str, python_version: tuple[int, int], torch_index: str = "") -> str:
+    """One sentence naming why pip failed, from its whole output (the cause is rarely the last line)."""
+    python = f"Python {python_version[0]}.{python_version[1]}"
+    if re.search(r"No module named pip\b", output):
+        return (f"This Blender's Python ({python}) has no pip. Install it with the system's package manager "
+                "(Debian, Ubuntu: sudo apt install python3-pip), or use a Blender from blender.org, which "
+                "bundles pip")
+    if "CERTIFICATE_VERIFY_FAILED" in output or "SSLError" in output:
+        return "The package index's certificate was refused (SSL): check the system's CA certificates or proxy"
+    if "No space left on device" in output:
+        return "The disk is full: free space for the packages (about 1 GB for the CPU build of torch)"
+    missing = re.search(r"No matching distribution found for ([^\s;]+)", output)
+    if any(marker in output for marker in _NETWORK):
+        host = re.search(r"host='([^']+)'", output) or re.search(r"https?://([^/\s]+)", output)
+        where = host.group(1) if host else "the package index"
+        if not missing or (torch_index and "torch" in missing.group(1)):
+            return (f"Cannot reach {where}: check the network connection (and any proxy)"
+                    + (f"; the torch index is {torch_index} (add-on preferences)" if torch_index else ""))
+    if missing:
+        return (f"No wheel of {missing.group(1)} for {python} on this platform"
+                + (f" at the torch index {torch_index}" if torch_index and "torch" in missing.group(1) else "")
+                + ": this Blender's Python is not supported by that version")
+    if "THESE PACKAGES DO NOT MATCH THE HASHES" in output:
+        return "A download was corrupted (hash mismatch): try again"
+    if "externally-managed-environment" in output:
+        return f"This {python} refuses installs into itself (externally managed)"
+    errors = [line.strip() for line in output.splitlines() if line.strip().startswith("ERROR:")]
+    if errors:
+        return errors[0].removeprefix("ERROR:").strip()
+    lines = [line.strip() for line in output.splitlines() if line.strip()]
+    return lines[-1] if lines else "pip failed without a message"
+
+
+# -- the job -------------------------------------------------------------------------------------
+@dataclasses.dataclass
+class InstallProgress:
+    """What the UI shows while installing."""
+
+    state: str = "starting"  # starting, resolving, downloading, installing, done, failed, cancelled
+    fraction: float = 0.0
+    message: str = ""
+    packages: list[str] = dataclasses.field(default_factory=list)
+
+    @property
+    def finished(self) -> bool:
+        return self.state in ("done", "failed", "cancelled")
+
+
+class InstallJob:
+    """Installs what ``python`` lacks into ``target``, in a background thread; cancellable.
+
+    ``torch_index``: the index of the torch build ("" for the user's pip configuration alone).
+    The interpreter's Python version and whether it has numpy are asked from it first.
+    """
+
+    def __init__(self, python: str, target, torch_index: str = DEFAULT_TORCH_INDEX, env: dict | None = None,
+                 timeout: float = 3600.0):
+        self.python, self.target = str(python), os.fspath(target)
+        self.python_version, self.has_numpy = (0, 0), False
+        self.torch_index, self.timeout = torch_index.strip(), timeout
+        self.env = env
+        self.progress = InstallProgress()
+        self.log: list[str] = []  # pip's output, for a failure's explanation
+        self._process: subprocess.Popen | None = None
+        self._cancelled = False
+        self._lock = threading.Lock()
+        self._thread: threading.Thread | None = None
+
+    def start(self) -> "InstallJob":
+        self._thread = threading.Thread(target=self._run, name="mogaface-install", daemon=True)
+        self._thread.start()
+        return self
+
+    def poll(self) -> InstallProgress:
+        """The current progress (never blocks)."""
+        return self.progress
+
+    def cancel(self) -> None:
+        """Stop pip now; the target folder stays as it was."""
+        with self._lock:
+            self._cancelled = True
+            process = self._process
+        if process is not None and process.poll() is None:
+            # SIGINT: pip stops like on Ctrl+C and removes its temporary files (downloads of
+            # gigabytes would stay in the temporary folder after SIGTERM); killed if it lingers.
+            try:
+                os.killpg(process.pid, signal.SIGINT) if hasattr(os, "killpg") else process.terminate()
+            except OSError:
+                pass
+            threading.Timer(CANCEL_GRACE_S, _kill, args=(process,)).start()
+
+    def wait(self, interval: float = 0.2, on_progress=None) -> InstallProgress:
+        """Block until the job ends (headless use), calling ``on_progress`` when the state changes."""
+        seen = None
+        while True:
+            progress = self.poll()
+            key = (progress.state, round(progress.fraction, 2))
+            if on_progress is not None and key != seen:
+                seen = key
+                on_progress(progress)
+            if progress.finished:
+                return progress
+            time.sleep(interval)
+
+    # -- the steps, in the background thread -----------------------------------------------------
+    def _run(self) -> None:
+        staging = self.target + ".new"
+        try:
+            self._set("resolving", 0.01, "Asking the Python what it has")
+            self.python_version, self.has_numpy = self._probe()
+            self._set("resolving", 0.02, f"Choosing versions for Python {self.python_version[0]}."
+                      f"{self.python_version[1]}")
+            torch_version = None
+            if self.torch_index:
+                report = self._report(torch_command(self.python, self.torch_index))
+                torch_version = next(p.split("==")[1] for p in planned(report) if p.split("==")[0].lower() == "torch")
+            lines = requirements(self.python_version, self.has_numpy, torch_version)
+            pins = planned(self._report(resolve_command(self.python, lines, self.torch_index)))
+            if self.has_numpy and any(p.split("==")[0].lower() == "numpy" for p in pins):
+                raise _Failure("Blender's numpy is too old or too new for these packages "
+                               f"({', '.join(p for p in pins if p.lower().startswith('numpy'))} would be needed)")
+            self.progress.packages = pins
+            shutil.rmtree(staging, ignore_errors=True)
+            if pins:
+                self._install(pins, staging)
+            else:
+                os.makedirs(staging, exist_ok=True)
+            self._replace(staging)
+            self._set("done", 1.0, f"Installed {len(pins)} packages into {self.target}"
+                      if pins else "Nothing to install: this Python has every package")
+        except _Cancelled:
+            shutil.rmtree(staging, ignore_errors=True)
+            self._set("cancelled", self.progress.fraction, "Installation cancelled; nothing was changed")
+        except _Failure as failure:
+            shutil.rmtree(staging, ignore_errors=True)
+            self._set("failed", self.progress.fraction, str(failure))
+        except Exception as error:  # noqa: BLE001 - a background thread must always end in a state
+            shutil.rmtree(staging, ignore_errors=True)
+            self._set("failed", self.progress.fraction, f"{type(error).__name__}: {error}")
+
+    def _set(self, state: str, fraction: float, message: str) -> None:
+        self.progress = dataclasses.replace(self.progress, state=state, fraction=fraction, message=message)
+
+    def _start(self, command: list[str], merge_stderr: bool) -> subprocess.Popen:
+        with self._lock:
+            if self._cancelled:
+                raise _Cancelled()
+            try:
+                self._process = subprocess.Popen(
+                    command, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                    stderr=subprocess.STDOUT if merge_stderr else subprocess.PIPE,
+                    env=self.env, cwd=os.path.dirname(self.target) or None, text=True,
+                    start_new_session=True)
+            except OSError as error:
+                raise _Failure(f"Cannot run {self.python}: {error.strerror or error}") from None
+            return self._process
+
+    def _probe(self) -> tuple[tuple[int, int], bool]:
+        """The interpreter's ``(major, minor)`` and whether it imports numpy, isolated like the workers."""
+        process = self._start([self.python, "-I", "-c", PROBE], merge_stderr=True)
+        out, _ = process.communicate(timeout=120)
+        if self._cancelled:
+            raise _Cancelled()
+        try:
+            major, minor, numpy = out.split()[-3:]
+            return (int(major), int(minor)), numpy == "True"
+        except ValueError:
+            raise _Failure(f"{self.python} is not a working Python: {out.strip()[-300:]}") from None
+
+    def _report(self, command: list[str]) -> dict:
+        process = self._start(command, merge_stderr=False)
+        try:
+            out, err = process.communicate(timeout=self.timeout)
+        except subprocess.TimeoutExpired:
+            self.cancel()
+            raise _Failure(f"pip did not finish within {self.timeout:.0f} s") from None
+        self.log += (err or "").splitlines()
+        if self._cancelled:
+            raise _Cancelled()
+        if process.returncode != 0:
+            raise _Failure(explain_failure(err + "\n" + out, self.python_version, self.torch_index))
+        try:
+            return json.loads(out)
+        except ValueError:
+            raise _Failure(f"pip gave no report (is {self.python} a Python with pip ≥ 22.2?)") from None
+
+    def _install(self, pins: list[str], staging: str) -> None:
+        process = self._start(install_command(self.python, staging, pins, self.torch_index), merge_stderr=True)
+        done, total, start = 0, len(pins), time.monotonic()
+        for line in process.stdout:
+            self.log.append(line.rstrip())
+            if line.startswith("Collecting "):
+                done += 1
+                name = line.split()[1]
+                self._set("downloading", 0.05 + 0.8 * done / total, f"Downloading {done}/{total}: {name}")
+            elif line.startswith("Installing collected packages"):
+                self._set("installing", 0.9, f"Installing {total} packages")
+            if time.monotonic() - start > self.timeout:
+                self.cancel()
+        process.wait()
+        if self._cancelled:
+            raise _Cancelled()
+        if process.returncode != 0:
+            raise _Failure(explain_failure("\n".join(self.log), self.python_version, self.torch_index))
+
+    def _replace(self, staging: str) -> None:
+        """``staging`` becomes the target folder; the old one is removed."""
+        old = self.target + ".old"
+        shutil.rmtree(old, ignore_errors=True)
+        if os.path.exists(self.target):
+            os.replace(self.target, old)
+        os.replace(staging, self.target)
+        shutil.rmtree(old, ignore_errors=True)
+
+
+def _kill(process: subprocess.Popen) -> None:
+    if process.poll() is None:
+        try:
+            os.killpg(process.pid, signal.SIGKILL) if hasattr(os, "killpg") else process.kill()
+        except OSError:
+            pass
+
+
+class _Failure(Exception):
+    """A failure whose message is already the explanation shown to the user."""
+
+
+class _Cancelled(Exception):
+    """The user cancelled."""

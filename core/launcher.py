@@ -10,12 +10,15 @@ from __future__ import annotations
 import shlex
 
 from .errors import InputError
+from .worker import module_arguments
 
 
 def with_launcher(command: list[str], launcher: str) -> list[str]:
-    """``command`` (``[python, …, "-m", package, …]``) with the interpreter part replaced by ``launcher``.
+    """``command`` (a :func:`~mogaface.core.worker.worker_command`) run by ``launcher`` as ``-m mogaface …``.
 
-    An empty launcher leaves the command as it is.
+    The launcher starts its own Python processes, so the package must be importable there (an
+    installed ``mogaface``); the isolated start of a plain worker does not carry over. An empty
+    launcher leaves the command as it is.
     """
     if not launcher.strip():
         return list(command)
@@ -23,6 +26,4 @@ def with_launcher(command: list[str], launcher: str) -> list[str]:
         prefix = shlex.split(launcher)
     except ValueError as error:
         raise InputError(None, "launcher", f"not a command line ({error}): {launcher!r}") from None
-    if "-m" not in command:
-        raise InputError(None, "launcher", "the training command does not run a module (-m)")
-    return prefix + command[command.index("-m"):]
+    return prefix + module_arguments(command)

@@ -215,20 +215,20 @@ def _file_version(path, what: str) -> tuple[pathlib.Path, tuple]:
 
 
 def load_head_model(path, n_vertices: int | None = None):
-    """The float64 :class:`~mogaface.core.flame.model.FlameModel` of ``path``, cached per file.
+    """The :class:`~mogaface.core.flame.numpy_model.NumpyFlame` of ``path``, cached per file.
 
-    The cache key includes the file's size and modification time, so an edited file reloads.
+    numpy, not torch: importing and posing heads in Blender needs no torch. The cache key
+    includes the file's size and modification time, so an edited file reloads.
     ``n_vertices``: a tracking's vertex count (5143 on FLAME adds its teeth, see ``flame.teeth``).
     """
-    from .flame.model import FlameModel  # torch: imported when a head is used, not before
-    import torch
+    from .flame.numpy_model import NumpyFlame
 
     path, key = _file_version(path, "head model")
     key = key + (n_vertices,)
     with _model_cache_lock:
         model = _model_cache.get(key)
         if model is None:
-            model = FlameModel.load(path, dtype=torch.float64, n_vertices=n_vertices)
+            model = NumpyFlame.load(path, n_vertices=n_vertices)
             for old in [k for k in _model_cache if k[0] == key[0] and k[-1] == n_vertices]:
                 del _model_cache[old]
             _model_cache[key] = model
@@ -289,7 +289,7 @@ class HeadRig:
     All positions are in Blender world axes (see :func:`flame_to_blender`).
     """
 
-    model: object  # FlameModel (float64)
+    model: object  # NumpyFlame
     shape: np.ndarray
     static_offset: np.ndarray | None = None
 
@@ -312,22 +312,8 @@ class HeadRig:
 
     def evaluate(self, expr, pose: dict) -> np.ndarray:
         """The core's FLAME evaluation for this identity, FLAME axes ``(V,3)`` float64."""
-        import torch
-
-        params = {name: torch.as_tensor(np.asarray(value, np.float64).reshape(1, -1)) for name, value in pose.items()}
-        params["expr"] = torch.as_tensor(fit_components(expr, self.model.n_expr)[None])
-        params["shape"] = torch.as_tensor(self.shape[None])
-        if self.static_offset is not None:
-            params["static_offset"] = torch.as_tensor(self.static_offset[None])
-        threads = torch.get_num_threads()
-        # One head is too small for threads to pay off: they cost ~50× on a busy machine,
-        # which is the difference between smooth playback and 10 frames a second.
-        torch.set_num_threads(1)
-        try:
-            with torch.no_grad():
-                return self.model(**params)[0].numpy()
-        finally:
-            torch.set_num_threads(threads)
+        return self.model(shape=self.shape, expr=fit_components(expr, self.model.n_expr),
+                          static_offset=self.static_offset, **pose)
 
     def pose_key(self, expr, pose: dict) -> np.ndarray:
         """The pose shape key for expression weights ``expr`` and ``pose`` (Blender axes)."""

@@ -1,7 +1,8 @@
 """A training run in a separate process, and the one reader of its progress.
 
 Blender must never block on training, and torch may live in another interpreter than
-Blender's. :class:`TrainWorker` starts ``python -m mogaface train …`` as a child process,
+Blender's. :class:`TrainWorker` starts ``python -m mogaface train …`` as a child process
+(:func:`worker_command`: isolated, with exactly the package folders it is given),
 reads new lines of ``RUN/events.jsonl`` incrementally (:meth:`TrainWorker.poll`), knows when the
 child ended and why (exit code, the tail of its stderr), and cancels it with SIGINT (the trainer
 then writes a checkpoint). The UI calls :meth:`~TrainWorker.poll` from a timer; headless code
@@ -20,6 +21,8 @@ import subprocess
 import sys
 import threading
 import time
+
+from .errors import InputError
 
 #: The package's import name; the child runs ``python -m mogaface train``.
 PACKAGE = "mogaface"
@@ -63,27 +66,74 @@ def format_seconds(seconds: float) -> str:
     return f"{seconds // 60}:{seconds % 60:02d}"
 
 
-def package_parent() -> pathlib.Path | None:
-    """The folder holding this package when it is a folder named ``mogaface`` (an installed
-    extension), so a child ``python -m mogaface`` finds it; None otherwise (an installed package)."""
-    root = pathlib.Path(__file__).resolve().parents[1]
-    return root.parent if root.name == PACKAGE else None
+#: Loads the package from one explicit folder under its plain name, then runs its ``__main__``.
+#: With ``-I`` nothing comes from the working directory, ``PYTHONPATH`` or the user's site folder.
+_BOOTSTRAP = """\
+import importlib.util, json, runpy, sys
+spec = json.loads(sys.argv.pop(1))
+sys.path[:0] = spec["path"]
+found = importlib.util.spec_from_file_location(
+    spec["name"], spec["init"], submodule_search_locations=[spec["root"]])
+module = importlib.util.module_from_spec(found)
+sys.modules[spec["name"]] = module
+found.loader.exec_module(module)
+runpy.run_module(spec["name"], run_name="__main__", alter_sys=True)
+"""
+
+
+def package_root() -> pathlib.Path:
+    """The folder of this package (an installed extension's folder, or the checkout)."""
+    return pathlib.Path(__file__).resolve().parents[1]
+
+
+def worker_command(python: str | None, arguments, paths=()) -> list[str]:
+    """argv of ``python -m mogaface ARGUMENTS`` that can import only the intended code.
+
+    The child runs isolated (``-I``): no working directory, ``PYTHONPATH`` or user site folder on
+    its path. It imports this very package folder as ``mogaface`` (whatever the folder is called,
+    and nothing else beside it), with ``paths`` (the folders that hold the packages the extension
+    installed) in front of the interpreter's own ``sys.path``.
+    """
+    root = package_root()
+    spec = {"name": PACKAGE, "root": os.fspath(root), "init": os.fspath(root / "__init__.py"),
+            "path": [os.fspath(path) for path in paths]}
+    return [python or sys.executable, "-I", "-u", "-c", _BOOTSTRAP, json.dumps(spec), *map(str, arguments)]
+
+
+def module_arguments(command: list[str]) -> list[str]:
+    """``["-m", "mogaface", ARGUMENTS…]`` of a :func:`worker_command` (or of a plain ``-m`` command)."""
+    if "-c" in command and command[command.index("-c") + 1] == _BOOTSTRAP:
+        return ["-m", PACKAGE, *command[command.index("-c") + 3:]]
+    if "-m" in command:
+        return command[command.index("-m"):]
+    raise InputError(None, "command", "not a 'python -m mogaface' worker command")
+
+
+def worker_environment(base: dict | None = None) -> dict:
+    """The child's environment: the parent's, less what would change which code it loads.
+
+    ``-I`` already ignores ``PYTHON*`` variables; ``NUMBA_CACHE_DIR`` is dropped so the child
+    picks the cache folder of its own import name (core/numba_cache.py).
+    """
+    env = dict(os.environ if base is None else base)
+    for name in [key for key in env if key.startswith("PYTHON")] + ["NUMBA_CACHE_DIR"]:
+        env.pop(name, None)
+    return env
 
 
 def train_command(python: str, capture, run, preset: str | None = None, steps: int | None = None,
                   seed: int | None = None, threads: int | None = None, resume: bool = False,
-                  extra: list[str] | None = None) -> list[str]:
-    """The argument list of a training child process."""
-    command = [python or sys.executable, "-m", PACKAGE, "train", os.fspath(capture), "--out", os.fspath(run),
-               "--quiet"]
+                  extra: list[str] | None = None, paths=()) -> list[str]:
+    """The argument list of a training child process (see :func:`worker_command` for ``paths``)."""
+    arguments = ["train", os.fspath(capture), "--out", os.fspath(run), "--quiet"]
     if resume:
-        command.append("--resume")
+        arguments.append("--resume")
     elif preset:
-        command += ["--preset", preset]
+        arguments += ["--preset", preset]
     for flag, value in (("--steps", steps), ("--seed", seed), ("--threads", threads)):
         if value is not None:
-            command += [flag, str(int(value))]
-    return command + list(extra or [])
+            arguments += [flag, str(int(value))]
+    return worker_command(python, arguments + list(extra or []), paths)
 
 
 class EventReader:
@@ -140,14 +190,10 @@ class TrainWorker:
         events = self.run / "events.jsonl"
         self._reader = EventReader(events)
         self._reader.offset = events.stat().st_size if events.exists() else 0
-        env = dict(os.environ if self._env is None else self._env)
-        parent = package_parent()
-        if parent is not None:
-            env["PYTHONPATH"] = os.pathsep.join(p for p in (os.fspath(parent), env.get("PYTHONPATH", "")) if p)
-        env.setdefault("PYTHONUNBUFFERED", "1")
+        self.run.mkdir(parents=True, exist_ok=True)
         self._process = subprocess.Popen(
             self.command, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-            env=env, start_new_session=True,
+            env=worker_environment(self._env), cwd=self.run, start_new_session=True,
         )
         threading.Thread(target=self._drain_stderr, daemon=True).start()
         self.progress.state = "running"

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import bpy
 
-from ..operators.dependencies import interpreter
 from ..operators.head_rig import is_head
 from .preferences import draw_dependencies
 from .text import wrapped_label
@@ -57,7 +56,7 @@ class MOGAFACE_PT_main(_Panel, bpy.types.Panel):
     bl_idname = "MOGAFACE_PT_main"
 
     def draw(self, context):
-        if draw_dependencies(self.layout, interpreter(context)):
+        if draw_dependencies(self.layout):
             self.layout.label(text="Python packages: ready", icon="CHECKMARK")
 
 

@@ -1,26 +1,29 @@
-"""Add-on preferences: the Python interpreter for worker processes, thread count, dependencies."""
+"""Add-on preferences: the worker's Python, threads, the torch package index, dependencies."""
 
 from __future__ import annotations
-
-import sys
 
 import bpy
 from bpy.props import IntProperty, StringProperty
 
-from ..operators.dependencies import install_command, missing_modules, top_package
+from ..operators.dependencies import missing_modules, top_package
+from ..operators.install_dependencies import last_install_progress
 from .text import wrapped_label
+
+#: The CPU-only torch build's index (the same as core.dependencies.DEFAULT_TORCH_INDEX, here so
+#: that registering never imports the core).
+DEFAULT_TORCH_INDEX = "https://download.pytorch.org/whl/cpu"
 
 
 class MoGaFacePreferences(bpy.types.AddonPreferences):
-    """Settings shared by every scene: how worker processes are started."""
+    """Settings shared by every scene: how worker processes are started and packages installed."""
 
     bl_idname = top_package()
 
     python_path: StringProperty(
         name="Python",
         subtype="FILE_PATH",
-        default=sys.executable,
-        description="Interpreter for training and rendering workers (needs torch, numpy, numba)",
+        default="",
+        description="Interpreter for training workers (empty: Blender's own Python with the installed packages)",
     )
     threads: IntProperty(name="Threads", default=0, min=0, max=1024, description="CPU threads for workers (0: all)")
     launcher: StringProperty(
@@ -29,26 +32,44 @@ class MoGaFacePreferences(bpy.types.AddonPreferences):
         description="Start training through this command line instead of the Python above, e.g. "
                     "'torchrun --nproc_per_node 2' (data-parallel; other machines are yours to set up)",
     )
+    torch_index: StringProperty(
+        name="Torch Index",
+        default=DEFAULT_TORCH_INDEX,
+        description="Package index of the torch build Install Dependencies downloads (default: the CPU-only "
+        "build; e.g. https://download.pytorch.org/whl/cu126 for CUDA, a mirror, or empty for PyPI's torch)",
+    )
 
     def draw(self, context):
         layout = self.layout
         layout.prop(self, "python_path")
         layout.prop(self, "threads")
         layout.prop(self, "launcher")
-        if draw_dependencies(layout, self.python_path):
+        layout.prop(self, "torch_index")
+        if draw_dependencies(layout):
             layout.operator("mogaface.install_dependencies", text="Reinstall Dependencies", icon="IMPORT")
 
 
-def draw_dependencies(layout, python: str) -> bool:
-    """Draw what is missing in this Python and the command that installs it; True if all is there."""
+def draw_dependencies(layout) -> bool:
+    """Draw a running install, or what is missing and the button; True if every package imports."""
+    progress = last_install_progress()
+    from ..operators.install_dependencies import current_install
+
+    if current_install() is not None:
+        box = layout.box()
+        box.label(text="Installing Python packages", icon="IMPORT")
+        box.progress(factor=progress.fraction, text=progress.message)
+        box.operator("mogaface.install_dependencies_cancel", icon="CANCEL")
+        return False
     missing = missing_modules()
+    if progress is not None and progress.state != "done":
+        wrapped_label(layout, bpy.context, progress.message, icon="ERROR" if progress.state == "failed" else "INFO")
     if not missing:
         return True
     box = layout.box()
     box.alert = True
     context = bpy.context
-    wrapped_label(box, context, f"Missing Python packages: {', '.join(missing)}", icon="ERROR")
+    wrapped_label(box, context, f"Missing: {', '.join(missing)}", icon="ERROR")
+    wrapped_label(box, context, "Training and the avatar need them")
     box.operator("mogaface.install_dependencies", icon="IMPORT")
-    wrapped_label(box, context, "or install them yourself, then restart Blender:")
-    wrapped_label(box, context, install_command(missing, python))
+    box.label(text="Runs in the background")
     return False

@@ -1,5 +1,8 @@
 """What the extension registers with Blender, in order; unregistered in reverse.
 
+Imports nothing beyond ``bpy`` (no numpy, torch or core): a Blender without numpy can enable the
+extension, and the panel then offers *Install Dependencies*.
+
 Besides the classes: the ``Scene.mogaface`` settings, the handlers that re-pose heads
 (``frame_change_post``, ``depsgraph_update_post``) and the extension's user site-packages folder
 on ``sys.path``. :func:`unregister` removes every one of them.
@@ -11,7 +14,9 @@ from ..operators.head_rig import update_heads_on_edit, update_heads_on_frame_cha
 from ..operators.import_capture import MOGAFACE_OT_import_capture, MOGAFACE_OT_use_capture_camera
 from ..operators.import_head import MOGAFACE_OT_import_head
 from ..operators.import_tracking import MOGAFACE_OT_import_tracking
-from ..operators.install_dependencies import MOGAFACE_OT_install_dependencies
+from ..operators.install_dependencies import (
+    MOGAFACE_OT_install_dependencies, MOGAFACE_OT_install_dependencies_cancel, cancel_running_install,
+)
 from ..operators.dependencies import add_site_packages, remove_site_packages
 from ..operators.avatar import (
     MOGAFACE_OT_export_ply, MOGAFACE_OT_load_avatar, MOGAFACE_OT_render_animation, MOGAFACE_OT_render_cancel,
@@ -42,6 +47,7 @@ CLASSES: list = [
     MOGAFACE_OT_setup_render_layer,
     MOGAFACE_OT_gaussians_to_mesh,
     MOGAFACE_OT_install_dependencies,
+    MOGAFACE_OT_install_dependencies_cancel,
     panels.MOGAFACE_PT_main,
     panels.MOGAFACE_PT_capture,
     panels.MOGAFACE_PT_head,
@@ -77,6 +83,7 @@ def _same_function(a, b) -> bool:
 def unregister():
     cancel_running_job()  # a training child never outlives the extension
     cancel_render_job()
+    cancel_running_install()
     viewport.unregister()
     for handlers, function in HANDLERS:
         for registered in [h for h in handlers if _same_function(h, function)]:

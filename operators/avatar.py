@@ -11,11 +11,13 @@ from __future__ import annotations
 import os
 
 import bpy
-import numpy as np
 from bpy.props import BoolProperty, EnumProperty, IntProperty, StringProperty
 
 from .common import clear_status_text, core_or_report, run_core
+from .dependencies import LazyModule
 from .head_rig import expression_values, head_objects, is_head, pose_values, rig_of
+
+np = LazyModule("numpy")  # imported on first use: registering needs no numpy
 
 BACKGROUND_PROPERTY = "mogaface_avatar_background"
 

@@ -2,14 +2,17 @@
 
 from __future__ import annotations
 
-from .dependencies import interpreter, missing_modules, report
+from .dependencies import REQUIRED_MODULES, missing_modules, report
 
 
-def core_or_report(operator, context):
-    """``core.scene_conversion`` if the core's packages import here, else report and return None."""
-    missing = missing_modules()
+def core_or_report(operator, context, needs=REQUIRED_MODULES):
+    """``core.scene_conversion`` if the packages ``needs`` import here, else report and return None.
+
+    Reading files needs numpy only (``dependencies.FILE_MODULES``); training and the avatar need torch.
+    """
+    missing = missing_modules(needs)
     if missing:
-        operator.report({"ERROR"}, report(missing, interpreter(context)))
+        operator.report({"ERROR"}, report(missing))
         return None
     from ..core import scene_conversion
 

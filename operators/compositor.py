@@ -20,9 +20,11 @@ Both are handled here, and only here.
 from __future__ import annotations
 
 import bpy
-import numpy as np
 
 from .common import core_or_report, run_core
+from .dependencies import LazyModule
+
+np = LazyModule("numpy")  # imported on first use: registering needs no numpy
 
 NODE_TAG = "mogaface_layer_head"  # custom property on our nodes: the head they show
 #: Depth written where the avatar is absent (finite: Z Combine compares numbers).

@@ -16,6 +16,23 @@ import sys
 
 REQUIRED_MODULES = ("numpy", "torch", "numba")
 
+#: What reading captures and heads needs (no torch: importing cameras and meshes stays light).
+FILE_MODULES = ("numpy",)
+
+
+class LazyModule:
+    """A module imported on first attribute use, so registering the add-on imports nothing heavy.
+
+    ``np = LazyModule("numpy")`` at the top of an operator module; a Blender without numpy can
+    still enable the extension, draw the panel and offer *Install Dependencies*.
+    """
+
+    def __init__(self, name: str):
+        self._name = name
+
+    def __getattr__(self, attribute):
+        return getattr(importlib.import_module(self._name), attribute)
+
 
 def missing_modules(names=REQUIRED_MODULES) -> list[str]:
     """The names among ``names`` that this Python cannot import."""
@@ -30,16 +47,10 @@ def missing_modules(names=REQUIRED_MODULES) -> list[str]:
     return missing
 
 
-def install_command(missing, python: str | None = None) -> str:
-    """The pip command that installs ``missing`` for the interpreter ``python``."""
-    python = python or sys.executable
-    return f'"{python}" -m pip install {" ".join(missing)}'
-
-
-def report(missing, python: str | None = None) -> str:
-    """One sentence for an operator's error report: what is missing and how to fix it."""
-    return (f"Missing Python packages: {', '.join(missing)}. Install them with: {install_command(missing, python)}"
-            " (or Install Dependencies in the add-on preferences)")
+def report(missing) -> str:
+    """One sentence for an operator's error report: what is missing and how to get it."""
+    return (f"Missing Python packages: {', '.join(missing)}. Click Install Dependencies in the MoGaFace panel "
+            "(or the add-on preferences), or name a Python that has them in the preferences")
 
 
 def top_package() -> str:
@@ -47,11 +58,32 @@ def top_package() -> str:
     return __package__.rpartition(".")[0]
 
 
-def interpreter(context) -> str:
-    """The Python interpreter named in the add-on preferences (this one if unset)."""
+def preference(context, name: str, default):
+    """One of the add-on's preferences (``default`` when the add-on is not registered as one)."""
     addon = context.preferences.addons.get(top_package())
-    path = getattr(getattr(addon, "preferences", None), "python_path", "") if addon else ""
-    return path or sys.executable
+    value = getattr(getattr(addon, "preferences", None), name, None) if addon else None
+    return default if value is None else value
+
+
+def interpreter(context) -> str:
+    """The Python interpreter named in the add-on preferences (Blender's own if unset)."""
+    return preference(context, "python_path", "") or sys.executable
+
+
+def worker_paths(python: str) -> list[str]:
+    """The folders a worker run by ``python`` needs in front of its own ``sys.path``.
+
+    Blender's Python gets the extension's installed packages, exactly as Blender itself sees
+    them; another interpreter has its own packages (ours may be built for another Python).
+    """
+    folder = site_packages()
+    if folder is None or not os.path.isdir(folder):
+        return []
+    try:
+        same = os.path.samefile(python, sys.executable)
+    except OSError:
+        same = False
+    return [folder] if same else []
 
 
 def site_packages(create: bool = False) -> str | None:

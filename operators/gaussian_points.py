@@ -9,10 +9,12 @@ own frame only (keyed visibility), the usual way of an imported sequence.
 from __future__ import annotations
 
 import bpy
-import numpy as np
 from bpy.props import BoolProperty, IntProperty, StringProperty
 
 from .common import core_or_report, run_core
+from .dependencies import LazyModule
+
+np = LazyModule("numpy")  # imported on first use: registering needs no numpy
 
 ATTRIBUTES = (("scale", "FLOAT_VECTOR", "vector"), ("rotation", "QUATERNION", "value"),
               ("opacity", "FLOAT", "value"), ("color", "FLOAT_COLOR", "color"))

@@ -10,9 +10,10 @@ values and pose properties, while the expression sliders stay ordinary shape key
 from __future__ import annotations
 
 import bpy
-import numpy as np
 
-from .dependencies import missing_modules
+from .dependencies import FILE_MODULES, LazyModule, missing_modules
+
+np = LazyModule("numpy")  # imported on first use: registering needs no numpy
 
 # The same values as core.scene_conversion's constants, here so that registering and drawing
 # never import the core (whose packages may be missing).
@@ -96,7 +97,7 @@ _reported: set = set()
 
 def _update_heads(scene, only_if_changed: bool) -> None:
     heads = head_objects(scene)
-    if not heads or missing_modules():
+    if not heads or missing_modules(FILE_MODULES):
         return
     from ..core.errors import MogafaceError
 

@@ -9,6 +9,7 @@ from bpy.props import BoolProperty, StringProperty
 from mathutils import Matrix
 
 from .common import core_or_report, run_core
+from .dependencies import FILE_MODULES
 
 COLLECTION_NAME = "MoGaFace Capture"
 
@@ -105,7 +106,7 @@ class MOGAFACE_OT_import_capture(bpy.types.Operator):
         return {"RUNNING_MODAL"}
 
     def execute(self, context):
-        core = core_or_report(self, context)
+        core = core_or_report(self, context, needs=FILE_MODULES)
         if core is None:
             return {"CANCELLED"}
         folder = bpy.path.abspath(self.filepath)

@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import bpy
-import numpy as np
 from bpy.props import StringProperty
 
 from .common import core_or_report, run_core
+from .dependencies import FILE_MODULES, LazyModule
 from .head_rig import MODEL_PATH_PROPERTY, POSE_KEY_NAME
+
+np = LazyModule("numpy")  # imported on first use: registering needs no numpy
 
 
 def build_mesh(name: str, head):
@@ -103,7 +105,7 @@ class MOGAFACE_OT_import_head(bpy.types.Operator):
         return {"RUNNING_MODAL"}
 
     def execute(self, context):
-        core = core_or_report(self, context)
+        core = core_or_report(self, context, needs=FILE_MODULES)
         if core is None:
             return {"CANCELLED"}
         shape_file = bpy.path.abspath(self.shape_file) if self.shape_file else None

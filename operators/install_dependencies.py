@@ -1,4 +1,10 @@
-"""Install the core's pinned packages into the extension's user folder (needs online access)."""
+"""``mogaface.install_dependencies`` and its Cancel: the core's packages, installed in the background.
+
+The core's :class:`~mogaface.core.dependencies.InstallJob` runs pip in a background thread; in
+the UI a modal operator polls it from a timer (Blender stays responsive, the panel shows the
+progress and a Cancel button); in background mode the same poll runs in a loop. Packages go
+into the extension's user folder, which Blender deletes when the extension is removed.
+"""
 
 from __future__ import annotations
 
@@ -8,15 +14,50 @@ from . import dependencies
 
 OFFLINE_MESSAGE = "Online access is off: allow it in Preferences › System › Network, then try again"
 
+#: The one running install, and the progress of the last finished one.
+_install = {"job": None, "last": None}
+
+
+def current_install():
+    """The running :class:`InstallJob`, or None."""
+    return _install["job"]
+
+
+def last_install_progress():
+    """The progress of the running or last install, or None."""
+    job = _install["job"]
+    return job.progress if job is not None else _install["last"]
+
+
+def cancel_running_install() -> None:
+    """Stop a running install (used when the extension is disabled)."""
+    job = _install["job"]
+    if job is not None:
+        job.cancel()
+        _install["job"], _install["last"] = None, job.progress
+
+
+def _redraw_all(context) -> None:
+    for window in getattr(context.window_manager, "windows", ()):
+        for area in window.screen.areas:
+            if area.type in ("VIEW_3D", "PREFERENCES"):
+                area.tag_redraw()
+
 
 class MOGAFACE_OT_install_dependencies(bpy.types.Operator):
-    """Download torch, numpy, numba and the other pinned packages into the extension's user folder"""
+    """Download torch, numba and the other packages MoGaFace needs into the extension's user folder
+    (only what this Blender lacks; the CPU build of torch unless the preferences name another index)"""
 
     bl_idname = "mogaface.install_dependencies"
     bl_label = "Install Dependencies"
     bl_options = {"INTERNAL"}
 
+    _timer = None
+
     def execute(self, context):
+        if _install["job"] is not None:
+            self.report({"ERROR"}, "Dependencies are already being installed")
+            return {"CANCELLED"}
         if not dependencies.online_access():
             self.report({"ERROR"}, OFFLINE_MESSAGE)
             return {"CANCELLED"}
@@ -24,19 +65,61 @@ class MOGAFACE_OT_install_dependencies(bpy.types.Operator):
         if target is None:
             self.report({"ERROR"}, "Only an installed extension has a user folder to install into")
             return {"CANCELLED"}
-        from ..core.dependencies import install
+        from ..core.dependencies import DEFAULT_TORCH_INDEX, InstallJob
+        from ..core.worker import worker_environment
 
-        window = context.window
-        if window is not None:
-            window.cursor_modal_set("WAIT")
-        try:
-            ok, message = install(dependencies.interpreter(context), target)
-        finally:
-            if window is not None:
-                window.cursor_modal_restore()
-        if not ok:
-            self.report({"ERROR"}, message)
+        python = dependencies.interpreter(context)
+        index = dependencies.preference(context, "torch_index", DEFAULT_TORCH_INDEX)
+        job = InstallJob(python, target, torch_index=index, env=worker_environment()).start()
+        _install["job"], _install["last"] = job, None
+        if bpy.app.background or context.window is None:
+            def show(progress):
+                print(f"[install] {progress.message}", flush=True)
+
+            return self._finish(job.wait(on_progress=show))
+        self._timer = context.window_manager.event_timer_add(0.5, window=context.window)
+        context.window_manager.modal_handler_add(self)
+        return {"RUNNING_MODAL"}
+
+    def invoke(self, context, event):
+        return self.execute(context)
+
+    def modal(self, context, event):
+        if event.type != "TIMER":
+            return {"PASS_THROUGH"}
+        job = _install["job"]
+        progress = job.poll() if job is not None else _install["last"]
+        _redraw_all(context)
+        if progress is not None and not progress.finished:
+            return {"PASS_THROUGH"}
+        context.window_manager.event_timer_remove(self._timer)
+        return self._finish(progress)
+
+    def _finish(self, progress) -> set:
+        _install["job"], _install["last"] = None, progress
+        if progress is None or progress.state == "cancelled":
+            self.report({"WARNING"}, "Install Dependencies cancelled; nothing was changed")
+            return {"CANCELLED"}
+        if progress.state != "done":
+            self.report({"ERROR"}, f"Install Dependencies failed: {progress.message}")
             return {"CANCELLED"}
         dependencies.add_site_packages()
-        self.report({"INFO"}, message)
+        self.report({"INFO"}, progress.message)
+        return {"FINISHED"}
+
+
+class MOGAFACE_OT_install_dependencies_cancel(bpy.types.Operator):
+    """Stop installing the dependencies; the packages folder stays as it was"""
+
+    bl_idname = "mogaface.install_dependencies_cancel"
+    bl_label = "Cancel Install"
+    bl_options = {"INTERNAL"}
+
+    @classmethod
+    def poll(cls, context):
+        return _install["job"] is not None
+
+    def execute(self, context):
+        _install["job"].cancel()
+        self.report({"INFO"}, "Stopping the installation")
         return {"FINISHED"}

@@ -15,7 +15,7 @@ import bpy
 from bpy.props import EnumProperty, IntProperty, StringProperty
 
 from .common import clear_status_text, core_or_report
-from .dependencies import interpreter, top_package
+from .dependencies import interpreter, top_package, worker_paths
 
 #: Training presets (core.train.config.PRESETS) offered in the UI, with a one-line description each.
 PRESET_ITEMS = (
@@ -104,6 +104,8 @@ class MOGAFACE_OT_train(bpy.types.Operator):
     preset: EnumProperty(name="Preset", default="demo", items=PRESET_ITEMS)
     steps: IntProperty(name="Steps", default=0, min=0, description="Total steps (0: the preset's)")
     seed: IntProperty(name="Seed", default=-1, min=-1, description="Random seed (-1: the scene's)")
+    python: StringProperty(name="Python", subtype="FILE_PATH", options={"HIDDEN", "SKIP_SAVE"},
+                           description="Interpreter for the training process (empty: the preferences')")
     resume: EnumProperty(
         name="Start", default="AUTO",
         items=(("AUTO", "Auto", "Resume when the run folder has a checkpoint"),
@@ -131,9 +133,11 @@ class MOGAFACE_OT_train(bpy.types.Operator):
             self.resume == "AUTO" and os.path.exists(os.path.join(run, "checkpoints", "latest"))
             and not os.path.exists(os.path.join(run, "avatar.pt")))
         steps = self.steps or None
+        python = bpy.path.abspath(self.python) if self.python else interpreter(context)
         command = train_command(
-            interpreter(context), capture, run, preset=self.preset, steps=steps,
+            python, capture, run, preset=self.preset, steps=steps,
             seed=settings.seed if self.seed < 0 else self.seed, threads=_threads(context), resume=resume,
+            paths=worker_paths(python),
         )
         from ..core.launcher import with_launcher
 

@@ -18,10 +18,12 @@ import dataclasses
 import time
 
 import bpy
-import numpy as np
 from bpy.props import BoolProperty
 
 from .head_rig import is_head
+from .dependencies import LazyModule
+
+np = LazyModule("numpy")  # imported on first use: registering needs no numpy
 
 #: Seconds a view must be still before it is drawn at full resolution.
 SETTLE_S = 0.3

@@ -3,6 +3,8 @@
 Runs the same with the Blender binary and with the ``bpy`` module:
 
     blender -b --python scripts/mogaface_blend.py -- CAPTURE --run RUN --blend OUT.blend [options]
+    blender -b --factory-startup --python scripts/mogaface_blend.py -- …   (the extension is enabled here)
+    blender -b SCENE.blend --python scripts/mogaface_blend.py -- …         (built into SCENE's content)
     python scripts/mogaface_blend.py CAPTURE --run RUN --blend OUT.blend [options]
 
 Steps: import the capture's cameras; train into RUN (``--train``; otherwise RUN must hold a
@@ -69,21 +71,29 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _mogaface_module():
-    """The MoGaFace package: installed (``import mogaface``) or an enabled Blender extension."""
-    try:
-        import mogaface
-
-        return mogaface
-    except ImportError:
-        pass
+    """The MoGaFace package, registered: an enabled extension, an installed one (enabled here:
+    ``--factory-startup`` starts with every extension off), or the importable package."""
     import importlib
 
     import bpy
 
-    for name in bpy.context.preferences.addons.keys():
-        if name.split(".")[-1] == "mogaface":
-            return importlib.import_module(name)
-    raise SystemExit("error: MoGaFace is neither an importable package nor an enabled extension")
+    enabled = [name for name in bpy.context.preferences.addons.keys() if name.split(".")[-1] == "mogaface"]
+    if not enabled:
+        for repo in bpy.context.preferences.extensions.repos:
+            if repo.enabled and os.path.isfile(os.path.join(repo.directory, "mogaface", "__init__.py")):
+                module = f"bl_ext.{repo.module}.mogaface"
+                if "FINISHED" in bpy.ops.preferences.addon_enable(module=module):
+                    enabled.append(module)
+                    break
+    if enabled:
+        return importlib.import_module(enabled[0])
+    try:
+        import mogaface
+    except ImportError:
+        raise SystemExit("error: MoGaFace is neither an installed extension nor an importable package") from None
+    if not hasattr(bpy.types, "MOGAFACE_OT_import_head"):
+        mogaface.register()
+    return mogaface
 
 
 def _call(operator, **kwargs) -> None:
@@ -109,23 +119,20 @@ def build_scene(args, log=print) -> dict:
     """Everything after the arguments: the scene, the renders, the saved .blend. Returns a summary."""
     import bpy
 
-    mogaface = _mogaface_module()
     start = time.monotonic()
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    if not hasattr(bpy.types, "MOGAFACE_OT_import_head"):
-        mogaface.register()
+    if not bpy.data.filepath:  # no .blend given: an empty scene (preferences and extensions kept)
+        bpy.ops.wm.read_homefile(use_empty=True)
+    mogaface = _mogaface_module()
     ops = bpy.ops.mogaface
     run = args.run.resolve()
     _call(ops.import_capture, filepath=str(args.capture.resolve()))
     log(f"[blend] imported the capture's cameras from {args.capture}")
     if args.train:
         addon = bpy.context.preferences.addons.get(mogaface.__name__)
-        if addon is not None and args.python:
-            addon.preferences.python_path = args.python
         if addon is not None and args.launcher:
             addon.preferences.launcher = args.launcher
         _call(ops.train, capture=str(args.capture.resolve()), run=str(run), preset=args.preset, steps=args.steps,
-              resume="NEW")
+              resume="NEW", python=args.python or "")
         log(f"[blend] trained into {run}")
     head = run / "head.pkl"
     if not head.exists():

@@ -4,7 +4,7 @@ import os
 import tempfile
 
 # Keep numba's cache and every user folder of the tests away from the real home.
-os.environ.setdefault("NUMBA_CACHE_DIR", os.path.join(tempfile.gettempdir(), "mogaface-test-numba-cache"))
+os.environ.setdefault("MOGAFACE_CACHE_DIR", os.path.join(tempfile.gettempdir(), "mogaface-test-cache"))
 
 import numpy as np
 import pytest

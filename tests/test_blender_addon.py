@@ -7,6 +7,7 @@ one disables the extension.
 """
 
 import atexit
+import json
 import importlib
 import importlib.util
 import os
@@ -49,7 +50,8 @@ CLASS_NAMES = (
     "MOGAFACE_OT_import_tracking", "MOGAFACE_OT_train", "MOGAFACE_OT_train_cancel", "MOGAFACE_OT_load_avatar",
     "MOGAFACE_OT_render_frame", "MOGAFACE_OT_render_animation", "MOGAFACE_OT_export_ply",
     "MOGAFACE_OT_render_cancel", "MOGAFACE_OT_setup_render_layer", "MOGAFACE_OT_gaussians_to_mesh",
-    "MOGAFACE_OT_install_dependencies", "MOGAFACE_PT_main", "MOGAFACE_PT_capture", "MOGAFACE_PT_head",
+    "MOGAFACE_OT_install_dependencies", "MOGAFACE_OT_install_dependencies_cancel", "MOGAFACE_PT_main",
+    "MOGAFACE_PT_capture", "MOGAFACE_PT_head",
     "MOGAFACE_PT_training", "MOGAFACE_PT_avatar", "MOGAFACE_PT_reenactment",
 )
 N_EXPR_A, N_EXPR_B = 3, 5
@@ -163,7 +165,8 @@ def test_installing_registers_the_operators_panels_settings_and_handler(scenario
     assert any(h.__name__ == "update_heads_on_frame_change" for h in bpy.app.handlers.frame_change_post)
     assert any(h.__name__ == "update_heads_on_edit" for h in bpy.app.handlers.depsgraph_update_post)
     prefs = bpy.context.preferences.addons[MODULE].preferences
-    assert prefs.python_path == sys.executable and prefs.threads == 0
+    assert prefs.python_path == "" and prefs.threads == 0  # empty: Blender's own Python
+    assert prefs.torch_index == "https://download.pytorch.org/whl/cpu"
     assert bpy.types.MOGAFACE_PT_main.bl_category == "MoGaFace"
     head_rig = importlib.import_module(MODULE + ".operators.head_rig")
     assert (head_rig.MODEL_PATH_PROPERTY, head_rig.POSE_KEY_NAME) == (sc.MODEL_PATH_PROPERTY, sc.POSE_KEY_NAME)
@@ -279,13 +282,24 @@ def test_operator_errors_are_reports_that_name_the_file(scenario, tmp_path):
         bpy.ops.mogaface.import_tracking(directory=str(scenario["tracking"]), target="plain")
 
 
-def test_missing_packages_are_reported_with_the_pip_command(scenario, monkeypatch):
+def test_missing_packages_are_reported_with_the_way_to_install_them(scenario, monkeypatch):
     common = importlib.import_module(MODULE + ".operators.common")
-    monkeypatch.setattr(common, "missing_modules", lambda: ["torch"])
-    with pytest.raises(RuntimeError, match=r"Missing Python packages: torch\. .* -m pip install torch"):
+    monkeypatch.setattr(common, "missing_modules", lambda needs: [n for n in needs if n in ("torch", "numpy")])
+    with pytest.raises(RuntimeError, match=r"Missing Python packages: numpy\. Click Install Dependencies"):
         bpy.ops.mogaface.import_head(filepath=str(scenario["head"]))
+    with pytest.raises(RuntimeError, match=r"Missing Python packages: numpy, torch\. Click Install Dependencies"):
+        bpy.ops.mogaface.train(capture=str(scenario["capture"]), run=str(scenario["root"] / "run"))
     dependencies = importlib.import_module(MODULE + ".operators.dependencies")
     assert dependencies.missing_modules(("numpy", "no_such_module_for_mogaface")) == ["no_such_module_for_mogaface"]
+
+
+def test_workers_get_the_extensions_packages_only_with_blenders_python(scenario, tmp_path):
+    dependencies = importlib.import_module(MODULE + ".operators.dependencies")
+    folder = bpy.utils.extension_path_user(MODULE, path="site-packages", create=True)
+    assert dependencies.worker_paths(sys.executable) == [folder]
+    other = tmp_path / "other-python"
+    other.symlink_to("/bin/true")
+    assert dependencies.worker_paths(str(other)) == []  # its packages may be built for another Python
 
 
 class RecordingLayout:
@@ -337,27 +351,37 @@ def test_panels_draw_every_section_and_name_missing_packages(scenario, monkeypat
     monkeypatch.setattr(preferences, "missing_modules", lambda: ["numba", "torch"])
     labels = [entry[1] for entry in draw_panels(["MOGAFACE_PT_main"]) if entry[0] == "label"]
     text = " ".join(labels)  # long lines wrap to the panel's width: the words are all there
-    assert "Missing Python packages: numba, torch" in text
-    assert f'"{sys.executable}" -m pip install numba torch' in text
+    assert "Missing: numba, torch" in text
+    assert "pip install" not in text  # Debian refuses it; the Install button is the way
     assert ("operator", "mogaface.install_dependencies", True) in draw_panels(["MOGAFACE_PT_main"])
 
 
 FAKE_PIP = """#!{python}
-import pathlib, sys
-pathlib.Path({log!r}).write_text("\\n".join(sys.argv[1:]))
+import json, pathlib, sys
+args = sys.argv[1:]
+with open({log!r}, "a") as log:
+    log.write(json.dumps(args) + "\\n")
+if args[:2] == ["-I", "-c"]:  # the probe: Python 3.13 without numpy
+    print("3 13 False")
+    sys.exit()
 if {fail!r}:
     print("Collecting torch==2.13.0", file=sys.stderr)
     print("ERROR: No matching distribution found for torch==2.13.0", file=sys.stderr)
     sys.exit(1)
-package = pathlib.Path(sys.argv[sys.argv.index("--target") + 1]) / "mogaface_dummy_dependency"
+pins = [a for a in args if "==" in a]
+if "--dry-run" in args:
+    pins = ["torch==2.13.0+cpu"] if "--index-url" in args else pins
+    print(json.dumps({{"install": [{{"metadata": dict(zip(("name", "version"), p.split("==")))}} for p in pins]}}))
+    sys.exit()
+package = pathlib.Path(args[args.index("--target") + 1]) / "mogaface_dummy_dependency"
 package.mkdir(parents=True, exist_ok=True)
 (package / "__init__.py").write_text("VALUE = 42")
 """
 
 
 def fake_interpreter(folder: pathlib.Path, fail: bool) -> tuple[pathlib.Path, pathlib.Path]:
-    """A stand-in for ``python -m pip``: records its argv, then fails or installs a dummy package."""
-    log, script = folder / f"argv-{fail}.txt", folder / f"fake-python-{fail}"
+    """A stand-in for the interpreter: records each argv, answers the probe and pip's reports, installs a dummy."""
+    log, script = folder / f"argv-{fail}.jsonl", folder / f"fake-python-{fail}"
     script.write_text(FAKE_PIP.format(python=sys.executable, log=str(log), fail=fail))
     script.chmod(0o755)
     return script, log
@@ -379,36 +403,52 @@ def test_installing_dependencies_puts_the_user_folder_on_sys_path(scenario, monk
     script, log = fake_interpreter(tmp_path, fail=True)
     prefs.python_path = str(script)
     try:
-        with pytest.raises(RuntimeError, match="pip failed .*No matching distribution found for torch==2.13.0"):
+        with pytest.raises(RuntimeError, match="No wheel of torch==2.13.0 for Python 3.13 .* torch index"):
             bpy.ops.mogaface.install_dependencies()
         assert folder not in sys.path
         script, log = fake_interpreter(tmp_path, fail=False)
         prefs.python_path = str(script)
         assert bpy.ops.mogaface.install_dependencies() == {"FINISHED"}
     finally:
-        prefs.python_path = sys.executable
-    argv = log.read_text().splitlines()
-    assert argv[:3] == ["-m", "pip", "install"] and argv[argv.index("--target") + 1] == folder
-    assert {"torch==2.13.0", "numpy==1.26.4", "pillow==13.0.0"} <= set(argv)
+        prefs.python_path = ""
+    probe, torch, resolve, install = [json.loads(line) for line in log.read_text().splitlines()]
+    assert probe[:2] == ["-I", "-c"] and torch[torch.index("--index-url") + 1] == prefs.torch_index
+    assert {"torch==2.13.0+cpu", "numpy==2.3.5", "pillow==13.0.0"} <= set(resolve)  # numpy: this Python has none
+    assert install[:4] == ["-I", "-m", "pip", "install"] and "--no-deps" in install
+    assert install[install.index("--target") + 1] == folder + ".new"  # then renamed: never half-written
     assert sys.path.count(folder) == 1
     assert importlib.import_module("mogaface_dummy_dependency").VALUE == 42
     sys.modules.pop("mogaface_dummy_dependency")
-    assert bpy.ops.mogaface.install_dependencies.poll()
+    assert bpy.ops.mogaface.install_dependencies.poll() and not bpy.ops.mogaface.install_dependencies_cancel.poll()
 
 
-NO_TORCH_SCRIPT = """
-import os, sys, tempfile
+WITHOUT_PACKAGES_SCRIPT = """
+import json, os, sys, tempfile
 folder = tempfile.mkdtemp()
 for name in ("BLENDER_USER_RESOURCES", "BLENDER_USER_CONFIG", "BLENDER_USER_SCRIPTS"):
     os.environ[name] = folder
-sys.modules["torch"] = None  # as if torch were not installed
-import bpy, mogaface
+blocked = json.loads(sys.argv[3])
+import bpy
+for name in blocked:  # as if these were not installed (a distribution's Blender has no numpy)
+    sys.modules[name] = None
+before = set(sys.modules)
+import mogaface
 mogaface.register()
-assert "torch" not in sys.modules or sys.modules["torch"] is None
-try:
-    bpy.ops.mogaface.import_head(filepath=sys.argv[1])
-except RuntimeError as error:
-    print("REPORTED:", error)
+print("IMPORTED BY REGISTER:", sorted({n.split(".")[0] for n in set(sys.modules) - before} - {"mogaface"}))
+class Layout:
+    def __init__(self): self.alert = False
+    def box(self): return self
+    def label(self, text="", icon="NONE"): print("LABEL:", text)
+    def operator(self, idname, **kwargs): print("BUTTON:", idname)
+    def progress(self, **kwargs): pass
+sys.modules["mogaface.mogaface_addon.preferences"].draw_dependencies(Layout())
+for name, call in (("capture", lambda: bpy.ops.mogaface.import_capture(filepath=sys.argv[1])),
+                   ("head", lambda: bpy.ops.mogaface.import_head(filepath=sys.argv[2])),
+                   ("train", lambda: bpy.ops.mogaface.train(capture=sys.argv[1], run=folder + "/run"))):
+    try:
+        print("RESULT", name, sorted(call()))
+    except RuntimeError as error:
+        print("REPORTED", name, str(error).strip())
 bpy.context.scene.frame_set(2)
 mogaface.unregister()
 import shutil
@@ -417,13 +457,77 @@ print("DONE")
 """
 
 
-def test_without_torch_the_extension_registers_and_reports(scenario):
+def run_without(scenario, blocked):
     result = subprocess.run(
-        [sys.executable, "-c", NO_TORCH_SCRIPT, str(scenario["head"])], capture_output=True, text=True, timeout=120
+        [sys.executable, "-c", WITHOUT_PACKAGES_SCRIPT, str(scenario["capture"]), str(scenario["head"]),
+         json.dumps(blocked)], capture_output=True, text=True, timeout=180, cwd=scenario["root"],
     )
     assert result.returncode == 0 and "DONE" in result.stdout, result.stdout + result.stderr
-    assert "Missing Python packages: torch. Install them with:" in result.stdout
-    assert "Traceback" not in result.stdout + result.stderr
+    assert "Traceback" not in result.stdout + result.stderr, result.stdout + result.stderr
+    return result.stdout
+
+
+def outcome(out: str, name: str) -> str:
+    """The line the script printed for the operator ``name``: RESULT … or REPORTED …"""
+    return next(line for line in out.splitlines() if line.split()[1:2] == [name])
+
+
+def test_registering_imports_nothing_heavy(scenario):
+    out = run_without(scenario, [])
+    imported = json.loads(out.split("IMPORTED BY REGISTER:")[1].splitlines()[0].replace("'", '"'))
+    assert not {"numpy", "torch", "numba", "scipy", "PIL"} & set(imported), imported
+
+
+def test_without_torch_captures_and_heads_import_and_training_offers_the_install(scenario):
+    out = run_without(scenario, ["torch"])
+    assert outcome(out, "capture") == "RESULT capture ['FINISHED']" and outcome(out, "head") == "RESULT head ['FINISHED']"
+    train = outcome(out, "train")
+    assert train.startswith("REPORTED") and "Missing Python packages: torch. Click Install Dependencies" in train
+    assert "BUTTON: mogaface.install_dependencies" in out and "LABEL: Missing: torch" in out
+
+
+def test_without_numpy_the_extension_enables_and_offers_the_install(scenario):
+    out = run_without(scenario, ["numpy", "torch", "numba"])
+    assert "LABEL: Missing: numpy, torch, numba" in out
+    assert "BUTTON: mogaface.install_dependencies" in out
+    for name in ("capture", "head"):
+        assert outcome(out, name).startswith("REPORTED") and "Missing Python packages: numpy." in outcome(out, name)
+
+
+def test_the_train_operator_takes_its_interpreter_from_its_python_property(scenario, tmp_path):
+    missing = tmp_path / "no-such-python"
+    with pytest.raises(RuntimeError, match=f"Cannot start {missing}"):
+        bpy.ops.mogaface.train(capture=str(scenario["capture"]), run=str(tmp_path / "run"), python=str(missing))
+
+
+FACTORY_STARTUP_SCRIPT = """
+import importlib.util, os, sys, tempfile
+folder = tempfile.mkdtemp()
+for name in ("BLENDER_USER_RESOURCES", "BLENDER_USER_CONFIG", "BLENDER_USER_SCRIPTS"):
+    os.environ[name] = folder
+import bpy
+bpy.ops.extensions.package_install_files(filepath=sys.argv[1], repo="user_default", enable_on_install=True)
+bpy.ops.wm.read_factory_settings(use_empty=True)  # what --factory-startup gives: every extension off
+assert not any(name.endswith("mogaface") for name in bpy.context.preferences.addons.keys())
+spec = importlib.util.spec_from_file_location("mogaface_blend", sys.argv[2])
+script = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(script)
+module = script._mogaface_module()
+print("MODULE", module.__name__, hasattr(bpy.types, "MOGAFACE_OT_import_head"))
+args = script.build_parser().parse_args(["capture", "--run", "run", "--blend", "out.blend", "--python", "/opt/py"])
+print("PYTHON", args.python)
+import shutil
+shutil.rmtree(folder, ignore_errors=True)
+"""
+
+
+def test_headless_script_enables_the_installed_extension_after_a_factory_startup(scenario):
+    (archive,) = (scenario["root"] / "dist").glob("mogaface-*.zip")
+    result = subprocess.run([sys.executable, "-c", FACTORY_STARTUP_SCRIPT, str(archive),
+                             str(ROOT / "scripts" / "mogaface_blend.py")],
+                            capture_output=True, text=True, timeout=180, cwd=scenario["root"])
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert f"MODULE {MODULE} True" in result.stdout and "PYTHON /opt/py" in result.stdout
 
 
 def test_saved_blend_reopens_with_everything(scenario):
@@ -454,3 +558,4 @@ def test_disabling_leaves_nothing_registered(scenario):
         assert not any(h.__module__.startswith(MODULE) for h in handlers)
     assert "mogaface" not in dir(bpy.ops)
     assert not any(path.endswith("mogaface" + os.sep + "site-packages") for path in sys.path)
+

@@ -1,7 +1,11 @@
-"""The add-on's dependency installer, without Blender: the pins, the pip command and its outcome."""
+"""The add-on's dependency installer, without Blender: pins, the pip steps, errors, cancel."""
 
+import json
 import pathlib
 import sys
+import time
+
+import pytest
 
 from mogaface.core import dependencies
 
@@ -16,38 +20,130 @@ def pinned_in_requirements_txt() -> dict:
 
 def test_pins_match_requirements_txt():
     pinned = pinned_in_requirements_txt()
-    for requirement in dependencies.requirements():
-        name, version = requirement.split("==")
-        assert pinned[name] == version, requirement
-    names = {r.split("==")[0] for r in dependencies.requirements()}
-    assert names == set(pinned) - {"bpy", "pytest"}
+    for name, version in dependencies.PINNED.items():
+        assert pinned[name] == version, name
+    assert set(dependencies.PINNED) | {"numpy"} == set(pinned) - {"bpy", "pytest"}
+    assert dependencies.numpy_pin((3, 11)) == pinned["numpy"]  # the tested environment's numpy
 
 
-def test_install_command_targets_the_folder_with_the_pins(tmp_path):
-    argv = dependencies.install_command("/opt/python3", tmp_path)
-    assert argv[:4] == ["/opt/python3", "-m", "pip", "install"]
-    assert argv[argv.index("--target") + 1] == str(tmp_path)
-    assert {"torch==2.13.0", "numpy==1.26.4", "numba==0.68.1", "OpenEXR==3.5.3"} <= set(argv)
+def test_numpy_is_pinned_per_python_and_only_when_missing():
+    assert dependencies.numpy_pin((3, 11)) == "1.26.4" == dependencies.numpy_pin((3, 12))
+    assert dependencies.numpy_pin((3, 13)) == dependencies.numpy_pin((3, 14)) != "1.26.4"  # 1.26.4: no 3.13 wheels
+    with_numpy = dependencies.requirements((3, 13), has_numpy=True)
+    assert not any(line.startswith("numpy") for line in with_numpy)
+    without = dependencies.requirements((3, 13), has_numpy=False, torch_version="2.13.0+cpu")
+    assert "numpy==" + dependencies.numpy_pin((3, 13)) in without and "torch==2.13.0+cpu" in without
 
 
-def fake_python(folder: pathlib.Path, body: str) -> str:
-    script = folder / "fake-python"
-    script.write_text(f"#!{sys.executable}\nimport sys\n{body}\n")
+def test_every_pip_runs_isolated_binary_only_and_the_install_without_dependencies(tmp_path):
+    index = dependencies.DEFAULT_TORCH_INDEX
+    torch = dependencies.torch_command("/py", index)
+    resolve = dependencies.resolve_command("/py", ["torch==2.13.0+cpu"], index)
+    install = dependencies.install_command("/py", tmp_path, ["torch==2.13.0+cpu", "numba==0.68.1"], index)
+    for argv in (torch, resolve, install):
+        assert argv[:4] == ["/py", "-I", "-m", "pip"] and "--only-binary=:all:" in argv
+    assert torch[torch.index("--index-url") + 1] == index  # the torch build comes from that index alone
+    assert "--dry-run" in resolve and "--ignore-installed" not in resolve  # what this Python lacks
+    assert "--no-deps" in install and install[install.index("--target") + 1] == str(tmp_path)
+    assert "--extra-index-url" not in dependencies.install_command("/py", tmp_path, [], "")
+
+
+PIP_TIMEOUT = "Retrying (Retry(total=0)) after connection broken by 'NewConnectionError(... [Errno -2] Name or service not known)': /whl/cpu/torch/"
+
+
+@pytest.mark.parametrize("output, expected", [
+    ("/usr/bin/python3.13: No module named pip", "has no pip. Install it with the system's package manager"),
+    (f"WARNING: {PIP_TIMEOUT}\nERROR: Could not find a version that satisfies the requirement torch==2.13.0\n"
+     "ERROR: No matching distribution found for torch==2.13.0", "Cannot reach the package index"),
+    ("ERROR: Could not find a version that satisfies the requirement numpy==1.26.4 (from versions: 2.3.0)\n"
+     "ERROR: No matching distribution found for numpy==1.26.4", "No wheel of numpy==1.26.4 for Python 3.13"),
+    ("ERROR: Could not install packages due to an OSError: [Errno 28] No space left on device\nnoise",
+     "The disk is full"),
+    ("Collecting x\nERROR: first real cause\nERROR: a consequence\nlast line", "first real cause"),
+])
+def test_failures_are_explained_by_their_cause(output, expected):
+    assert expected in dependencies.explain_failure(output, (3, 13), dependencies.DEFAULT_TORCH_INDEX)
+
+
+FAKE_PIP = """#!{python}
+import json, pathlib, sys, time
+args = sys.argv[1:]
+with open({log!r}, "a") as log:
+    log.write(json.dumps(args) + "\\n")
+if args[:2] == ["-I", "-c"]:
+    print("3 13 False")
+    sys.exit()
+pins = [a for a in args if "==" in a]
+if "--dry-run" in args:
+    if "--index-url" in args:
+        pins = ["torch==2.13.0+cpu"]
+    print(json.dumps({{"install": [{{"metadata": dict(zip(("name", "version"), p.split("==")))}} for p in pins]}}))
+    sys.exit()
+target = pathlib.Path(args[args.index("--target") + 1])
+for pin in pins:
+    print("Collecting " + pin, flush=True)
+    time.sleep({delay})
+target.mkdir(parents=True, exist_ok=True)
+(target / "installed.txt").write_text("\\n".join(pins))
+print("Installing collected packages: ...")
+"""
+
+
+def fake_python(folder: pathlib.Path, delay: float = 0.0) -> tuple[str, pathlib.Path]:
+    log, script = folder / "argv.jsonl", folder / "fake-python"
+    script.write_text(FAKE_PIP.format(python=sys.executable, log=str(log), delay=delay))
     script.chmod(0o755)
-    return str(script)
+    return str(script), log
 
 
-def test_install_reports_success_and_pip_errors(tmp_path):
-    ok, message = dependencies.install(fake_python(tmp_path, "pass"), tmp_path / "site")
-    assert ok and str(tmp_path / "site") in message
-    body = "print('noise', file=sys.stderr)\nprint('ERROR: boom', file=sys.stderr)\nsys.exit(2)"
-    failing = fake_python(tmp_path, body)
-    ok, message = dependencies.install(failing, tmp_path / "site")
-    assert not ok and message.startswith("pip failed (exit 2)") and message.endswith("ERROR: boom")
+def test_a_job_installs_what_the_python_lacks_into_a_fresh_folder(tmp_path):
+    python, log = fake_python(tmp_path)
+    target = tmp_path / "site-packages"
+    (target / "old").mkdir(parents=True)
+    progress = dependencies.InstallJob(python, target).start().wait(interval=0.05)
+    assert progress.state == "done", progress.message
+    calls = [json.loads(line) for line in log.read_text().splitlines()]
+    assert len(calls) == 4  # probe, torch build, resolve, install
+    installed = (target / "installed.txt").read_text().splitlines()
+    assert "torch==2.13.0+cpu" in installed and "numpy==" + dependencies.numpy_pin((3, 13)) in installed
+    assert not (target / "old").exists() and not pathlib.Path(str(target) + ".new").exists()
 
 
-def test_install_never_hangs_and_survives_a_missing_interpreter(tmp_path):
-    ok, message = dependencies.install(fake_python(tmp_path, "import time\ntime.sleep(30)"), tmp_path, timeout=0.5)
-    assert not ok and "did not finish" in message
-    ok, message = dependencies.install(str(tmp_path / "no-such-python"), tmp_path)
-    assert not ok and "Cannot run" in message
+def test_a_job_runs_in_the_background_and_cancel_keeps_the_old_folder(tmp_path):
+    python, _ = fake_python(tmp_path, delay=2.0)
+    target = tmp_path / "site-packages"
+    (target / "old").mkdir(parents=True)
+    started = time.monotonic()
+    job = dependencies.InstallJob(python, target, torch_index="").start()
+    assert time.monotonic() - started < 1.0 and not job.poll().finished  # start() never waits for pip
+    while job.poll().state != "downloading":
+        assert not job.poll().finished, job.poll().message
+        time.sleep(0.05)
+    job.cancel()
+    progress = job.wait(interval=0.05)
+    assert progress.state == "cancelled" and time.monotonic() - started < 10
+    assert (target / "old").is_dir() and not (target / "installed.txt").exists()
+    assert not pathlib.Path(str(target) + ".new").exists()
+
+
+def test_a_job_with_a_missing_interpreter_fails_with_its_name(tmp_path):
+    progress = dependencies.InstallJob(str(tmp_path / "no-python"), tmp_path / "site").start().wait(interval=0.05)
+    assert progress.state == "failed" and "Cannot run" in progress.message and "no-python" in progress.message
+
+
+def test_blenders_own_numpy_is_never_replaced(tmp_path):
+    """With numpy present, numpy is not asked for; if the other pins still need another one, say so."""
+    python, log = fake_python(tmp_path)
+    script = pathlib.Path(python)
+    text = script.read_text().replace('print("3 13 False")', 'print("3 11 True")')
+    script.write_text(text)
+    target = tmp_path / "site-packages"
+    progress = dependencies.InstallJob(python, target, torch_index="").start().wait(interval=0.05)
+    assert progress.state == "done", progress.message
+    resolve = json.loads(log.read_text().splitlines()[1])
+    assert not any(arg.startswith("numpy") for arg in resolve)
+    assert not any(p.startswith("numpy") for p in progress.packages)
+    script.write_text(text.replace('pins = [a for a in args if "==" in a]',
+                                   'pins = [a for a in args if "==" in a] + ["numpy==2.4.0"]'))
+    progress = dependencies.InstallJob(python, target, torch_index="").start().wait(interval=0.05)
+    assert progress.state == "failed" and "Blender's numpy" in progress.message and "numpy==2.4.0" in progress.message

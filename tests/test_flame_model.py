@@ -243,3 +243,22 @@ def test_chumpy_wrapped_arrays_are_written_as_chumpy_globals(toy_model, tmp_path
     ops = [(op.name, arg) for op, arg, _ in pickletools.genops(path.read_bytes())]
     assert ("GLOBAL", "chumpy.ch Ch") in ops
     np.testing.assert_array_equal(read_model_file(path).shapedirs, toy_model["shapedirs"][:, :, :4])
+
+
+def test_numpy_flame_equals_the_torch_model(tmp_path):
+    """Blender poses heads with the numpy evaluation (no torch needed there); it is the same FLAME."""
+    from mogaface.core.flame.numpy_model import NumpyFlame
+
+    write_model_file(tmp_path / "toy.npz", make_toy_model(n_vertices=30, n_shape=4, n_expr=3, seed=5))
+    arrays = read_model_file(tmp_path / "toy.npz")
+    torch_model = FlameModel(arrays, dtype=torch.float64)
+    numpy_model = NumpyFlame(arrays)
+    rng = np.random.default_rng(7)
+    for scale in (0.0, 1e-4, 0.4, 1.5):  # the rest pose, the Taylor branch, ordinary and large angles
+        params = {"shape": rng.normal(size=4), "expr": rng.normal(size=2),  # fewer expr: padded with zeros
+                  "rotation": rng.normal(scale=scale, size=3), "neck_pose": rng.normal(scale=scale, size=3),
+                  "jaw_pose": rng.normal(scale=scale, size=3), "eyes_pose": rng.normal(scale=scale, size=6),
+                  "translation": rng.normal(size=3), "static_offset": rng.normal(scale=0.01, size=(30, 3))}
+        expected = torch_model(**{k: torch.as_tensor(v)[None] for k, v in params.items()})[0].numpy()
+        got = numpy_model(**params)
+        assert np.abs(got - expected).max() < 1e-10, scale

@@ -230,7 +230,8 @@ def test_launcher_prefix_replaces_the_interpreter():
     assert with_launcher(command, "") == command
     launched = with_launcher(command, "torchrun --nproc_per_node 2 --nnodes 1")
     assert launched[:5] == ["torchrun", "--nproc_per_node", "2", "--nnodes", "1"]
-    assert launched[5:] == command[command.index("-m"):] and "/usr/bin/python3" not in launched
+    assert launched[5:8] == ["-m", "mogaface", "train"] and launched[8:] == command[command.index("train") + 1:]
+    assert "/usr/bin/python3" not in launched and "-I" not in launched
     with pytest.raises(InputError, match="launcher"):
         with_launcher(command, "torchrun 'unclosed")
 

@@ -26,6 +26,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "demo": ("demo", "run the main job on the embedded default head"),
     "train": ("train", "train an avatar on a capture (resumable run folder)"),
     "bench": ("bench", "run a benchmark and print JSON"),
+    "environment": ("environment", "print where this process finds its code and packages (JSON)"),
     "ablate": ("ablate", "train and score the MoGaFace ablation ladder on one capture (results.json, results.md)"),
 }
 

@@ -1,0 +1,246 @@
+"""The extension as a user drives it, in the real Blender program with a window (under Xvfb).
+
+Run by scripts/check_real_blender.sh inside Blender (``blender --python ui_check.py -- JSON``).
+Stages run from a timer so that Blender's own event loop drives the modal operators (progress,
+cancel) for real; each stage asserts its result and the panel is captured into the images folder.
+Writes ``results.json`` (every stage, its outcome and timings) and quits; exit code 0 only when
+every stage passed.
+"""
+
+import json
+import os
+import pathlib
+import shutil
+import subprocess
+import sys
+import time
+import traceback
+
+import bpy
+
+ARGS = json.loads(sys.argv[sys.argv.index("--") + 1])
+WORK = pathlib.Path(ARGS["work"])
+IMAGES = pathlib.Path(ARGS["images"])
+MODULE = "bl_ext.user_default.mogaface"
+RESULTS = {"stages": [], "blender": bpy.app.version_string, "python": sys.version.split()[0]}
+
+
+def log(message):
+    print(f"[ui-check] {message}", flush=True)
+
+
+def check(condition, message):
+    if not condition:
+        raise AssertionError(message)
+
+
+def window_and_view():
+    window = bpy.context.window_manager.windows[0]
+    area = max((a for a in window.screen.areas if a.type == "VIEW_3D"), key=lambda a: a.width * a.height)
+    region = next(r for r in area.regions if r.type == "WINDOW")
+    return window, area, region
+
+
+def override():
+    window, area, region = window_and_view()
+    return bpy.context.temp_override(window=window, area=area, region=region)
+
+
+def show_panel():
+    """A generator step: the 3D View's sidebar on the MoGaFace tab, the splash closed.
+
+    The active tab cannot be set from Python (read-only in 4.3); like a user, click the tabs
+    (Blender runs with --enable-event-simulate), top to bottom until MoGaFace is active.
+    """
+    window, area, _ = window_and_view()
+    area.spaces.active.show_region_ui = True
+    window.event_simulate(type="ESC", value="PRESS")  # the splash screen
+    window.event_simulate(type="ESC", value="RELEASE")
+    yield 0.5
+    region = next(r for r in area.regions if r.type == "UI")
+    x = region.x + region.width - 8  # the tab strip on the sidebar's right edge
+    for dy in range(10, region.height, 20):
+        if region.active_panel_category == "MoGaFace":
+            return
+        y = region.y + region.height - dy
+        window.event_simulate(type="MOUSEMOVE", value="NOTHING", x=x, y=y)
+        window.event_simulate(type="LEFTMOUSE", value="PRESS", x=x, y=y)
+        window.event_simulate(type="LEFTMOUSE", value="RELEASE", x=x, y=y)
+        yield 0.2
+    log(f"the sidebar shows {region.active_panel_category!r}, not MoGaFace")
+
+
+def shot(name):
+    """The whole X screen (Blender's own screenshot reads a black front buffer under Xvfb)."""
+    IMAGES.mkdir(parents=True, exist_ok=True)
+    path = IMAGES / f"blender-{name}.png"
+    subprocess.run(["import", "-window", "root", str(path)], check=True, timeout=60)
+    log(f"screenshot {path.name}")
+
+
+def module(name):
+    return sys.modules[f"{MODULE}.{name}"]
+
+
+def wait_until(condition, timeout, what):
+    """A generator step: yields until ``condition()``; counts the timer ticks (Blender is responsive)."""
+    start, ticks = time.monotonic(), 0
+    while not condition():
+        check(time.monotonic() - start < timeout, f"timed out after {timeout} s waiting for {what}")
+        ticks += 1
+        yield 0.5
+    RESULTS.setdefault("ticks", {})[what] = ticks
+
+
+def stages():
+    yield from show_panel()
+    yield 2.0
+    deps = module("operators.dependencies")
+    install = module("operators.install_dependencies")
+    prefs = bpy.context.preferences.addons[MODULE].preferences
+    missing = deps.missing_modules()
+    RESULTS["missing_at_start"] = missing
+    if not (missing == [] and ARGS.get("reuse_packages")):  # reuse: re-running the later stages only
+        yield from install_stages(deps, install, prefs, missing)
+    yield from scene_stages()
+
+
+def install_stages(deps, install, prefs, missing):
+    check("torch" in missing, f"torch should be missing in a fresh Blender, found missing={missing}")
+    shot("1-missing-packages")
+    stage("panel offers Install Dependencies")
+
+    # Install Dependencies: runs in the background; Cancel first, then the whole install.
+    bpy.context.preferences.system.use_online_access = True
+    prefs.torch_index = ARGS["torch_index"]
+    site = deps.site_packages(create=True)
+    with override():
+        check(bpy.ops.mogaface.install_dependencies("INVOKE_DEFAULT") == {"RUNNING_MODAL"}, "install did not start")
+    yield from wait_until(lambda: install.current_install() is None or install.current_install().poll().state
+                          in ("downloading", "installing"), 1800, "install reaches its download")
+    check(install.current_install() is not None, f"install ended early: {install.last_install_progress()}")
+    shot("2-installing")
+    with override():
+        bpy.ops.mogaface.install_dependencies_cancel()
+    yield from wait_until(lambda: install.current_install() is None, 120, "install cancel")
+    progress = install.last_install_progress()
+    check(progress.state == "cancelled", f"cancel gave {progress.state}: {progress.message}")
+    check(not os.path.exists(site + ".new") and not os.listdir(site), "a cancelled install left files behind")
+    stage("install cancels cleanly")
+
+    started = time.monotonic()
+    with override():
+        bpy.ops.mogaface.install_dependencies("INVOKE_DEFAULT")
+    yield from wait_until(lambda: install.current_install() is None, 3600, "install")
+    progress = install.last_install_progress()
+    check(progress.state == "done", f"install {progress.state}: {progress.message}")
+    size = sum(f.stat().st_size for f in pathlib.Path(site).rglob("*") if f.is_file())
+    RESULTS["install"] = {"seconds": round(time.monotonic() - started, 1), "disk_mb": round(size / 1e6),
+                          "packages": progress.packages}
+    check(deps.missing_modules() == [], f"still missing after the install: {deps.missing_modules()}")
+    check(not any(p.lower().startswith("numpy") for p in progress.packages) or "numpy" in missing,
+          "numpy installed although Blender has one")
+    yield from show_panel()
+    yield 1.0
+    shot("3-packages-ready")
+    stage("Install Dependencies")
+
+
+def scene_stages():
+
+    # Import the capture and a head: plain operators (the default cube would hide the head).
+    if "Cube" in bpy.data.objects:
+        bpy.data.objects.remove(bpy.data.objects["Cube"])
+    with override():
+        check(bpy.ops.mogaface.import_capture(filepath=ARGS["capture"]) == {"FINISHED"}, "import capture")
+        check(bpy.ops.mogaface.import_head(filepath=ARGS["head"]) == {"FINISHED"}, "import head")
+    head = bpy.context.active_object
+    check(len([o for o in bpy.data.objects if o.type == "CAMERA"]) >= 3, "the capture's cameras are missing")
+    stage("import capture and head")
+
+    # Train through the modal operator: progress, Cancel (checkpoint), Resume to the end.
+    train = module("operators.train")
+    run = str(WORK / "run")
+    settings = bpy.context.scene.mogaface
+    settings.capture_folder, settings.run_folder = ARGS["capture"], run
+    with override():
+        result = bpy.ops.mogaface.train("INVOKE_DEFAULT", capture=ARGS["capture"], run=run, preset="quick",
+                                        steps=ARGS["steps"], resume="NEW")
+        check(result == {"RUNNING_MODAL"}, f"train gave {result}: {train.last_progress()}")
+    yield from wait_until(lambda: train.current_worker() is None or train.current_worker().progress.step >= 5,
+                          1800, "training progress")
+    check(train.current_worker() is not None, f"training ended early: {train.last_progress()}")
+    yield from show_panel()
+    shot("4-training")
+    with override():
+        bpy.ops.mogaface.train_cancel()
+    yield from wait_until(lambda: train.current_worker() is None, 300, "training cancel")
+    check(train.last_progress().state == "cancelled", f"cancel gave {train.last_progress()}")
+    check(os.path.exists(os.path.join(run, "checkpoints", "latest")), "no checkpoint after cancel")
+    stage("train, cancel")
+    with override():
+        bpy.ops.mogaface.train("INVOKE_DEFAULT", capture=ARGS["capture"], run=run, resume="RESUME")
+    yield from wait_until(lambda: train.current_worker() is None, 1800, "resumed training")
+    check(train.last_progress().state == "done", f"resume gave {train.last_progress()}")
+    check(os.path.exists(os.path.join(run, "avatar.pt")), "no avatar after training")
+    stage("resume to the end")
+
+    # The avatar: load, render a frame and a keyed animation, export.
+    with override():
+        check(bpy.ops.mogaface.import_head(filepath=os.path.join(run, "head.npz") if os.path.exists(
+            os.path.join(run, "head.npz")) else os.path.join(run, "head.pkl")) == {"FINISHED"}, "import run head")
+        head = bpy.context.active_object
+        check(bpy.ops.mogaface.load_avatar(filepath=run, target=head.name) == {"FINISHED"}, "load avatar")
+        camera = next(o for o in bpy.data.objects if o.type == "CAMERA")
+        bpy.context.scene.camera = camera
+        check(bpy.ops.mogaface.render_frame(head=head.name) == {"FINISHED"}, "render frame")
+        head.data.shape_keys.key_blocks[1].value = 0.0
+        head.data.shape_keys.key_blocks[1].keyframe_insert("value", frame=1)
+        head.data.shape_keys.key_blocks[1].value = 1.0
+        head.data.shape_keys.key_blocks[1].keyframe_insert("value", frame=2)
+        frames = WORK / "frames"
+        check(bpy.ops.mogaface.render_animation(head=head.name, frame_start=1, frame_end=2, directory=str(frames))
+              == {"FINISHED"}, "render animation")
+        check(len(list(frames.glob("*.png"))) == 2, f"expected 2 frames in {frames}")
+        ply = WORK / "avatar.ply"
+        check(bpy.ops.mogaface.export_ply(filepath=str(ply), head=head.name) == {"FINISHED"} and ply.exists(),
+              "export ply")
+    images = [i for i in bpy.data.images if i.name.startswith("MoGaFace ")]
+    check(images, "no rendered image in bpy.data.images")
+    yield from show_panel()
+    yield 1.0
+    shot("5-avatar")
+    stage("load avatar, render frame and animation, export")
+    bpy.ops.wm.save_userpref()
+
+
+def stage(name):
+    RESULTS["stages"].append({"stage": name, "ok": True, "t": round(time.monotonic() - T0, 1)})
+    log(f"ok: {name}")
+
+
+T0 = time.monotonic()
+RUNNER = stages()
+
+
+def step():
+    try:
+        return next(RUNNER)
+    except StopIteration:
+        RESULTS["ok"] = True
+    except Exception:  # noqa: BLE001 - every failure ends the check with its traceback
+        RESULTS["ok"] = False
+        RESULTS["error"] = traceback.format_exc()
+        log(RESULTS["error"])
+        try:
+            shot("failure")
+        except Exception:  # noqa: BLE001
+            pass
+    (WORK / "results.json").write_text(json.dumps(RESULTS, indent=1))
+    bpy.ops.wm.quit_blender()
+    return None
+
+
+if __name__ == "__main__":
+    shutil.rmtree(IMAGES / "failure.png", ignore_errors=True)
+    bpy.app.timers.register(step, first_interval=2.0)
