@@ -20,8 +20,8 @@ import time
 import bpy
 from bpy.props import BoolProperty
 
-from .head_rig import is_head
 from .dependencies import LazyModule
+from .head_rig import is_head
 
 np = LazyModule("numpy")  # imported on first use: registering needs no numpy
 
