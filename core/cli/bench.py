@@ -8,6 +8,7 @@ import sys
 
 BENCHMARKS = {
     "splat": "the CPU Gaussian splat engine against its torch reference",
+    "splat_fuzz": "the splat engine on degenerate Gaussians and intrinsics (hangs, non-finite values)",
     "train": "the full training step (render, loss, backward, Adam) in steps per second",
 }
 
