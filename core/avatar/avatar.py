@@ -16,7 +16,7 @@ from ..camera import Camera
 from ..errors import InputError
 from ..flame.model import FlameModel
 from ..io.atomic import atomic_path
-from ..io.torch_file import check_format, load_torch_state
+from ..io.torch_file import check_format, load_torch_state, save_torch_state
 from ..splat import SplatOutput, rasterize
 from .gaussians import PARAMETER_NAMES, BoundGaussians
 
@@ -88,7 +88,7 @@ class Avatar(torch.nn.Module):
         """Write the avatar atomically; the head model file must sit beside it (same folder)."""
         path = pathlib.Path(path)
         with atomic_path(path) as tmp:
-            torch.save(self.state(), tmp)
+            save_torch_state(self.state(), tmp)
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "Avatar":

@@ -24,11 +24,12 @@ from ..avatar.avatar import Avatar
 from ..avatar.binding import triangle_frames
 from ..avatar.densify import DensifySchedule, DensifyStrategy
 from ..data import layout
-from ..errors import InputError
+from ..errors import InputError, MogafaceError
 from ..io.atomic import atomic_path, write_json, write_text
 from ..io.npz import save_npz
 from . import config as config_module
-from .checkpoint import latest_checkpoint, load_checkpoint, save_checkpoint
+from .checkpoint import latest_checkpoint, newest_intact_checkpoint, save_checkpoint
+from .run_lock import resume_notes, take_run_folder
 from .config import TrainConfig
 from .data import TrainingData, capture_head_file
 from .events import EventLog, Listener
@@ -68,12 +69,11 @@ class Trainer:
                  resume: bool = False, head_file: str | os.PathLike | None = None,
                  listeners: list[Listener] | None = None):
         self.run_folder = RunFolder.at(run)
-        checkpoint = None
+        self.lock = take_run_folder(self.run_folder.root)
+        checkpoint, self._notes = None, []
         if resume:
-            path = latest_checkpoint(self.run_folder.checkpoints)
-            if path is None:
-                raise InputError(self.run_folder.checkpoints, None, "no checkpoint to resume from")
-            checkpoint = load_checkpoint(path)
+            path, checkpoint, skipped = newest_intact_checkpoint(self.run_folder.checkpoints)
+            self._notes = resume_notes(self.run_folder.checkpoints, path, skipped, self.lock)
             if config is None:
                 config = config_module.load(self.run_folder.config)
         elif latest_checkpoint(self.run_folder.checkpoints) is not None or self.run_folder.avatar.exists():
@@ -98,6 +98,8 @@ class Trainer:
         else:
             self._restore(checkpoint)
         self.events = EventLog(self.run_folder.events, listeners)
+        for note in self._notes:
+            self.events.emit("warning", message=note)
 
     # -- setting up ----------------------------------------------------------------------------
     def _start_fresh(self, head_file) -> None:
@@ -262,8 +264,13 @@ class Trainer:
 
     def install_signal_handlers(self) -> None:
         """SIGINT and SIGTERM stop the run cleanly (checkpoint first) instead of killing it."""
+        def handle(number, _frame):
+            if self._stop_signal is not None:  # asked twice: leave now (files are written atomically)
+                raise SystemExit(128 + number)
+            self.request_stop(number)
+
         for signum in (signal.SIGINT, signal.SIGTERM):
-            signal.signal(signum, lambda number, _frame: self.request_stop(number))
+            signal.signal(signum, handle)
 
     def run(self, until: int | None = None) -> dict:
         """Train to step ``until`` (default: the configured steps), then write the results.
@@ -282,6 +289,7 @@ class Trainer:
         last = time.monotonic()
         budget = cfg.max_minutes * 60 if cfg.max_minutes > 0 else math.inf
         out_of_time = False
+        self.lock.acquire()
         try:
             while self.step < end and self._stop_signal is None:
                 if self.elapsed >= budget:
@@ -318,8 +326,12 @@ class Trainer:
             self.checkpoint()
             self.finish()
             return {"step": self.step, "stopped": None, "complete": True}
+        except MogafaceError:
+            self.checkpoint()  # bad data met mid-run (a corrupt image): keep the steps done so far
+            raise
         finally:
             self.events.close()
+            self.lock.release()
 
     def _quick_check(self) -> None:
         """A few val frames' PSNR/SSIM as a 'val' event (not counted in the training time)."""
