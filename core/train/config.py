@@ -150,6 +150,9 @@ class TrainConfig:
         if not 0 <= self.loss.ssim_weight <= 1:
             raise InputError(source, "loss.ssim_weight", "must lie in [0, 1]")
         _check_mogaface(self.mogaface, source)
+        from .config_ranges import check_ranges
+
+        check_ranges(self, source)
         return self
 
 
