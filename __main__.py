@@ -2,6 +2,9 @@
 
 import sys
 
-from .core.cli import main
+try:
+    from .core.cli import main
+except KeyboardInterrupt:  # Ctrl-C while the interpreter is still starting up
+    sys.exit(130)
 
 sys.exit(main())

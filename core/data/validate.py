@@ -13,6 +13,7 @@ import os
 import numpy as np
 
 from ..errors import CaptureError, InputError
+from ..io.files import check_regular_file
 from ..io.image import image_size, read_image
 from . import layout
 from .capture import DEFAULT_CACHE_BYTES, Capture
@@ -142,8 +143,10 @@ def _check_flame_files(capture: Capture) -> dict[str, tuple[int, ...]]:
     for t in capture.timesteps:
         frame = first_frame[t]
         path = capture.path(frame, "flame_param_path")
-        if not path.is_file():
-            raise CaptureError(path, f"{frame.source} {frame.field('flame_param_path')}", "file not found")
+        try:
+            check_regular_file(path)
+        except InputError as error:
+            raise CaptureError(path, f"{frame.source} {frame.field('flame_param_path')}", error.problem) from None
         params = capture.flame_params(t)
         if first is None:
             first = path

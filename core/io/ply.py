@@ -218,7 +218,7 @@ def read_gaussian_ply(path: str | os.PathLike) -> dict:
         "sh": sh,
     }
     for name, values in out.items():
-        bad = ~np.isfinite(values.reshape(count, -1)).all(axis=1)
+        bad = ~np.isfinite(values.reshape(count, -1)).all(axis=1) if count else np.zeros(0, bool)
         if bad.any():
             raise InputError(path, name, f"Gaussian {int(np.argmax(bad))} (and {int(bad.sum()) - 1} more) "
                                          "holds NaN or infinite values")
