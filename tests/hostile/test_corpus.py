@@ -249,3 +249,13 @@ def test_empty_and_extra_empty_arrays_round_trip_through_our_model_writer(tmp_pa
     with open(path, "rb") as handle:
         other = pickle.load(handle, encoding="latin1")
     assert other["extra_empty"].shape == (0, 3)
+
+
+def test_capture_writer_refuses_what_the_reader_refuses(tmp_path):
+    from mogaface.core.data.writer import CaptureWriter
+    from mogaface.core.errors import CaptureError
+
+    writer = CaptureWriter(tmp_path / "cap")
+    with pytest.raises(CaptureError, match="camera_id"):
+        writer.camera_index("../evil")
+    assert writer.camera_index("cam_07") == 0
