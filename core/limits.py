@@ -7,12 +7,10 @@ head model or avatar needs.
 MAX_IMAGE_SIDE = 16384  # px, width or height of an image or camera
 MAX_IMAGE_PIXELS = 50_000_000  # px, width x height (600 MB once decoded to float32 RGB)
 MIN_FOCAL_RATIO = 1e-3  # focal length / max(width, height): wider than any fisheye
-MAX_FOCAL_RATIO = 1e4  # ... narrower than any telephoto lens (0.006 degrees per 100 px)
+MAX_FOCAL_RATIO = 1e4  # ... narrower than any telephoto lens (a 0.006 degree field of view)
 MAX_PRINCIPAL_OFFSET_RATIO = 10.0  # |cx - w/2|, |cy - h/2| in units of max(width, height)
 MAX_ARRAY_ELEMENTS = 256 * 1024 * 1024  # one array in an .npz, .npy member, PLY or model file
 MAX_ARRAY_BYTES = 2 * 1024 ** 3  # bytes of one such array once decoded
 MAX_PICKLE_BYTES = 2 * 1024 ** 3  # bytes a restricted pickle may build in total
 MAX_PLY_VERTICES = 50_000_000  # Gaussians in one PLY
-MAX_JSON_DEPTH = 64  # nesting of a JSON document
-MAX_TIMESTEP_RANGE = 1_000_000  # timesteps one "A-B" range of render --timesteps may name
 MAX_PARAM_FILE_BYTES = 64 * 1024 ** 2  # all arrays of one per-timestep FLAME parameter .npz
