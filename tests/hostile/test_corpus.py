@@ -5,7 +5,6 @@ Every row breaks a fresh copy of a valid capture / run / head / PLY (see ``conft
 reader or writer adds its rows here.
 """
 
-import json
 import os
 import pathlib
 import subprocess
@@ -61,21 +60,17 @@ def _model(tmp, **changes):
 
 
 def _sparse_huge(tmp):
+    """A model whose J_regressor is a scipy csc_matrix that declares 10^6 x 10^6 (a few bytes stored)."""
+    import pickle
+
     import scipy.sparse
 
-    path = tmp / "model.pkl"
     model = make_toy_model()
-    b.model_pickle(path, model)
-    raw = path.read_bytes()
-    # re-declare J_regressor's shape in the stored csc_matrix state as 10^6 x 10^6
-    from mogaface.core.flame.safe_pickle import SparseMatrix  # noqa: F401 (layout documented there)
     matrix = scipy.sparse.csc_matrix((1, 1))
     matrix._shape = (10 ** 6, 10 ** 6)
     model["J_regressor"] = matrix
-    import pickle
-
+    path = tmp / "model.pkl"
     path.write_bytes(pickle.dumps(model, protocol=2))
-    assert raw  # the valid file existed first
     return path
 
 
