@@ -13,4 +13,5 @@ MAX_ARRAY_ELEMENTS = 256 * 1024 * 1024  # one array in an .npz, .npy member, PLY
 MAX_ARRAY_BYTES = 2 * 1024 ** 3  # bytes of one such array once decoded
 MAX_PICKLE_BYTES = 2 * 1024 ** 3  # bytes a restricted pickle may build in total
 MAX_PLY_VERTICES = 50_000_000  # Gaussians in one PLY
-MAX_PARAM_FILE_BYTES = 64 * 1024 ** 2  # all arrays of one per-timestep FLAME parameter .npz
+MAX_PARAM_FILE_BYTES = 16 * 1024 ** 2  # all arrays of one per-timestep FLAME parameter .npz
+MAX_PARAM_VECTOR = 4096  # coefficients of one FLAME parameter vector (FLAME: 300 shape, 100 expression)

@@ -93,8 +93,10 @@ CASES = [
                                          cap(c, "--full"))[1], ["00000_00.png", "file_path", "unreadable image"]),
     ("npz-declares-1e12", lambda c, t: (b.npz_declaring(c["capture"] / "flame_param" / "00000.npz", "expr",
                                                         (10 ** 12,)), cap(c))[1], ["00000.npz", "expr", "declares"]),
-    ("npz-inflates-70MB", lambda c, t: (b.npz_inflating(c["capture"] / "flame_param" / "00001.npz", "expr", 70),
+    ("npz-inflates-20MB", lambda c, t: (b.npz_inflating(c["capture"] / "flame_param" / "00001.npz", "expr", 20),
                                         cap(c))[1], ["00001.npz", "expr", "declares"]),
+    ("npz-long-expression", lambda c, t: (_long_expression(c["capture"] / "flame_param" / "00002.npz"), cap(c))[1],
+     ["00002.npz", "expr", "limit"]),
     ("npz-object-member", lambda c, t: (b.npz_declaring(c["capture"] / "flame_param" / "00000.npz", "expr", (1,),
                                                         dtype="|O"), cap(c))[1], ["00000.npz", "object"]),
     ("json-nested", lambda c, t: (b.nested_json(c["capture"] / "transforms_train.json"), cap(c))[1],
@@ -160,6 +162,14 @@ CASES = [
     ("demo-non-empty-out", lambda c, t: ((t / "d").mkdir(), (t / "d" / "keep.txt").write_text("mine"),
                                          ["demo", "--tiny", "--out", t / "d"])[2], ["not empty", "--overwrite"]),
 ]
+
+
+def _long_expression(path):
+    from mogaface.core.io.npz import load_npz, save_npz
+
+    arrays = load_npz(path)
+    arrays["expr"] = np.zeros((1, 100_000), np.float32)
+    save_npz(path, arrays)
 
 
 def _set_first_row(path, prop, value):
