@@ -9,6 +9,9 @@ import sys
 if sys.path and sys.path[0] in ("", os.getcwd()) and not (sys.flags.isolated or getattr(sys.flags, "safe_path", 0)):
     del sys.path[0]
 
-from .core.cli import main  # noqa: E402
+try:
+    from .core.cli import main
+except KeyboardInterrupt:  # Ctrl-C while the interpreter is still starting up
+    sys.exit(130)
 
 sys.exit(main())

@@ -16,7 +16,8 @@ from ..camera import Camera
 from ..errors import InputError
 from ..flame.model import FlameModel
 from ..io.atomic import atomic_path
-from ..io.torch_file import check_format, load_torch_state
+from ..io.files import check_plain_name
+from ..io.torch_file import check_format, load_torch_state, save_torch_state
 from ..splat import SplatOutput, rasterize
 from .gaussians import PARAMETER_NAMES, BoundGaussians
 
@@ -38,8 +39,13 @@ class Avatar(torch.nn.Module):
 
     def __init__(self, flame: FlameModel, gaussians: BoundGaussians, head_file: str | os.PathLike):
         super().__init__()
-        if int(gaussians.binding.max()) >= len(flame.faces):
-            raise InputError(head_file, "binding", "Gaussians are bound to triangles the head model does not have")
+        binding = gaussians.binding
+        if len(binding) == 0:
+            raise InputError(head_file, "binding", "the avatar holds no Gaussians")
+        if int(binding.min()) < 0 or int(binding.max()) >= len(flame.faces):
+            raise InputError(head_file, "binding", f"Gaussians are bound to triangles the head model does not have "
+                                                   f"(ids {int(binding.min())}..{int(binding.max())}, the model has "
+                                                   f"{len(flame.faces)} faces)")
         self.flame = flame
         self.gaussians = gaussians
         self.head_file = pathlib.Path(head_file)
@@ -92,7 +98,7 @@ class Avatar(torch.nn.Module):
         """Write the avatar atomically; the head model file must sit beside it (same folder)."""
         path = pathlib.Path(path)
         with atomic_path(path) as tmp:
-            torch.save(self.state(), tmp)
+            save_torch_state(self.state(), tmp)
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "Avatar":
@@ -107,11 +113,14 @@ class Avatar(torch.nn.Module):
         missing = [k for k in ("binding", *PARAMETER_NAMES) if k not in tensors]
         if missing:
             raise InputError(source, f"gaussians.{missing[0]}", "missing")
-        head_file = folder / state["head_file"]
+        head_file = folder / check_plain_name(state.get("head_file"), source, "head_file")
         gaussians = BoundGaussians(
             tensors["binding"], int(state["max_sh_degree"]), **{k: tensors[k] for k in PARAMETER_NAMES}
         )
         gaussians.active_sh_degree = int(state["active_sh_degree"])
+        for name in PARAMETER_NAMES:
+            if not bool(torch.isfinite(tensors[name]).all()):
+                raise InputError(source, f"gaussians.{name}", "holds NaN or infinite values")
         n_vertices = state.get("n_vertices")
         return cls(FlameModel.load(head_file, n_vertices=None if n_vertices is None else int(n_vertices)),
                    gaussians, head_file)

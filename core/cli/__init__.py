@@ -8,10 +8,15 @@ Each sub-command is a module in this package with ``add_arguments(parser)`` and
 from __future__ import annotations
 
 import argparse
+import errno
 import importlib
+import signal
 import sys
 
 from ..errors import MogafaceError
+
+# a full or read-only disk, or a folder the user may not write: a clear error, not a traceback
+_DISK_ERRORS = {errno.ENOSPC, errno.EROFS, errno.EACCES, errno.EPERM, getattr(errno, "EDQUOT", errno.ENOSPC)}
 
 # name -> (module in this package, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -51,9 +56,17 @@ def _command_module(name: str):
 
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    args = _build_parser(argv).parse_args(argv)
     try:
+        args = _build_parser(argv).parse_args(argv)
         return int(_command_module(args.command).run(args) or 0)
     except MogafaceError as error:
         print(f"error: {error}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:  # before a command installs its own handler (imports, start-up)
+        print("interrupted", file=sys.stderr)
+        return 128 + signal.SIGINT
+    except OSError as error:
+        if error.errno not in _DISK_ERRORS:
+            raise
+        print(f"error: {error.filename or ''}: {error.strerror} (nothing half-written was kept)", file=sys.stderr)
         return 2

@@ -9,6 +9,7 @@ import sys
 BENCHMARKS = {
     "distributed": "data-parallel training: ranks against threads, all-reduce volume and time per step",
     "splat": "the CPU Gaussian splat engine against its torch reference",
+    "splat_fuzz": "the splat engine on degenerate Gaussians and intrinsics (hangs, non-finite values)",
     "step": "one training step stage by stage (FLAME, binding, render, loss, optimiser, MoGaFace modules)",
     "train": "the full training step (render, loss, backward, Adam) in steps per second",
     "viewport": "the avatar in the 3D viewport: frames per second of its render request at 256 and 512 px",

@@ -8,6 +8,8 @@ def add_arguments(parser) -> None:
     parser.add_argument(
         "--cache-mib", type=int, default=512, help="image cache bound the reader would use, in MiB (default 512)"
     )
+    parser.add_argument("--full", action="store_true",
+                        help="also decode every image and mask (finds truncated or corrupt files; slower)")
     parser.add_argument("--contact-sheet", metavar="PNG", help="also write every view of one timestep into this image")
     parser.add_argument("--timestep", type=int, help="timestep of the contact sheet (default: the first)")
     parser.add_argument(
@@ -20,7 +22,7 @@ def add_arguments(parser) -> None:
 def run(args) -> int:
     from ..data.validate import validate_capture
 
-    summary = validate_capture(args.capture, cache_bytes=args.cache_mib * 2**20)
+    summary = validate_capture(args.capture, cache_bytes=args.cache_mib * 2**20, full=args.full)
     for line in summary.lines():
         print(line)
     print(_cy_line(args))

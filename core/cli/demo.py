@@ -18,6 +18,8 @@ import sys
 import tempfile
 import time
 
+from ..errors import InputError
+
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 BLEND_SCRIPT = ROOT / "scripts" / "mogaface_blend.py"
 
@@ -49,7 +51,10 @@ def training_preset() -> str:
 
 
 def add_arguments(parser):
-    parser.add_argument("--out", type=pathlib.Path, default=pathlib.Path("out/demo"), help="output folder")
+    parser.add_argument("--out", type=pathlib.Path, default=pathlib.Path("out/demo"),
+                        help="output folder: new or empty, unless --overwrite")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="write into a non-empty --out, replacing its run/, capture/ and driver_capture/")
     parser.add_argument("--seed", type=int, default=0, help="seed of everything random (default 0)")
     parser.add_argument("--tiny", action="store_true", help="a smoke run: tiny capture, a few steps (< 1 min)")
     parser.add_argument("--no-blend", action="store_true", help="skip the Blender scene (needs the bpy module)")
@@ -215,6 +220,11 @@ def run(args) -> int:
 
     plan = TINY if args.tiny else DemoPlan()
     out = args.out.resolve()
+    if out.exists() and not out.is_dir():
+        raise InputError(out, None, "--out must be a folder")
+    if out.is_dir() and any(out.iterdir()) and not args.overwrite:
+        raise InputError(out, None, "not empty; choose a new folder, or pass --overwrite to replace the demo's "
+                                    "outputs there (run/, capture/, driver_capture/ are deleted first)")
     out.mkdir(parents=True, exist_ok=True)
     clock = _Clock()
     preset = training_preset()

@@ -5,21 +5,44 @@ from __future__ import annotations
 import pathlib
 
 
-def parse_timesteps(text: str) -> list[int]:
-    """``"0,5,10-20"`` → ``[0, 5, 10, 11, …, 20]`` (ranges inclusive, order kept, repeats dropped)."""
+class TimestepRanges:
+    """``"0,5,10-20"`` as inclusive ranges, iterated lazily (order kept, repeats dropped), so a
+    range of any length costs no memory; rendering stops at the first timestep the run lacks."""
+
+    def __init__(self, ranges: list[tuple[int, int]]):
+        self.ranges = ranges
+
+    def __iter__(self):
+        for k, (low, high) in enumerate(self.ranges):
+            earlier = self.ranges[:k]
+            t = low
+            while t <= high:
+                covering = [h for lo, h in earlier if lo <= t <= h]
+                if covering:
+                    t = max(covering) + 1  # skip what an earlier range already gave
+                    continue
+                yield t
+                t += 1
+
+    def __eq__(self, other):
+        return list(self) == list(other)
+
+
+def parse_timesteps(text: str) -> TimestepRanges:
+    """``"0,5,10-20"`` → the timesteps 0, 5, 10, 11, …, 20 (ranges inclusive)."""
     import re
 
     from ..errors import InputError
 
-    out: list[int] = []
+    ranges: list[tuple[int, int]] = []
     for part in text.split(","):
-        match = re.fullmatch(r"\s*(\d+)\s*(?:-\s*(\d+)\s*)?", part)
+        match = re.fullmatch(r"\s*(\d{1,18})\s*(?:-\s*(\d{1,18})\s*)?", part)
         low = int(match[1]) if match else 0
         high = int(match[2]) if match and match[2] else low
         if not match or high < low:
             raise InputError(None, "--timesteps", f"expected numbers and ranges like 0,5,10-20, got {part!r}")
-        out += [t for t in range(low, high + 1) if t not in out]
-    return out
+        ranges.append((low, high))
+    return TimestepRanges(ranges)
 
 
 def add_arguments(parser) -> None:

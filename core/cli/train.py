@@ -46,6 +46,8 @@ def _listeners(args):
                 bar = state["bar"]
                 note = f"loss {event['loss']:.4f} psnr {event['psnr']:.2f} G {event['gaussians']}"
                 bar.update(event["step"] - bar.done, note)
+            elif event["event"] == "warning":
+                print(f"\nwarning: {event['message']}", file=sys.stderr)
             elif event["event"] == "stopped":
                 print(f"\nstopped by {event['signal']} at step {event['step']} (checkpoint written)",
                       file=sys.stderr)

@@ -21,7 +21,10 @@ import numpy as np
 
 from ..camera import Camera, intrinsics_matrix, opengl_c2w_to_opencv_w2c
 from ..errors import CaptureError, InputError
+from ..io.files import check_plain_name
 from ..io.image import read_image
+from ..limits import (MAX_FOCAL_RATIO, MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE, MAX_PARAM_FILE_BYTES,
+                      MAX_PRINCIPAL_OFFSET_RATIO, MIN_FOCAL_RATIO)
 from ..io.jsonfile import read_json_object
 from ..io.npz import load_npz
 from . import layout
@@ -141,6 +144,7 @@ def _frame_camera(frame: dict, top: dict, camera_id: str, source, where: str) ->
     cy = layout.cy_from_file(_number(frame, top, "cy", source, where, 0.5 * h), h, layout.cy_origin(top, source))
     if fx <= 0 or fy <= 0:
         raise CaptureError(source, f"{where}.fl_x", f"focal lengths must be positive, got {fx}, {fy}")
+    _check_intrinsics(w, h, fx, fy, cx, cy, source, where)
     matrix = frame.get("transform_matrix")
     if matrix is None:
         raise CaptureError(source, f"{where}.transform_matrix", "missing key")
@@ -156,6 +160,23 @@ def _frame_camera(frame: dict, top: dict, camera_id: str, source, where: str) ->
     if not np.allclose(c2w[3], [0, 0, 0, 1], atol=1e-6) or not np.allclose(rot @ rot.T, np.eye(3), atol=1e-4):
         raise CaptureError(source, f"{where}.transform_matrix", "not a rigid camera-to-world transform")
     return Camera(intrinsics_matrix(fx, fy, cx, cy), opengl_c2w_to_opencv_w2c(c2w), w, h, camera_id)
+
+
+def _check_intrinsics(w, h, fx, fy, cx, cy, source, where) -> None:
+    """Refuse sizes and intrinsics no real camera has (they only cost memory or time)."""
+    if max(w, h) > MAX_IMAGE_SIDE or w * h > MAX_IMAGE_PIXELS:
+        raise CaptureError(source, f"{where}.w/h", f"{w}x{h} is larger than the limit "
+                                                   f"({MAX_IMAGE_SIDE} px a side, {MAX_IMAGE_PIXELS} pixels)")
+    size = max(w, h)
+    for name, f in (("fl_x", fx), ("fl_y", fy)):
+        if not MIN_FOCAL_RATIO * size <= f <= MAX_FOCAL_RATIO * size:
+            raise CaptureError(source, f"{where}.{name}", f"focal length {f:g} px is outside "
+                                                          f"[{MIN_FOCAL_RATIO * size:g}, {MAX_FOCAL_RATIO * size:g}] "
+                                                          f"for a {w}x{h} image")
+    for name, c, half in (("cx", cx, 0.5 * w), ("cy", cy, 0.5 * h)):
+        if abs(c - half) > MAX_PRINCIPAL_OFFSET_RATIO * size:
+            raise CaptureError(source, f"{where}.{name}", f"principal point {c:g} px is more than "
+                                                          f"{MAX_PRINCIPAL_OFFSET_RATIO:g} image sizes off centre")
 
 
 _RAW_CAMERA_KEYS = ("w", "h", "fl_x", "fl_y", "cx", "cy", "camera_angle_x", "camera_angle_y")
@@ -333,7 +354,7 @@ class Capture:
                 raise CaptureError(source, where, "expected a JSON object")
             t = _int_field(entry, "timestep_index", source, where)
             c = _int_field(entry, "camera_index", source, where)
-            camera_id = str(entry.get("camera_id", c))
+            camera_id = check_plain_name(str(entry.get("camera_id", c)), source, f"{where}.camera_id", CaptureError)
             timestep_id = str(entry.get("timestep_id", f"{t:05d}"))
             sequence = entry.get("sequence")
             if sequence is not None and not isinstance(sequence, str):
@@ -483,7 +504,7 @@ class Capture:
         if path.is_file() and not zipfile.is_zipfile(path):
             raise CaptureError(path, field, "not an .npz (zip) archive")
         try:
-            arrays = load_npz(path)
+            arrays = load_npz(path, MAX_PARAM_FILE_BYTES)
         except InputError as error:
             raise CaptureError(path, error.field or field, error.problem) from None
         return layout.normalize_flame_params(arrays, path)

@@ -20,6 +20,7 @@ import pathlib
 import numpy as np
 
 from ..errors import CaptureError
+from ..limits import MAX_PARAM_VECTOR
 from .paths import resolve_capture_path
 
 SPLITS = ("train", "val", "test")
@@ -119,6 +120,8 @@ def _checked(value: np.ndarray, key: str, ndim: int, size: int | None, source) -
     if array.ndim != ndim or (size is not None and array.shape[-1] != size) or array.size == 0:
         batched = "(1, " + ", ".join(map(str, wanted)) + ")"
         raise CaptureError(source, key, f"expected shape {wanted} or {batched}, got {np.shape(value)}")
+    if ndim == 1 and array.shape[-1] > MAX_PARAM_VECTOR:
+        raise CaptureError(source, key, f"{array.shape[-1]} coefficients; the limit is {MAX_PARAM_VECTOR}")
     if not np.isfinite(array).all():
         raise CaptureError(source, key, "contains NaN or inf")
     return array.astype(np.float32)

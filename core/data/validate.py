@@ -10,8 +10,11 @@ from __future__ import annotations
 import dataclasses
 import os
 
+import numpy as np
+
 from ..errors import CaptureError, InputError
-from ..io.image import image_size
+from ..io.files import check_regular_file
+from ..io.image import image_size, read_image
 from . import layout
 from .capture import DEFAULT_CACHE_BYTES, Capture
 
@@ -55,12 +58,18 @@ class CaptureSummary:
 
 
 def validate_capture(
-    capture: Capture | str | os.PathLike, *, cache_bytes: int = DEFAULT_CACHE_BYTES
+    capture: Capture | str | os.PathLike, *, cache_bytes: int = DEFAULT_CACHE_BYTES, full: bool = False
 ) -> CaptureSummary:
-    """Run every check on a capture (a path or an opened :class:`Capture`) and summarise it."""
+    """Run every check on a capture (a path or an opened :class:`Capture`) and summarise it.
+
+    ``full`` also decodes every image and mask (truncated or corrupt files, non-finite EXR
+    values), which takes about as long as reading the capture once.
+    """
     if not isinstance(capture, Capture):
         capture = Capture.open(capture, cache_bytes=cache_bytes)
     _check_images(capture)
+    if full:
+        _decode_images(capture)
     sizes = _check_flame_files(capture)
     canonical = capture.canonical_flame_params()
     if canonical is not None:
@@ -110,6 +119,25 @@ def _check_images(capture: Capture) -> None:
                 )
 
 
+def _decode_images(capture: Capture) -> None:
+    """Decode every image and mask once (nothing kept): the errors training would meet later."""
+    checked: set[str] = set()
+    for frame in capture.frames():
+        for name in ("file_path", "fg_mask_path"):
+            rel = getattr(frame, name)
+            if rel is None or rel in checked:
+                continue
+            checked.add(rel)
+            path = capture.path(frame, name)
+            where = f"{frame.source} {frame.field(name)}"
+            try:
+                pixels = read_image(path)
+            except InputError as error:
+                raise CaptureError(path, where, error.problem) from None
+            if not np.isfinite(pixels).all():
+                raise CaptureError(path, where, "holds NaN or infinite pixel values")
+
+
 def _check_flame_files(capture: Capture) -> dict[str, tuple[int, ...]]:
     first_frame = {}
     for frame in capture.frames():
@@ -119,8 +147,10 @@ def _check_flame_files(capture: Capture) -> dict[str, tuple[int, ...]]:
     for t in capture.timesteps:
         frame = first_frame[t]
         path = capture.path(frame, "flame_param_path")
-        if not path.is_file():
-            raise CaptureError(path, f"{frame.source} {frame.field('flame_param_path')}", "file not found")
+        try:
+            check_regular_file(path)
+        except InputError as error:
+            raise CaptureError(path, f"{frame.source} {frame.field('flame_param_path')}", error.problem) from None
         params = capture.flame_params(t)
         if first is None:
             first = path

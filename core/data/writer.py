@@ -15,6 +15,7 @@ import numpy as np
 from ..camera import Camera, opencv_w2c_to_opengl_c2w
 from ..errors import CaptureError
 from ..io.atomic import write_json
+from ..io.files import check_plain_name
 from ..io.image import write_png
 from ..io.npz import save_npz
 from . import layout
@@ -68,6 +69,7 @@ class CaptureWriter:
         """The index of ``camera_id``, assigned on first use (``index`` pins it)."""
         known = self._camera_index.get(camera_id)
         if known is None:
+            check_plain_name(camera_id, self.root, "camera_id", CaptureError)  # the reader refuses others
             known = len(self._camera_index) if index is None else int(index)
             if known in self._camera_index.values():
                 raise CaptureError(self.root, "camera_index", f"index {known} already belongs to another camera")

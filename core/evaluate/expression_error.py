@@ -16,6 +16,7 @@ import numpy as np
 import torch
 
 from ..errors import InputError
+from ..io.files import file_inside
 from ..flame.model import FlameModel
 from .run_folder import RunFolder, capture_info, load_flame_file
 
@@ -34,9 +35,11 @@ def expression_errors(run_dir: str | os.PathLike, capture: str | os.PathLike | N
     run = RunFolder(run_dir, capture)
     cap = run.open_capture()
     truth_dir = capture_info(cap.root).get("ground_truth", {}).get("flame_param")
-    if not truth_dir or not (cap.root / truth_dir).is_dir():
+    if not truth_dir or not file_inside(cap.root, truth_dir, cap.root / "capture_info.json",
+                                        "ground_truth.flame_param").is_dir():
         raise InputError(cap.root, "ground_truth.flame_param", "the capture carries no true parameters")
-    head = pathlib.Path(run.avatar_path).parent / run.info.get("head_file", "head.pkl")
+    folder = pathlib.Path(run.avatar_path).parent
+    head = file_inside(folder, run.info.get("head_file", "head.pkl"), folder / "run.json", "head_file")
     model = FlameModel.load(head)
     expr = {"tracked": [], "corrected": []}
     vertex = {"tracked": [], "corrected": []}

@@ -21,6 +21,7 @@ from ..data.generator import INFO_FILE
 from ..errors import InputError
 from ..io.jsonfile import read_json_object
 from ..io.npz import load_npz
+from ..limits import MAX_PARAM_FILE_BYTES
 
 RUN_FILE = "run.json"
 AVATAR_FILE = "avatar.pt"
@@ -51,7 +52,7 @@ def parse_background(value, source, field: str = "background") -> tuple[float, f
 
 def load_flame_file(path: str | os.PathLike) -> dict[str, np.ndarray]:
     """One timestep's FLAME ``.npz`` (VHAP form or plain), checked: ``(n,)`` vectors, ``static_offset (V,3)``."""
-    return layout.normalize_flame_params(load_npz(path), path)
+    return layout.normalize_flame_params(load_npz(path, MAX_PARAM_FILE_BYTES), path)
 
 
 class RunFolder:

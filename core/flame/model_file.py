@@ -16,6 +16,7 @@ import numpy as np
 
 from ..errors import ModelFileError
 from ..io.npz import load_npz, save_npz
+from ..io.files import check_regular_file
 from .safe_pickle import load_model_pickle, save_model_pickle
 
 REQUIRED_KEYS = ("v_template", "f", "shapedirs", "posedirs", "J_regressor", "weights", "kintree_table")
@@ -59,8 +60,7 @@ def read_model_file(path: str | os.PathLike, n_shape: int | None = None, n_expr:
     (``n_shape`` key), else taken as FLAME's 300 + 100, else must be given.
     """
     path = pathlib.Path(path)
-    if not path.is_file():
-        raise ModelFileError(path, None, "file not found")
+    check_regular_file(path, ModelFileError)
     raw = load_npz(path) if path.suffix == ".npz" else load_model_pickle(path)
     return _validate(path, raw, n_shape, n_expr)
 
@@ -106,7 +106,9 @@ def _validate(path, raw, n_shape, n_expr) -> ModelArrays:
 
     faces = _array(path, raw, "f", 2, "i").astype(np.int64)
     _expect_shape(path, "f", faces, (None, 3))
-    if faces.size and (faces.min() < 0 or faces.max() >= n_vertices):
+    if len(faces) == 0 or n_vertices == 0:
+        raise ModelFileError(path, "f" if n_vertices else "v_template", "a head model needs vertices and faces (found none)")
+    if faces.min() < 0 or faces.max() >= n_vertices:
         raise ModelFileError(path, "f", f"vertex indices must lie in [0, {n_vertices})")
 
     kintree = _array(path, raw, "kintree_table", 2, "i").astype(np.int64)

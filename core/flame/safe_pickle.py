@@ -18,6 +18,7 @@ import numpy as np
 
 from ..errors import ModelFileError, UnsafePickleError
 from ..io.atomic import atomic_open
+from ..limits import MAX_ARRAY_ELEMENTS
 from ..io.restricted_pickle import NUMPY_ARRAY_GLOBALS, restricted_load
 
 
@@ -48,6 +49,8 @@ class SparseMatrix:
         data, indices, indptr = (np.asarray(getattr(self, k)) for k in ("data", "indices", "indptr"))
         if len(shape) != 2:
             raise ValueError("sparse matrix without a 2-D shape")
+        if min(shape) < 0 or shape[0] * shape[1] > MAX_ARRAY_ELEMENTS:
+            raise ValueError(f"sparse matrix declares shape {shape}, over the limit of {MAX_ARRAY_ELEMENTS} elements")
         dense = np.zeros(shape, dtype=np.float64)
         outer = shape[1] if self.layout == "csc" else shape[0]
         if len(indptr) != outer + 1 or indptr[-1] > len(indices) or len(indices) != len(data):
@@ -86,10 +89,18 @@ _ALLOWED_MODULES = {
     "scipy.sparse.compressed": _sparse,
     "copy_reg": lambda name: copyreg._reconstructor if name == "_reconstructor" else None,
     "copyreg": lambda name: copyreg._reconstructor if name == "_reconstructor" else None,
-    "__builtin__": lambda name: object if name == "object" else None,
-    "builtins": lambda name: object if name == "object" else None,
+    "__builtin__": lambda name: {"object": object, "bytes": _empty_bytes}.get(name),
+    "builtins": lambda name: {"object": object, "bytes": _empty_bytes}.get(name),
     "_codecs": lambda name: _latin1_encode if name == "encode" else None,
 }
+
+
+def _empty_bytes(*args):
+    """Python 3 pickles (protocol 2) store an empty array's data as ``bytes()``; only that is allowed
+    (``bytes(n)`` would allocate what the file asks)."""
+    if args:
+        raise UnsafePickleError(None, None, "refused bytes() with arguments")
+    return b""
 
 
 def _latin1_encode(text, encoding="latin1"):

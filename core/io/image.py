@@ -12,7 +12,9 @@ import pathlib
 import numpy as np
 
 from ..errors import InputError
+from ..limits import MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE
 from .atomic import atomic_path
+from .files import check_regular_file
 
 _EXR = ".exr"
 
@@ -33,8 +35,16 @@ def linear_to_srgb(x: np.ndarray) -> np.ndarray:
     return np.where(x <= 0.0031308, x * 12.92, 1.055 * x ** (1 / 2.4) - 0.055).astype(np.float32)
 
 
+def check_image_size(path, width: int, height: int) -> None:
+    """Refuse an image whose header declares more pixels than the limits (decompression bombs)."""
+    if not (0 < width <= MAX_IMAGE_SIDE and 0 < height <= MAX_IMAGE_SIDE and width * height <= MAX_IMAGE_PIXELS):
+        raise InputError(path, None, f"declares {width}x{height} pixels; the limit is {MAX_IMAGE_SIDE} "
+                                     f"a side and {MAX_IMAGE_PIXELS} in all")
+
+
 def image_size(path: str | os.PathLike) -> tuple[int, int]:
     """``(width, height)`` of an image file, read from its header only (no pixel decoding)."""
+    check_regular_file(path)
     try:
         if _is_exr(path):
             import OpenEXR
@@ -57,6 +67,8 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
     8-bit and 16-bit images are scaled to [0, 1]; palette images are expanded; EXR channels
     are read as stored (R, G, B, A in that order; Y for single-channel files).
     """
+    width, height = image_size(path)
+    check_image_size(path, width, height)
     if _is_exr(path):
         return _read_exr(path)
     from PIL import Image

@@ -6,13 +6,17 @@ import json
 import os
 
 from ..errors import InputError
+from .files import check_regular_file
 
 
 def read_json_object(path: str | os.PathLike, error: type[InputError] = InputError) -> dict:
     """The JSON object in ``path``; anything else raises ``error(path, None, problem)``."""
     try:
+        check_regular_file(path, error)
         with open(path, encoding="utf-8") as handle:
             doc = json.load(handle)
+    except RecursionError:
+        raise error(path, None, "nested too deeply to be a capture or settings file") from None
     except FileNotFoundError:
         raise error(path, None, "file not found") from None
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as problem:

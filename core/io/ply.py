@@ -19,7 +19,9 @@ import os
 import numpy as np
 
 from ..errors import InputError
+from ..limits import MAX_PLY_VERTICES
 from .atomic import atomic_open
+from .files import check_regular_file
 
 _PLY_TYPES = {
     "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",
@@ -135,6 +137,8 @@ def _read_header(path, handle) -> tuple[list[tuple[str, int, list]], int]:
             binary = True
         elif words[0] == "element" and len(words) == 3 and words[2].isdigit():
             elements.append((words[1], int(words[2]), []))
+        elif words[0] == "property" and elements and words[-1] in {n for n, _ in elements[-1][2]}:
+            raise InputError(path, words[-1], f"property listed twice in element '{elements[-1][0]}'")
         elif words[0] == "property" and elements and len(words) == 3 and words[1] in _PLY_TYPES:
             elements[-1][2].append((words[2], np.dtype("<" + _PLY_TYPES[words[1]])))
         elif words[0] == "property" and elements and words[1:2] == ["list"]:
@@ -145,9 +149,11 @@ def _read_header(path, handle) -> tuple[list[tuple[str, int, list]], int]:
 
 def _vertex_table(path) -> np.ndarray:
     """The ``vertex`` element as a structured array (elements before it must have fixed-size rows)."""
+    check_regular_file(path)
     try:
         with open(path, "rb") as handle:
             elements, offset = _read_header(path, handle)
+            file_size = os.fstat(handle.fileno()).st_size
             for name, count, properties in elements:
                 if any(kind is None for _, kind in properties):
                     if name == "vertex":
@@ -155,6 +161,11 @@ def _vertex_table(path) -> np.ndarray:
                     raise InputError(path, name, "a list element before 'vertex' is not supported")
                 dtype = np.dtype([(prop, kind) for prop, kind in properties])
                 if name == "vertex":
+                    if count > MAX_PLY_VERTICES:
+                        raise InputError(path, "vertex", f"declares {count} vertices (limit {MAX_PLY_VERTICES})")
+                    if offset + dtype.itemsize * count > file_size:  # checked before reading anything
+                        raise InputError(path, "vertex", f"file ends after {max(file_size - offset, 0)} of "
+                                                         f"{dtype.itemsize * count} data bytes")
                     handle.seek(offset)
                     data = handle.read(dtype.itemsize * count)
                     if len(data) != dtype.itemsize * count:
@@ -199,12 +210,16 @@ def read_gaussian_ply(path: str | os.PathLike) -> dict:
         binding = raw.astype(np.int64)
         if np.any(binding != raw) or np.any(binding < 0):
             raise InputError(path, binding_name, "face ids must be non-negative integers")
-    return {
+    out = {
         "means": stack(["x", "y", "z"]),
         "scales_log": stack(["scale_0", "scale_1", "scale_2"]),
         "quats": stack(["rot_0", "rot_1", "rot_2", "rot_3"]),
         "opacity_logit": table["opacity"].astype(np.float32),
         "sh": sh,
-        "binding": binding,
-        "sh_degree": degree,
     }
+    for name, values in out.items():
+        bad = ~np.isfinite(values.reshape(count, -1)).all(axis=1) if count else np.zeros(0, bool)
+        if bad.any():
+            raise InputError(path, name, f"Gaussian {int(np.argmax(bad))} (and {int(bad.sum()) - 1} more) "
+                                         "holds NaN or infinite values")
+    return {**out, "binding": binding, "sh_degree": degree}

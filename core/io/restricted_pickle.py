@@ -14,6 +14,8 @@ from typing import Callable, Mapping
 import numpy as np
 
 from ..errors import UnsafePickleError
+from .files import check_regular_file
+from ..limits import MAX_ARRAY_BYTES, MAX_PICKLE_BYTES
 
 # resolver(name) -> the object to use for ``module.name``, or None to refuse it.
 Resolver = Callable[[str], object]
@@ -50,13 +52,41 @@ class RestrictedUnpickler(pickle.Unpickler):
         self._path = path
         self._allowed = allowed
         self._what = what
+        self._allocated = 0
 
     def find_class(self, module, name):
         resolver = self._allowed.get(module)
         found = resolver(name) if resolver else None
         if found is None:
             raise UnsafePickleError(self._path, None, f"refused to load global '{module}.{name}' (not part of {self._what})")
+        if found is np.ndarray:  # calling it allocates what the file declares: count it first
+            return self._new_array
+        if getattr(found, "__name__", None) == "_reconstruct" and found is _numpy_multiarray("_reconstruct"):
+            return self._reconstruct
         return found
+
+    def _charge(self, shape, dtype) -> None:
+        """Count the bytes an array of ``shape`` and ``dtype`` will take against the budget."""
+        try:
+            dims = [int(n) for n in (shape if isinstance(shape, (tuple, list)) else (shape,))]
+            size = int(np.prod(dims, dtype=object)) * np.dtype(dtype).itemsize
+        except (TypeError, ValueError) as error:
+            raise UnsafePickleError(self._path, None, f"refused an array of shape {shape!r} ({error})") from None
+        if min(dims, default=0) < 0 or size > MAX_ARRAY_BYTES or self._allocated + size > MAX_PICKLE_BYTES:
+            raise UnsafePickleError(self._path, None, f"refused an array of shape {shape!r} and dtype {dtype!r}: "
+                                                      f"over the limit of {MAX_ARRAY_BYTES} bytes an array and "
+                                                      f"{MAX_PICKLE_BYTES} in all")
+        self._allocated += size
+
+    def _new_array(self, shape, dtype=float, *args, **kwargs):
+        self._charge(shape, dtype)
+        return np.ndarray(shape, dtype, *args, **kwargs)
+
+    def _reconstruct(self, subtype, shape, dtype):
+        if subtype not in (np.ndarray, self._new_array):
+            raise UnsafePickleError(self._path, None, f"refused to rebuild an array of type {subtype!r}")
+        self._charge(shape, dtype)
+        return _numpy_multiarray("_reconstruct")(np.ndarray, shape, dtype)
 
     def persistent_load(self, pid):
         raise UnsafePickleError(self._path, None, "refused a persistent reference in the pickle")
@@ -68,5 +98,6 @@ def restricted_load(path: str | os.PathLike, allowed: Mapping[str, Resolver], wh
     Only the unpickler's own refusals surface as :class:`UnsafePickleError`; opening and
     decoding errors propagate for the caller to turn into its own message.
     """
+    check_regular_file(path)
     with open(path, "rb") as handle:
         return RestrictedUnpickler(handle, path, allowed, what).load()

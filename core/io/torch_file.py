@@ -19,6 +19,14 @@ def load_torch_state(path: str | os.PathLike, what: str) -> dict:
         raise InputError(path, None, f"not a readable {what} ({error})") from None
 
 
+def save_torch_state(state, path: str | os.PathLike) -> None:
+    """``torch.save`` to ``path`` (a temporary name); a full or read-only disk is a clear error."""
+    try:
+        torch.save(state, path)
+    except (OSError, RuntimeError) as error:
+        raise InputError(path, None, f"cannot write (disk full or not writable? {error})") from None
+
+
 def check_format(state, source, file_format: str, version: int) -> None:
     """Refuse a state that is not a dict of ``file_format`` at ``version``."""
     if not isinstance(state, dict) or state.get("format") != file_format:

@@ -15,7 +15,7 @@ from torch import nn
 
 from ..errors import InputError
 from ..io.atomic import atomic_path
-from ..io.torch_file import check_format, load_torch_state
+from ..io.torch_file import check_format, load_torch_state, save_torch_state
 from .bank import ExpressionBank
 from .correction import CorrectionHead
 from .encoder import ViewEncoder
@@ -118,7 +118,7 @@ class MoGaFace(nn.Module):
 
     def save(self, path: str | os.PathLike) -> None:
         with atomic_path(pathlib.Path(path)) as tmp:
-            torch.save(self.to_file_state(), tmp)
+            save_torch_state(self.to_file_state(), tmp)
 
     @classmethod
     def from_file_state(cls, state: dict, source=None) -> "MoGaFace":

@@ -11,6 +11,8 @@ from ..errors import InputError
 from .function import Project, Rasterize
 from .sh import sh_degree, sh_to_rgb
 
+MAX_COLOR = 1e6  # colours are clamped to [-MAX_COLOR, MAX_COLOR]: composited sums stay finite
+
 
 @dataclass
 class SplatOutput:
@@ -95,6 +97,7 @@ def rasterize(means, quats, scales, opacities, colors, viewmat, K, width, height
         rot, trans = torch.from_numpy(viewmat[:3, :3]), torch.from_numpy(viewmat[:3, 3])
         campos = (-rot.T @ trans).float()
         colors = sh_to_rgb(colors, means, campos)
+    colors = colors.clamp(-MAX_COLOR, MAX_COLOR)
     means2d, conics, depths, cov2d, radii = Project.apply(means, quats, scales, viewmat, K, width, height)
     if means2d.requires_grad:
         means2d.retain_grad()

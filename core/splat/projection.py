@@ -13,8 +13,12 @@ import numpy as np
 from numba import njit, prange
 
 NEAR = 0.01  # Gaussians with camera depth z <= NEAR are culled
+FAR = 1e8  # ... and those with z >= FAR: depth-weighted sums and their gradients stay finite
 BLUR = 0.3  # px², added to the 2D covariance (anti-aliasing floor of 3DGS)
 MAX_RADIUS = 1 << 30
+# px from the image centre beyond which a projected mean is culled: float32 pixel offsets lose
+# their precision out there, and the raster kernels' loop bounds must stay exact integers
+MAX_OFFSET = 1e6
 
 
 @njit(cache=True, inline="always")
@@ -63,7 +67,7 @@ def project_forward(means, quats, scales, viewmat, K, width, height,
         tx = V[0, 0] * mx + V[0, 1] * my + V[0, 2] * mz + V[0, 3]
         ty = V[1, 0] * mx + V[1, 1] * my + V[1, 2] * mz + V[1, 3]
         tz = V[2, 0] * mx + V[2, 1] * my + V[2, 2] * mz + V[2, 3]
-        if not (tz > NEAR) or not math.isfinite(tx) or not math.isfinite(ty) or not math.isfinite(tz):
+        if not (NEAR < tz < FAR) or not math.isfinite(tx) or not math.isfinite(ty) or not math.isfinite(tz):
             continue
         qw, qx, qy, qz = (np.float64(quats[g, 0]), np.float64(quats[g, 1]),
                           np.float64(quats[g, 2]), np.float64(quats[g, 3]))
@@ -102,10 +106,14 @@ def project_forward(means, quats, scales, viewmat, K, width, height,
         det = sxx * syy - sxy * sxy
         if not (det > 0.0) or not math.isfinite(det):
             continue
+        px = fx * tx / tz + cx
+        py = fy * ty / tz + cy
+        if not (abs(px - 0.5 * width) < MAX_OFFSET and abs(py - 0.5 * height) < MAX_OFFSET):
+            continue
         mid = 0.5 * (sxx + syy)
         lam = mid + math.sqrt(max(mid * mid - det, 0.0))
-        means2d[g, 0] = fx * tx / tz + cx
-        means2d[g, 1] = fy * ty / tz + cy
+        means2d[g, 0] = px
+        means2d[g, 1] = py
         conics[g, 0] = syy / det
         conics[g, 1] = -sxy / det
         conics[g, 2] = sxx / det

@@ -46,7 +46,7 @@ def pack(order, means2d, conics, cov2d, opacities, colors, depths):
         out[r, DZ] = depths[g]
         out[r, QM] = qm
         out[r, KX] = sxy / syy
-        out[r, SQS] = min(math.sqrt(sxx - sxy * sxy / syy), MAX_HALF)
+        out[r, SQS] = min(math.sqrt(max(sxx - sxy * sxy / syy, 0.0)), MAX_HALF)
         out[r, ISYY] = 1.0 / syy
         out[r, EY] = min(math.sqrt(qm * syy), MAX_HALF)
     return out

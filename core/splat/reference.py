@@ -13,7 +13,7 @@ import math
 import torch
 from torch.utils.checkpoint import checkpoint
 
-from .projection import BLUR, NEAR
+from .projection import BLUR, FAR, MAX_OFFSET, NEAR
 from .raster import ALPHA_MAX, T_MIN
 from .sh import sh_to_rgb
 from .tiles import ALPHA_MIN, SIGMAS
@@ -36,7 +36,7 @@ def project(means, quats, scales, viewmat, K, width, height):
     K = torch.as_tensor(K, dtype=dt)
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     t = means @ V[:3, :3].T + V[:3, 3]
-    valid = (t[:, 2] > NEAR) & torch.isfinite(t).all(-1)
+    valid = (t[:, 2] > NEAR) & (t[:, 2] < FAR) & torch.isfinite(t).all(-1)
     z = torch.where(valid, t[:, 2], torch.ones_like(t[:, 2]))
     tx, ty = torch.where(valid, t[:, 0], 0.0), torch.where(valid, t[:, 1], 0.0)
     R = quat_to_rotmat(quats.to(dt))
@@ -56,6 +56,8 @@ def project(means, quats, scales, viewmat, K, width, height):
     det = torch.where(valid, det, torch.ones_like(det))
     conics = torch.stack([syy / det, -sxy / det, sxx / det], -1)
     means2d = torch.stack([fx * tx / z + cx, fy * ty / z + cy], -1)
+    centre = torch.tensor([0.5 * width, 0.5 * height], dtype=dt)
+    valid = valid & ((means2d.detach() - centre).abs() < MAX_OFFSET).all(-1)
     with torch.no_grad():
         mid = 0.5 * (sxx + syy)
         lam = mid + (mid * mid - det).clamp_min(0).sqrt()

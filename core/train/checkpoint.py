@@ -12,9 +12,8 @@ import os
 import pathlib
 import re
 
-import torch
-
-from ..io.torch_file import check_format, load_torch_state
+from ..errors import InputError
+from ..io.torch_file import check_format, load_torch_state, save_torch_state
 from ..io.atomic import atomic_path, write_text
 
 CHECKPOINT_FORMAT = "mogaface-train-checkpoint"
@@ -33,7 +32,7 @@ def save_checkpoint(folder: str | os.PathLike, step: int, state: dict, keep: int
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / checkpoint_name(step)
     with atomic_path(path) as tmp:
-        torch.save({"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION, "step": step, **state}, tmp)
+        save_torch_state({"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION, "step": step, **state}, tmp)
     write_text(folder / LATEST, path.name + "\n")
     for old in list_checkpoints(folder)[:-keep]:
         if old != path:
@@ -67,3 +66,34 @@ def load_checkpoint(path: str | os.PathLike) -> dict:
     state = load_torch_state(path, "checkpoint")
     check_format(state, path, CHECKPOINT_FORMAT, CHECKPOINT_VERSION)
     return state
+
+
+def remove_partials(folder: str | os.PathLike) -> list[pathlib.Path]:
+    """Delete the temporary files a killed writer left in ``folder`` (``.*.partial*``)."""
+    folder = pathlib.Path(folder)
+    if not folder.is_dir():
+        return []
+    removed = [p for p in folder.iterdir() if p.name.startswith(".") and ".partial" in p.name and p.is_file()]
+    for p in removed:
+        p.unlink(missing_ok=True)
+    return removed
+
+
+def newest_intact_checkpoint(folder: str | os.PathLike) -> tuple[pathlib.Path, dict, list[str]]:
+    """The newest checkpoint that loads, its state, and why each newer one was skipped.
+
+    ``latest`` is tried first, then every other checkpoint from the highest step down, so a
+    truncated or corrupt newest file costs one interval, not the run.
+    """
+    folder = pathlib.Path(folder)
+    first = latest_checkpoint(folder)
+    if first is None:
+        raise InputError(folder, None, "no checkpoint to resume from")
+    candidates = [first] + [p for p in reversed(list_checkpoints(folder)) if p != first]
+    skipped = []
+    for path in candidates:
+        try:
+            return path, load_checkpoint(path), skipped
+        except InputError as error:
+            skipped.append(str(error))
+    raise InputError(folder, None, "no intact checkpoint to resume from: " + "; ".join(skipped))

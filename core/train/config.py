@@ -154,6 +154,9 @@ class TrainConfig:
         if not 1 <= self.train.batch <= MAX_BATCH:
             raise InputError(source, "train.batch", f"must lie in [1, {MAX_BATCH}] (got {self.train.batch})")
         _check_mogaface(self.mogaface, source)
+        from .config_ranges import check_ranges
+
+        check_ranges(self, source)
         return self
 
 

@@ -10,6 +10,7 @@ import torch
 
 from ..data.capture import Capture, Frame
 from ..errors import CaptureError
+from ..io.files import file_inside
 from ..io.jsonfile import read_json_object
 
 INFO_FILE = "capture_info.json"
@@ -35,7 +36,7 @@ def capture_background(root: pathlib.Path) -> tuple[float, float, float]:
 def capture_head_file(root: pathlib.Path) -> pathlib.Path:
     """The head model file a capture names (``capture_info.json`` "model_file"), or ``head.pkl``."""
     name = capture_info(root).get("model_file", "head.pkl")
-    path = root / str(name)
+    path = file_inside(root, name, root / INFO_FILE, "model_file", CaptureError)
     if not path.is_file():
         raise CaptureError(root / INFO_FILE, "model_file",
                            f"head model file {path} not found (pass --head FILE)")

@@ -24,11 +24,12 @@ from ..avatar.avatar import Avatar
 from ..avatar.binding import triangle_frames
 from ..avatar.densify import DensifySchedule, DensifyStrategy
 from ..data import layout
-from ..errors import InputError
+from ..errors import InputError, MogafaceError
 from ..io.atomic import atomic_path, write_json, write_text
 from ..io.npz import save_npz
 from . import config as config_module
-from .checkpoint import latest_checkpoint, load_checkpoint, save_checkpoint
+from .checkpoint import latest_checkpoint, newest_intact_checkpoint, save_checkpoint
+from .run_lock import resume_notes, take_run_folder
 from .config import TrainConfig
 from .data import TrainingData, capture_head_file
 from .distributed import Communicator
@@ -72,12 +73,13 @@ class Trainer:
                  listeners: list[Listener] | None = None, comm: Communicator | None = None):
         self.comm = comm or Communicator()
         self.run_folder = RunFolder.at(run)
-        checkpoint = None
+        # One writer per run folder: rank 0 holds the lock for every rank of a data-parallel run.
+        self.lock = take_run_folder(self.run_folder.root) if self.comm.is_writer else None
+        checkpoint, self._notes = None, []
         if resume:
-            path = latest_checkpoint(self.run_folder.checkpoints)
-            if path is None:
-                raise InputError(self.run_folder.checkpoints, None, "no checkpoint to resume from")
-            checkpoint = load_checkpoint(path)
+            path, checkpoint, skipped = newest_intact_checkpoint(self.run_folder.checkpoints)
+            if self.lock is not None:
+                self._notes = resume_notes(self.run_folder.checkpoints, path, skipped, self.lock)
             if config is None:
                 config = config_module.load(self.run_folder.config)
         elif latest_checkpoint(self.run_folder.checkpoints) is not None or self.run_folder.avatar.exists():
@@ -105,6 +107,8 @@ class Trainer:
         else:
             self._restore(checkpoint)
         self.events = EventLog(self.run_folder.events if writer else None, listeners if writer else None)
+        for note in self._notes:
+            self.events.emit("warning", message=note)
 
     # -- setting up ----------------------------------------------------------------------------
     def _start_fresh(self, head_file) -> None:
@@ -339,8 +343,13 @@ class Trainer:
 
     def install_signal_handlers(self) -> None:
         """SIGINT and SIGTERM stop the run cleanly (checkpoint first) instead of killing it."""
+        def handle(number, _frame):
+            if self._stop_signal is not None:  # asked twice: leave now (files are written atomically)
+                raise SystemExit(128 + number)
+            self.request_stop(number)
+
         for signum in (signal.SIGINT, signal.SIGTERM):
-            signal.signal(signum, lambda number, _frame: self.request_stop(number))
+            signal.signal(signum, handle)
 
     def run(self, until: int | None = None) -> dict:
         """Train to step ``until`` (default: the configured steps), then write the results.
@@ -359,6 +368,8 @@ class Trainer:
         last = time.monotonic()
         budget = cfg.max_minutes * 60 if cfg.max_minutes > 0 else math.inf
         out_of_time = False
+        if self.lock is not None:
+            self.lock.acquire()
         try:
             while self.step < end:
                 # Every rank stops at the same step: a signal to any, or rank 0's clock.
@@ -404,8 +415,14 @@ class Trainer:
                 self.finish()
             self.comm.wait_for_writer()
             return {"step": self.step, "stopped": None, "complete": True}
+        except MogafaceError:
+            if self.comm.world == 1:  # ranks checkpoint together; a lone rank's error must not wait on them
+                self.checkpoint()  # bad data met mid-run (a corrupt image): keep the steps done so far
+            raise
         finally:
             self.events.close()
+            if self.lock is not None:
+                self.lock.release()
 
     def _quick_check(self) -> None:
         """A few val frames' PSNR/SSIM as a 'val' event (not counted in the training time)."""

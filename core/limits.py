@@ -1,0 +1,17 @@
+"""The limits inputs are checked against before anything is allocated (see docs/safety.md).
+
+They bound memory and time for hostile or broken files; each is far beyond what a real capture,
+head model or avatar needs.
+"""
+
+MAX_IMAGE_SIDE = 16384  # px, width or height of an image or camera
+MAX_IMAGE_PIXELS = 50_000_000  # px, width x height (600 MB once decoded to float32 RGB)
+MIN_FOCAL_RATIO = 1e-3  # focal length / max(width, height): wider than any fisheye
+MAX_FOCAL_RATIO = 1e4  # ... narrower than any telephoto lens (a 0.006 degree field of view)
+MAX_PRINCIPAL_OFFSET_RATIO = 10.0  # |cx - w/2|, |cy - h/2| in units of max(width, height)
+MAX_ARRAY_ELEMENTS = 256 * 1024 * 1024  # one array in an .npz, .npy member, PLY or model file
+MAX_ARRAY_BYTES = 2 * 1024 ** 3  # bytes of one such array once decoded
+MAX_PICKLE_BYTES = 2 * 1024 ** 3  # bytes a restricted pickle may build in total
+MAX_PLY_VERTICES = 50_000_000  # Gaussians in one PLY
+MAX_PARAM_FILE_BYTES = 16 * 1024 ** 2  # all arrays of one per-timestep FLAME parameter .npz
+MAX_PARAM_VECTOR = 4096  # coefficients of one FLAME parameter vector (FLAME: 300 shape, 100 expression)

@@ -1,0 +1,95 @@
+"""Ways to break a copy of a valid capture, run, head model or PLY: each writes one hostile file."""
+
+import io
+import json
+import pickle
+import struct
+import zipfile
+import zlib
+
+import numpy as np
+
+
+def edit_json(path, change):
+    doc = json.loads(path.read_text())
+    change(doc)
+    path.write_text(json.dumps(doc))
+
+
+def set_first_frame(capture, **values):
+    edit_json(capture / "transforms_train.json", lambda d: [d["frames"][0].update(values)])
+
+
+def set_every_frame(capture, **values):
+    for split in ("train", "val", "test"):
+        edit_json(capture / f"transforms_{split}.json", lambda d: [f.update(values) for f in d["frames"]])
+
+
+def png_header_only(path, width, height):
+    """A valid PNG signature and IHDR declaring ``width x height``, then one empty IDAT and IEND."""
+    def chunk(kind, data):
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    ihdr = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)
+    path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(b""))
+                     + chunk(b"IEND", b""))
+
+
+def truncate(path, keep=0.5):
+    data = path.read_bytes()
+    path.write_bytes(data[: int(len(data) * keep)])
+
+
+def npz_declaring(path, name, shape, dtype="<f4", payload=b""):
+    """An .npz whose member's .npy header declares ``shape`` (the data may be far shorter)."""
+    header = {"descr": dtype, "fortran_order": False, "shape": tuple(shape)}
+    text = repr(header).encode("latin1")
+    pad = 64 - (10 + len(text) + 1) % 64
+    npy = b"\x93NUMPY\x01\x00" + struct.pack("<H", len(text) + pad + 1) + text + b" " * pad + b"\n" + payload
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as archive:
+        archive.writestr(f"{name}.npy", npy)
+
+
+def npz_inflating(path, name, megabytes):
+    """A well-formed .npz whose one member inflates to ``megabytes`` of zeros (a few hundred kB on disk)."""
+    buffer = io.BytesIO()
+    np.save(buffer, np.zeros(megabytes * 2 ** 18, np.float32))
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as archive:
+        archive.writestr(f"{name}.npy", buffer.getvalue())
+
+
+def nested_json(path, depth=100_000):
+    path.write_text("[" * depth + "]" * depth)
+
+
+class Reconstruct:
+    """Pickles as numpy's array rebuilder asked for ``shape`` (it allocates before any data)."""
+
+    def __init__(self, shape):
+        self.shape = shape
+
+    def __reduce__(self):
+        from numpy.core.multiarray import _reconstruct
+
+        return _reconstruct, (np.ndarray, self.shape, b"b")
+
+
+def many_arrays(shape, times):
+    """``times`` separate array rebuilds of ``shape``: each within the per-array limit, too many together."""
+    return tuple(Reconstruct(shape) for _ in range(times))
+
+
+def model_pickle(path, model):
+    from mogaface.core.flame.safe_pickle import save_model_pickle
+
+    save_model_pickle(path, model)
+
+
+def raw_pickle(path, obj):
+    with open(path, "wb") as handle:
+        pickle.dump(obj, handle, protocol=2)
+
+
+def ply_with_header(path, lines, data=b""):
+    path.write_bytes(("\n".join(["ply", "format binary_little_endian 1.0", *lines, "end_header"]) + "\n").encode()
+                     + data)

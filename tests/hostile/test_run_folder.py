@@ -1,0 +1,175 @@
+"""Run folders under stress: two writers, stale locks, killed writers' temporary files, damaged
+checkpoints, full or read-only disks, interrupts at any moment."""
+
+import errno
+import json
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+
+import pytest
+import torch
+
+from mogaface.core.cli import main
+from mogaface.core.errors import InputError
+from mogaface.core.train import config as C
+from mogaface.core.train.checkpoint import latest_checkpoint, load_checkpoint
+from mogaface.core.train.run_lock import RunLock
+from mogaface.core.train.trainer import Trainer
+
+
+def events(run):
+    return [json.loads(line) for line in (run / "events.jsonl").read_text().splitlines()]
+
+
+def resumed(c, steps):
+    config = C.resolve(path=c["run"] / "config.toml", overrides={"train": {"steps": steps}})
+    return Trainer(c["capture"], c["run"], config, resume=True)
+
+
+def warnings_of(run):
+    return [e["message"] for e in events(run) if e["event"] == "warning"]
+
+
+def test_second_writer_is_refused_with_the_owners_pid(copies, capsys):
+    with RunLock(copies["run"]):
+        code = main(["train", str(copies["capture"]), "--out", str(copies["run"]), "--resume", "--steps", "5",
+                     "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 2 and f"in use by another training process (pid {os.getpid()})" in err
+    assert load_checkpoint(latest_checkpoint(copies["run"] / "checkpoints"))["step"] == 3  # untouched
+
+
+def test_two_train_processes_on_one_fresh_folder(copies, tmp_path):
+    out = tmp_path / "shared"
+    config = tmp_path / "long.toml"
+    config.write_text(C.to_toml(C.resolve(overrides={"train": {"steps": 100000, "threads": 1, "checkpoint_every": 0},
+                                                     "eval": {"at_end": False, "lpips": False}})))
+    command = [sys.executable, "-m", "mogaface", "train", str(copies["capture"]), "--out", str(out), "--config",
+               str(config), "--quiet"]
+    first = subprocess.Popen(command, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 180
+        while not ((out / "events.jsonl").exists() and any(e["event"] == "iter" for e in events(out))):
+            assert first.poll() is None and time.monotonic() < deadline, first.communicate()
+            time.sleep(0.2)
+        second = subprocess.run(command, capture_output=True, text=True, timeout=180)
+        assert second.returncode == 2
+        assert f"in use by another training process (pid {first.pid})" in second.stderr
+        first.send_signal(signal.SIGTERM)
+        first.communicate(timeout=120)
+    finally:
+        if first.poll() is None:
+            first.kill()
+    assert first.returncode == 128 + signal.SIGTERM
+    assert [e["event"] for e in events(out)].count("start") == 1
+
+
+def test_stale_lock_partials_and_a_truncated_checkpoint_on_resume(copies):
+    run = copies["run"]
+    (run / ".lock").write_text("999999\n")  # a killed writer's pid; no process holds the lock
+    partial = run / "checkpoints" / ".step_000004.abc123.partial.pt"
+    partial.write_bytes(b"half a checkpoint")
+    newest = latest_checkpoint(run / "checkpoints")
+    newest.write_bytes(newest.read_bytes()[:1000])
+    result = resumed(copies, 5).run()
+    assert result == {"step": 5, "stopped": None, "complete": True}
+    notes = warnings_of(run)
+    assert any("999999" in n for n in notes)
+    assert any("removed 1 unfinished temporary file" in n for n in notes)
+    assert any("skipped a damaged checkpoint" in n and "step_000003.pt" in n for n in notes)
+    assert any("resuming from step_000002.pt" in n for n in notes)
+    assert not partial.exists()
+    assert [e for e in events(run) if e["event"] == "resume"][-1]["step"] == 2
+
+
+def test_no_intact_checkpoint_is_a_clear_error(copies):
+    for path in (copies["run"] / "checkpoints").glob("step_*.pt"):
+        path.write_bytes(b"")
+    with pytest.raises(InputError, match="no intact checkpoint to resume from"):
+        resumed(copies, 5)
+
+
+def test_disk_full_during_a_checkpoint(copies, monkeypatch):
+    trainer = resumed(copies, 5)
+
+    def full_disk(state, path):
+        with open(path, "wb") as handle:
+            handle.write(b"partial")
+        raise RuntimeError("PytorchStreamWriter failed writing file data/0: file write failed")
+
+    monkeypatch.setattr(torch, "save", full_disk)
+    with pytest.raises(InputError, match="cannot write .disk full or not writable"):
+        trainer.checkpoint()
+    assert not [p for p in (copies["run"] / "checkpoints").iterdir() if ".partial" in p.name]
+    assert load_checkpoint(latest_checkpoint(copies["run"] / "checkpoints"))["step"] == 3
+
+
+def test_read_only_output_is_a_clear_error(copies, tmp_path, monkeypatch, capsys):
+    def refuse(*args, dir=None, **kwargs):
+        raise PermissionError(errno.EACCES, "Permission denied", dir)
+
+    monkeypatch.setattr(tempfile, "mkstemp", refuse)
+    code = main(["render", str(copies["run"]), "--timesteps", "0", "--out", str(tmp_path / "ro")])
+    err = capsys.readouterr().err
+    assert code == 2 and "Permission denied" in err and "Traceback" not in err
+
+
+def test_run_folder_that_cannot_be_created(copies, tmp_path):
+    blocker = tmp_path / "a_file"
+    blocker.write_text("not a folder")
+    with pytest.raises(InputError, match="cannot create the run folder"):
+        Trainer(copies["capture"], blocker / "run")
+
+
+def test_corrupt_image_mid_run_keeps_the_steps_done(copies, tmp_path):
+    for image in (copies["capture"] / "images").glob("*_00.png"):  # every image of one training camera
+        image.write_bytes(image.read_bytes()[:60])
+    run = tmp_path / "fresh_run"
+    config = C.resolve(overrides={"train": {"steps": 200, "threads": 1, "checkpoint_every": 0, "log_every": 1},
+                                  "eval": {"at_end": False, "lpips": False}})
+    trainer = Trainer(copies["capture"], run, config)
+    with pytest.raises(InputError, match="_00.png"):
+        trainer.run()
+    done = [e["step"] for e in events(run) if e["event"] == "iter"]
+    assert load_checkpoint(latest_checkpoint(run / "checkpoints"))["step"] == (done[-1] if done else 0)
+
+
+def _train_process(copies, tmp_path):
+    config = tmp_path / "long.toml"
+    config.write_text(C.to_toml(C.resolve(overrides={"train": {"steps": 100000, "threads": 1, "checkpoint_every": 0},
+                                                     "eval": {"at_end": False, "lpips": False}})))
+    out = tmp_path / "sig"
+    command = [sys.executable, "-m", "mogaface", "train", str(copies["capture"]), "--out", str(out), "--config",
+               str(config), "--quiet"]
+    return subprocess.Popen(command, stderr=subprocess.PIPE, text=True), out
+
+
+def test_interrupt_during_start_up_exits_quietly(copies, tmp_path):
+    process, _ = _train_process(copies, tmp_path)
+    time.sleep(1.0)  # importing torch and numba
+    process.send_signal(signal.SIGINT)
+    _, err = process.communicate(timeout=120)
+    assert process.returncode == 128 + signal.SIGINT, err
+    assert "Traceback" not in err
+
+
+def test_double_interrupt_exits_with_the_signal_status(copies, tmp_path):
+    process, out = _train_process(copies, tmp_path)
+    try:
+        deadline = time.monotonic() + 180
+        while not ((out / "events.jsonl").exists() and any(e["event"] == "iter" for e in events(out))):
+            assert process.poll() is None and time.monotonic() < deadline, process.communicate()
+            time.sleep(0.2)
+        process.send_signal(signal.SIGINT)
+        process.send_signal(signal.SIGINT)
+        _, err = process.communicate(timeout=120)
+    finally:
+        if process.poll() is None:
+            process.kill()
+    assert process.returncode == 128 + signal.SIGINT, err
+    assert "Traceback" not in err
+    assert not [p for p in (out / "checkpoints").glob(".*")] if (out / "checkpoints").exists() else True
