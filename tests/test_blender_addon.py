@@ -438,6 +438,7 @@ print("IMPORTED BY REGISTER:", sorted({n.split(".")[0] for n in set(sys.modules)
 class Layout:
     def __init__(self): self.alert = False
     def box(self): return self
+    def column(self, align=False): return self
     def label(self, text="", icon="NONE"): print("LABEL:", text)
     def operator(self, idname, **kwargs): print("BUTTON:", idname)
     def progress(self, **kwargs): pass

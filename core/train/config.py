@@ -151,16 +151,11 @@ class TrainConfig:
             raise InputError(source, "lr.position_final_ratio", "must lie in (0, 1]")
         if not 0 <= self.loss.ssim_weight <= 1:
             raise InputError(source, "loss.ssim_weight", "must lie in [0, 1]")
-        if not 1 <= self.train.batch <= MAX_BATCH:
-            raise InputError(source, "train.batch", f"must lie in [1, {MAX_BATCH}] (got {self.train.batch})")
         _check_mogaface(self.mogaface, source)
         from .config_ranges import check_ranges
 
         check_ranges(self, source)
         return self
-
-
-MAX_BATCH = 256  # views per step; more would hold that many renders' autograd graphs at once
 
 
 def _check_mogaface(m: MogafaceSection, source) -> None:

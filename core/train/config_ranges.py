@@ -13,6 +13,8 @@ RANGES: dict[str, tuple[float, float]] = {
     "train.steps": (1, BIG), "train.seed": (0, 2 ** 63 - 1), "train.threads": (1, 256),
     "train.log_every": (1, BIG), "train.checkpoint_every": (0, BIG), "train.keep_checkpoints": (1, 1000),
     "train.max_minutes": (0, 10 ** 7),
+    # views per step; more would hold that many renders' autograd graphs at once
+    "train.batch": (1, 256),
     "loss.ssim_weight": (0, 1), "loss.position_weight": (0, 1e6), "loss.position_threshold": (0, 1e6),
     "loss.scaling_weight": (0, 1e6), "loss.scaling_threshold": (0, 1e6),
     "lr.position": (0, 10), "lr.position_final_ratio": (1e-12, 1), "lr.scaling": (0, 10), "lr.opacity": (0, 10),
