@@ -15,7 +15,7 @@ from bpy.props import BoolProperty, EnumProperty, IntProperty, StringProperty
 
 from .common import clear_status_text, core_or_report, run_core
 from .dependencies import LazyModule
-from .head_rig import expression_values, head_objects, is_head, pose_values, rig_of
+from .head_rig import AVATAR_PATH_PROPERTY, expression_values, head_objects, is_head, pose_values, rig_of
 
 np = LazyModule("numpy")  # imported on first use: registering needs no numpy
 
@@ -23,15 +23,11 @@ BACKGROUND_PROPERTY = "mogaface_avatar_background"
 
 
 def avatar_heads(scene) -> list:
-    from ..core.scene_conversion import AVATAR_PATH_PROPERTY
-
     return [obj for obj in head_objects(scene) if AVATAR_PATH_PROPERTY in obj]
 
 
 def _head_with_avatar(operator, context, name: str):
     """The named head, else the active one, else the scene's only head with an avatar; or report."""
-    from ..core.scene_conversion import AVATAR_PATH_PROPERTY
-
     obj = bpy.data.objects.get(name) if name else context.active_object
     if not (is_head(obj) and AVATAR_PATH_PROPERTY in obj) and not name:
         heads = avatar_heads(context.scene)

@@ -19,6 +19,7 @@ np = LazyModule("numpy")  # imported on first use: registering needs no numpy
 # never import the core (whose packages may be missing).
 MODEL_PATH_PROPERTY = "mogaface_model_path"
 POSE_KEY_NAME = "MoGaFace pose"
+AVATAR_PATH_PROPERTY = "mogaface_avatar_path"
 
 
 def is_head(obj) -> bool:
