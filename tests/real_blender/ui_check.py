@@ -198,10 +198,16 @@ def scene_stages():
         head.data.shape_keys.key_blocks[1].keyframe_insert("value", frame=1)
         head.data.shape_keys.key_blocks[1].value = 1.0
         head.data.shape_keys.key_blocks[1].keyframe_insert("value", frame=2)
-        frames = WORK / "frames"
-        check(bpy.ops.mogaface.render_animation(head=head.name, frame_start=1, frame_end=2, directory=str(frames))
-              == {"FINISHED"}, "render animation")
-        check(len(list(frames.glob("*.png"))) == 2, f"expected 2 frames in {frames}")
+    # Render Animation runs in the background like training: progress in the status bar, Esc cancels.
+    frames = WORK / "frames"
+    avatar_ops = module("operators.avatar")
+    with override():
+        result = bpy.ops.mogaface.render_animation("INVOKE_DEFAULT", head=head.name, frame_start=1, frame_end=2,
+                                                   directory=str(frames))
+        check(result == {"RUNNING_MODAL"}, f"render animation gave {result}")
+    yield from wait_until(lambda: avatar_ops.current_render_job() is None, 600, "render animation")
+    check(len(list(frames.glob("*.png"))) == 2, f"expected 2 frames in {frames}")
+    with override():
         ply = WORK / "avatar.ply"
         check(bpy.ops.mogaface.export_ply(filepath=str(ply), head=head.name) == {"FINISHED"} and ply.exists(),
               "export ply")
@@ -211,7 +217,66 @@ def scene_stages():
     yield 1.0
     shot("5-avatar")
     stage("load avatar, render frame and animation, export")
+    yield from avatar_in_scene_stages(head)
     bpy.ops.wm.save_userpref()
+
+
+def avatar_in_scene_stages(head):
+    """The avatar drawn live in the viewport at two keyed frames, then in an F12 render."""
+    import numpy as np
+
+    viewport = module("operators.viewport")
+    for other in bpy.context.scene.objects:  # the first imported head stands where the avatar is
+        if other.type == "MESH" and other != head:
+            other.hide_set(True)
+            other.hide_render = True
+    setattr(head, viewport.SHOW_PROPERTY, True)
+    window, area, _ = window_and_view()
+    with override():
+        bpy.ops.object.select_all(action="DESELECT")
+        head.select_set(True)
+        bpy.context.view_layer.objects.active = head
+        bpy.ops.view3d.view_selected()
+    keys = []
+    for frame in (1, 2):
+        bpy.context.scene.frame_set(frame)
+
+        def drawn():
+            area.tag_redraw()  # the draw handler runs on redraws; it renders off the main thread
+            images = [state.image for state in viewport._views.values() if state.image is not None]
+            return bool(images) and images[0].key not in keys and all(
+                state.future is None for state in viewport._views.values())
+
+        yield from wait_until(drawn, 300, f"the viewport's avatar at frame {frame}")
+        image = next(state.image for state in viewport._views.values() if state.image is not None)
+        check(float(image.rgba[3::4].max()) > 0.5, f"the viewport image at frame {frame} is empty")
+        keys.append(image.key)
+        yield 1.0
+        shot(f"6-viewport-frame{frame}")
+    stage("the avatar in the viewport follows the keys")
+
+    scene = bpy.context.scene
+    scene.render.resolution_percentage = 100
+    with override():
+        check(bpy.ops.mogaface.setup_render_layer() == {"FINISHED"}, "avatar in renders")
+
+    def render_still(name, compositing):
+        scene.render.use_compositing = compositing
+        scene.render.filepath = str(WORK / name)
+        scene.render.image_settings.file_format = "PNG"
+        with override():
+            bpy.ops.render.render(write_still=True)
+        image = bpy.data.images.load(str(WORK / f"{name}.png"))
+        pixels = np.array(image.pixels[:], np.float32).reshape(image.size[1], image.size[0], -1)[..., :3]
+        bpy.data.images.remove(image)
+        return pixels
+
+    plain = render_still("f12-without-avatar", compositing=False)  # the head mesh is hidden from renders
+    with_avatar = render_still("f12", compositing=True)
+    changed = np.abs(with_avatar - plain).max(-1) > 0.1
+    RESULTS["f12_avatar_pixels"] = int(changed.sum())
+    check(changed.mean() > 0.01, f"the F12 render does not show the avatar ({int(changed.sum())} pixels differ)")
+    stage(f"F12 render with the avatar ({scene.render.engine})")
 
 
 def stage(name):
