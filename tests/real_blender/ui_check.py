@@ -256,7 +256,9 @@ def avatar_in_scene_stages(head):
     stage("the avatar in the viewport follows the keys")
 
     scene = bpy.context.scene
-    scene.render.resolution_percentage = 100
+    capture_camera = next(o for o in scene.objects if o.get("mogaface_resolution") is not None)
+    check(module("operators.import_capture").apply_render_settings(scene, capture_camera), "capture camera")
+    scene.render.resolution_percentage = 400  # the capture's 48 px, four times larger
     with override():
         check(bpy.ops.mogaface.setup_render_layer() == {"FINISHED"}, "avatar in renders")
 
