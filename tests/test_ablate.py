@@ -24,9 +24,9 @@ def test_ablate_writes_results_table_and_figure(tiny_capture, tmp_path):
     out = tmp_path / "ablation"
     args = ["ablate", str(tiny_capture), "--out", str(out), "--config", str(settings), "--steps", "3",
             "--max-frames", "2", "--no-lpips", "--quiet", "--fit-steps", "1,2", "--seeds", "2"]
-    assert main([*args, "--variants", "freeze,finetune,full_prior"]) == 0
+    assert main([*args, "--variants", "freeze,full_prior"]) == 0
     results = json.loads((out / "results.json").read_text())
-    assert list(results["variants"]) == ["freeze", "finetune", "full_prior"]
+    assert list(results["variants"]) == ["freeze", "full_prior"]
     for name, entry in results["variants"].items():
         assert list(entry["seeds"]) == ["0", "1"]
         for seed, run in entry["seeds"].items():
@@ -51,4 +51,4 @@ def test_ablate_writes_results_table_and_figure(tiny_capture, tmp_path):
     before = (out / "runs" / "full_prior" / "seed1" / "run.json").stat().st_mtime_ns
     assert main([*args, "--variants", "full_prior"]) == 0
     assert (out / "runs" / "full_prior" / "seed1" / "run.json").stat().st_mtime_ns == before
-    assert list(json.loads((out / "results.json").read_text())["variants"]) == ["freeze", "finetune", "full_prior"]
+    assert list(json.loads((out / "results.json").read_text())["variants"]) == ["freeze", "full_prior"]

@@ -18,8 +18,8 @@ def add_arguments(parser):
               ("translation", "translation (metres)"))
     for group, what in groups:
         parser.add_argument(
-            f"--{group}-noise", type=float, default=getattr(d, f"{group}_noise"),
-            help=f"std of the tracked {what}' drifting error (default %(default)s; 0 = none)",
+            f"--{group}-noise", type=float,
+            help=f"std of the tracked {what}' drifting error (default {getattr(d, f'{group}_noise')}; 0 = none)",
         )
         parser.add_argument(
             f"--{group}-correlation", type=float, default=getattr(d, f"{group}_correlation"),
@@ -51,10 +51,12 @@ def run(args) -> int:
     from ..data.sequences import NOISE_GROUPS
     from ..data.validate import validate_capture
 
-    noise = {f"{g}_{k}": getattr(args, f"{g}_{k}") for g in NOISE_GROUPS for k in ("noise", "correlation", "bias")}
+    given = {f"{g}_noise": getattr(args, f"{g}_noise") for g in NOISE_GROUPS if getattr(args, f"{g}_noise") is not None}
     if args.iid_noise:
-        given = {k: v for k, v in noise.items() if k.endswith("_noise") and v != getattr(CaptureSettings, k)}
         noise = CaptureSettings.iid_noise(**given)
+    else:
+        noise = {f"{g}_{k}": getattr(args, f"{g}_{k}") for g in NOISE_GROUPS for k in ("correlation", "bias")}
+        noise.update(given)
     settings = CaptureSettings(
         subject=args.subject, views=args.views, timesteps=args.timesteps, size=args.size,
         camera_noise=args.camera_noise, seed=args.seed, **noise,

@@ -14,6 +14,7 @@ import math
 
 import numpy as np
 
+from ..errors import InputError
 from .expression_error import frame_errors
 from .protocols import PROTOCOLS, protocol_frames, run_protocol, score
 from .run_folder import RunFolder
@@ -30,15 +31,15 @@ def standard_sources(run: RunFolder, capture, avatar, fit_steps=FIT_STEPS) -> di
     from .sources.mogaface import MoGaFaceParams
     from .sources.smoothed import SmoothedParams, choose_sigmas
     from .sources.tracked import TrackedParams
-    from .sources.true import TrueParams, truth_dir
     from .run_folder import capture_info
+    from .sources.true import TrueParams, truth_dir
 
     tracked = TrackedParams(capture, run)
     sources: dict[str, ParamSource] = {"tracked": tracked}
     try:
         truth_dir(capture)
         has_truth = True
-    except Exception:
+    except InputError:
         has_truth = False
     if has_truth:
         held_out = [capture_info(capture.root).get("test_sequence")]
@@ -61,7 +62,7 @@ def score_source(avatar, capture, source: ParamSource, frames, background, lpips
     try:
         true_params(capture, frames[0].timestep_index)
         truth_known = True
-    except Exception:
+    except (InputError, IndexError):
         truth_known = False
     for item in run_protocol(avatar, capture, source, frames, background):
         row = score(item, lpips)
