@@ -44,7 +44,7 @@ def test_ablate_writes_results_table_and_figure(tiny_capture, tmp_path):
     freeze = results["variants"]["freeze"]["seeds"]["0"]["training_expression"]
     assert freeze["expr_rmse_corrected"] == pytest.approx(freeze["expr_rmse_tracked"])  # Freeze corrects nothing
     table = (out / "results.md").read_text()
-    assert "Seeds: 0, 1" in table and " ± " in table and "test-time fitting, 2 steps" in table
+    assert "Seeds: Freeze 0, 1; Full + zero-mean prior (the presets) 0, 1" in table and " ± " in table and "test-time fitting, 2 steps" in table
     assert "true parameters (ceiling)" in table and "the method's image-assisted inference" in table
     assert (out / "figure.png").stat().st_size > 0
     # A second call reuses the complete runs.

@@ -75,8 +75,8 @@ NOVEL_COLUMNS = [("mesh vertex mm", "vertex_mm", 2), ("PSNR", "psnr", 2), ("SSIM
 
 def markdown(results: dict) -> str:
     """Three tables (unseen frames, held-out camera, training) and how to read them."""
-    seeds = sorted({s for e in results["variants"].values() for s in e["seeds"]}, key=int)
-    lines = [f"Seeds: {', '.join(map(str, seeds))}. Cells: mean ± std over seeds. Δ: paired by seed; "
+    seeds = "; ".join(f"{e['label']} {', '.join(e['seeds'])}" for e in results["variants"].values())
+    lines = [f"Seeds: {seeds}. Cells: mean ± std over seeds. Δ: paired by seed; "
              "* beyond noise (paired t-test, 5 %), (n.s.) within it.", "",
              "**Unseen frames** (self-reenactment of the held-out sequence, every camera; scored view never a "
              "source's input):", ""]
