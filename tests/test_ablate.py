@@ -1,4 +1,5 @@
-"""``ablate``: the ladder on a tiny capture with tiny settings writes results.json, the table and the figure."""
+"""``ablate``: the ladder on a tiny capture with tiny settings and two seeds writes results.json (every
+parameter source on both protocols, per seed), the table with mean ± std, and the figure."""
 
 import json
 
@@ -21,30 +22,33 @@ def test_ablate_writes_results_table_and_figure(tiny_capture, tmp_path):
     settings.write_text('[train]\nthreads = 1\n[mogaface]\ninput_size = 32\nfeature_dim = 16\nencoder_width = 4\n'
                         'heads = 2\nhidden = 16\nplane_size = 8\nplane_dim = 4\ntexture_hidden = 8\n')
     out = tmp_path / "ablation"
-    code = main(["ablate", str(tiny_capture), "--out", str(out), "--config", str(settings), "--steps", "3",
-                 "--max-frames", "2", "--no-lpips", "--quiet"])
-    assert code == 0
+    args = ["ablate", str(tiny_capture), "--out", str(out), "--config", str(settings), "--steps", "3",
+            "--max-frames", "2", "--no-lpips", "--quiet", "--fit-steps", "1,2", "--seeds", "2"]
+    assert main([*args, "--variants", "freeze,full_prior"]) == 0
     results = json.loads((out / "results.json").read_text())
-    assert list(results["variants"]) == ["freeze", "finetune", "single", "multi", "multi_bank", "multi_texture", "full",
-                                         "full_prior"]
+    assert list(results["variants"]) == ["freeze", "full_prior"]
     for name, entry in results["variants"].items():
-        for key in ("novel_view", "self_reenactment_params", "self_reenactment_images"):
-            assert entry[key]["frames"] == 2 and entry[key]["psnr"] > 5, (name, key)
-        assert entry["expression"]["expr_rmse_tracked"] > 0
-        assert entry["train"]["steps"] == 3
-    freeze = results["variants"]["freeze"]["expression"]
+        assert list(entry["seeds"]) == ["0", "1"]
+        for seed, run in entry["seeds"].items():
+            assert run["train"]["steps"] == 3
+            sources = ["tracked", "smoothed", "fit_1", "fit_2", *(["method"] if name == "full_prior" else []), "true"]
+            for protocol in ("novel_view", "self_reenactment"):
+                assert list(run["protocols"][protocol]) == sources, (name, protocol)
+                for source, scores in run["protocols"][protocol].items():
+                    assert scores["frames"] == 2 and scores["psnr"] > 5, (name, seed, source)
+                    assert scores["vertex_mm"] >= 0 and scores["frame_s"] > 0
+            assert run["training_expression"]["expr_rmse_tracked"] > 0
+    free = results["variants"]["freeze"]["seeds"]["0"]["protocols"]["self_reenactment"]
+    assert free["true"]["vertex_mm"] == pytest.approx(0.0, abs=1e-6)  # the ceiling: the truth's own motion
+    assert free["tracked"]["vertex_mm"] > 0.1
+    freeze = results["variants"]["freeze"]["seeds"]["0"]["training_expression"]
     assert freeze["expr_rmse_corrected"] == pytest.approx(freeze["expr_rmse_tracked"])  # Freeze corrects nothing
-    assert freeze["expr_vertex_mm_corrected"] == pytest.approx(freeze["expr_vertex_mm_tracked"])
-    finetune = results["variants"]["finetune"]
-    assert finetune["settings"]["flame"]["finetune"] and not results["variants"]["freeze"]["settings"]["flame"]["finetune"]
-    assert finetune["expression"]["expr_rmse_corrected"] != pytest.approx(finetune["expression"]["expr_rmse_tracked"])
     table = (out / "results.md").read_text()
-    prior = [results["variants"][name]["settings"]["mogaface"]["centring_weight"] for name in ("full", "full_prior")]
-    assert prior[0] == 0 and prior[1] > 0
-    assert table.count("\n") == 2 + 8 and "Full (multi + bank + texture)" in table
+    assert "Seeds: Freeze 0, 1; Full + zero-mean prior (the presets) 0, 1" in table and " ± " in table and "test-time fitting, 2 steps" in table
+    assert "true parameters (ceiling)" in table and "the method's image-assisted inference" in table
     assert (out / "figure.png").stat().st_size > 0
     # A second call reuses the complete runs.
-    before = (out / "runs" / "full" / "run.json").stat().st_mtime_ns
-    assert main(["ablate", str(tiny_capture), "--out", str(out), "--config", str(settings), "--steps", "3",
-                 "--variants", "full", "--max-frames", "2", "--no-lpips", "--quiet"]) == 0
-    assert (out / "runs" / "full" / "run.json").stat().st_mtime_ns == before
+    before = (out / "runs" / "full_prior" / "seed1" / "run.json").stat().st_mtime_ns
+    assert main([*args, "--variants", "full_prior"]) == 0
+    assert (out / "runs" / "full_prior" / "seed1" / "run.json").stat().st_mtime_ns == before
+    assert list(json.loads((out / "results.json").read_text())["variants"]) == ["freeze", "full_prior"]

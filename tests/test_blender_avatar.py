@@ -168,7 +168,10 @@ def test_render_frame_equals_the_core_render(scene):
         got = image_array(bpy.data.images[sc.render_image_name(obj.name, frame)])
         expected = core_render(scene["run"], timestep, camera)
         assert got.shape == expected.shape
-        assert np.abs(got - expected).max() < 5e-5, camera_id  # Blender keeps camera settings in float32
+        # Blender keeps camera settings in float32: pixel positions move by ~1e-6 px, which changes
+        # values at the sharpest Gaussian edges by up to ~4e-4 (measured); a wrong camera, frame or
+        # expression changes them by more than 0.05.
+        assert np.abs(got - expected).max() < 1e-3, camera_id
         assert expected[..., 3].max() > 0.5  # the head is in view
 
 

@@ -12,12 +12,12 @@ from mogaface.core.evaluate import metrics
 from mogaface.core.evaluate.protocols import (
     DrivenParams,
     TrackedParams,
-    evaluate_run,
     protocol_frames,
     render_frame,
     run_protocol,
     views_at,
 )
+from mogaface.core.evaluate.evaluation import evaluate_run
 from mogaface.core.evaluate.run_folder import RunFolder
 from test_evaluate_fixtures import EXPR_NUDGE, driver_capture, fake_run, render_np, tiny_capture
 

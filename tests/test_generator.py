@@ -12,7 +12,7 @@ from scipy import ndimage
 
 from mogaface.core.data.capture import Capture
 from mogaface.core.data.generator import CaptureSettings, camera_dome, make_capture
-from mogaface.core.data.sequences import TrackingNoise, add_tracking_noise, make_sequences
+from mogaface.core.data.sequences import GroupNoise, TrackingNoise, add_tracking_noise, make_sequences, tracking_biases
 from mogaface.core.data.validate import validate_capture
 from mogaface.core.errors import InputError
 from mogaface.core.flame.model import FlameModel
@@ -88,20 +88,67 @@ def test_tracked_parameters_are_truth_plus_configured_noise(tiny_capture):
         np.testing.assert_array_equal(tracked["shape"], truth["shape"])
         for key in diffs:
             diffs[key].append(tracked[key] - truth[key])
-    expr_std = np.concatenate(diffs["expr"]).std()
-    assert abs(expr_std - settings["expr_noise"]) < 0.15 * settings["expr_noise"]
-    assert np.concatenate(diffs["jaw_pose"]).std() < 3 * settings["pose_noise"]
+    expected = np.hypot(settings["expr_noise"], settings["expr_bias"])  # drift and bias add up
+    assert abs(np.concatenate(diffs["expr"]).std() - expected) < 0.3 * expected
+    assert np.concatenate(diffs["jaw_pose"]).std() < 3 * np.hypot(settings["pose_noise"], settings["pose_bias"])
 
 
-def test_noise_statistics_over_many_timesteps():
+LONG = 20000
+
+
+def _zeros(length=LONG):
+    return {k: np.zeros((length, n), np.float32) for k, n in
+            [("shape", 5), ("expr", 40), ("rotation", 3), ("neck_pose", 3), ("jaw_pose", 3), ("eyes_pose", 6),
+             ("translation", 3)]}
+
+
+def _autocorrelation(errors: np.ndarray, lag: int) -> float:
+    centred = errors - errors.mean(0)
+    return float(np.mean([np.corrcoef(centred[:-lag, c], centred[lag:, c])[0, 1] for c in range(errors.shape[1])]))
+
+
+def test_correlated_noise_has_the_asked_autocorrelation_and_bias():
+    noise = TrackingNoise(expr=GroupNoise(0.4, correlation=5.0, bias=0.3), pose=GroupNoise(0.008, correlation=10.0),
+                          translation=GroupNoise(0.0008, correlation=0.0, bias=0.001))
     rng = np.random.default_rng(0)
-    params = {k: np.zeros((4000, n), np.float32) for k, n in
-              [("shape", 5), ("expr", 10), ("rotation", 3), ("neck_pose", 3), ("jaw_pose", 3), ("eyes_pose", 6), ("translation", 3)]}
-    noisy = add_tracking_noise(params, TrackingNoise(expr=0.3, pose=0.02), rng)
+    params = _zeros()
+    biases = tracking_biases(params, noise, rng)
+    noisy = add_tracking_noise(params, noise, rng, biases)
+    expr = noisy["expr"]
+    # The constant part is the bias, drawn with the asked spread; the rest drifts with the asked std.
+    np.testing.assert_allclose(expr.mean(0), biases["expr"], atol=0.05)
+    assert 0.2 < biases["expr"].std() < 0.4
+    assert abs((expr - expr.mean(0)).std() - 0.4) < 0.02
+    for lag in (1, 5, 10):
+        assert abs(_autocorrelation(expr, lag) - np.exp(-lag / 5.0)) < 0.05, lag
+        assert abs(_autocorrelation(noisy["jaw_pose"], lag) - np.exp(-lag / 10.0)) < 0.08, lag
+    assert abs(noisy["jaw_pose"].std() - 0.008) < 0.002 and np.allclose(biases["jaw_pose"], 0.0)
+    # Translation: independent per timestep around its bias.
+    assert abs(_autocorrelation(noisy["translation"], 1)) < 0.03
+    np.testing.assert_allclose(noisy["translation"].mean(0), biases["translation"], atol=3e-5)
+    np.testing.assert_array_equal(noisy["shape"], 0.0)
+
+
+def test_iid_noise_statistics_over_many_timesteps():
+    rng = np.random.default_rng(0)
+    iid = CaptureSettings(**CaptureSettings.iid_noise(expr_noise=0.3, pose_noise=0.02, translation_noise=0.002))
+    noisy = add_tracking_noise(_zeros(4000), iid.tracking_noise(), rng)
     assert abs(noisy["expr"].std() - 0.3) < 0.01 and abs(noisy["expr"].mean()) < 0.01
+    assert abs(_autocorrelation(noisy["expr"], 1)) < 0.03
     assert abs(noisy["jaw_pose"].std() - 0.02) < 0.001
     assert abs(noisy["translation"].std() - 0.002) < 0.0001
-    np.testing.assert_array_equal(noisy["shape"], 0.0)
+
+
+def test_one_bias_per_capture_shared_by_its_sequences(tmp_path):
+    settings = CaptureSettings(views=2, timesteps=200, size=32, supersample=1, expr_noise=0.0, expr_bias=0.5,
+                               pose_noise=0.0, pose_bias=0.0, translation_noise=0.0, translation_bias=0.0)
+    root = make_capture(tmp_path / "biased", settings, progress=False)
+    errors = np.stack([load_npz(root / "flame_param" / f"{t:05d}.npz")["expr"].ravel()
+                       - load_npz(root / "flame_param_gt" / f"{t:05d}.npz")["expr"].ravel() for t in range(200)])
+    np.testing.assert_allclose(errors, np.broadcast_to(errors[0], errors.shape), atol=1e-5)  # every timestep, every sequence
+    assert 0.2 < errors[0].std() < 0.8
+    rotation = load_npz(root / "flame_param" / "00007.npz")["rotation"] - load_npz(root / "flame_param_gt" / "00007.npz")["rotation"]
+    np.testing.assert_allclose(rotation, 0.0, atol=1e-7)
 
 
 def test_sequences_exercise_every_component_smoothly():
@@ -144,6 +191,8 @@ def test_bad_settings_are_refused(tmp_path):
         make_capture(tmp_path / "x", CaptureSettings(views=1), progress=False)
     with pytest.raises(InputError, match="expr_noise"):
         make_capture(tmp_path / "x", CaptureSettings(expr_noise=-1), progress=False)
+    with pytest.raises(InputError, match="pose_correlation"):
+        make_capture(tmp_path / "x", CaptureSettings(pose_correlation=-2), progress=False)
 
 
 def test_make_capture_cli(tmp_path):
@@ -155,3 +204,19 @@ def test_make_capture_cli(tmp_path):
     assert result.returncode == 0, result.stderr
     assert "views: 3" in result.stdout and "split test" in result.stdout
     assert (tmp_path / "cli" / "head.pkl").is_file()
+    written = json.loads((tmp_path / "cli" / "capture_info.json").read_text())["settings"]
+    assert written["expr_correlation"] == CaptureSettings().expr_correlation > 0 and written["pose_bias"] > 0
+
+
+def test_make_capture_cli_noise_options(tmp_path):
+    from mogaface.core.cli import main
+
+    assert main(["make-capture", str(tmp_path / "iid"), "--views", "2", "--timesteps", "16", "--size", "32",
+                 "--iid-noise", "--pose-noise", "0.02", "--quiet"]) == 0
+    written = json.loads((tmp_path / "iid" / "capture_info.json").read_text())["settings"]
+    assert written["expr_noise"] == 0.5 and written["pose_noise"] == 0.02 and written["translation_noise"] == 0.001
+    assert all(written[f"{g}_{k}"] == 0 for g in ("expr", "pose", "translation") for k in ("correlation", "bias"))
+    assert main(["make-capture", str(tmp_path / "slow"), "--views", "2", "--timesteps", "16", "--size", "32",
+                 "--expr-correlation", "8", "--translation-bias", "0.002", "--quiet"]) == 0
+    written = json.loads((tmp_path / "slow" / "capture_info.json").read_text())["settings"]
+    assert written["expr_correlation"] == 8 and written["translation_bias"] == 0.002

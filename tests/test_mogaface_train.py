@@ -115,8 +115,8 @@ def test_resume_is_exact_with_modules_and_bank(tiny_capture, tmp_path):
 
 
 def test_evaluation_never_feeds_the_scored_view(full_run, tiny_capture, monkeypatch):
-    from mogaface.core.evaluate.mogaface_source import MoGaFaceParams
-    from mogaface.core.evaluate.protocols import evaluate_run
+    from mogaface.core.evaluate.sources.mogaface import MoGaFaceParams
+    from mogaface.core.evaluate.evaluation import evaluate_run
     from mogaface.core.evaluate.run_folder import RunFolder
     from mogaface.core.mogaface.avatar import load_run_avatar
     from mogaface.core.mogaface.views import ViewImages

@@ -1,8 +1,9 @@
-"""``ablate CAPTURE --out DIR``: train and score the MoGaFace ablation ladder on one capture and seed.
+"""``ablate CAPTURE --out DIR``: train and score the MoGaFace ablation ladder on one capture, N seeds.
 
 Variants: Freeze, single-view, multi-view, multi-view + bank, multi-view + texture, full. Writes
-``DIR/results.json``, ``DIR/results.md`` and ``DIR/figure.png`` (renders side by side); run folders
-go to ``DIR/runs/NAME`` and are reused when complete, so an interrupted ablation continues.
+``DIR/results.json``, ``DIR/results.md`` (every parameter source on unseen frames and the held-out
+camera, mean ± std over seeds) and ``DIR/figure.png``; run folders go to ``DIR/runs/NAME/seedS`` and
+are reused when complete, so an interrupted ablation continues.
 """
 
 from __future__ import annotations
@@ -19,7 +20,10 @@ def add_arguments(parser):
                         help="training preset every variant starts from (default %(default)s)")
     parser.add_argument("--config", type=pathlib.Path, help="TOML settings over the preset (all variants)")
     parser.add_argument("--steps", type=int, help="training steps of every variant (overrides the preset)")
-    parser.add_argument("--seed", type=int, help="seed of every variant (overrides the preset)")
+    parser.add_argument("--seed", type=int, default=0, help="first training seed (default %(default)s)")
+    parser.add_argument("--seeds", type=int, default=3, help="seeds per variant: --seed, --seed+1, … (default %(default)s)")
+    parser.add_argument("--fit-steps", default="10,30",
+                        help="step counts of the test-time fitting baseline, comma-separated (default %(default)s)")
     parser.add_argument("--threads", type=int, help="CPU threads (overrides the preset)")
     parser.add_argument("--variants", help=f"comma-separated subset of {','.join(LADDER)} (default: all)")
     parser.add_argument("--max-frames", type=int, help="score at most this many frames per protocol")
@@ -35,10 +39,17 @@ def run(args) -> int:
     for name in variants:
         if name not in LADDER:
             raise InputError(None, "--variants", f"unknown variant {name!r} (have {', '.join(LADDER)})")
-    overrides = {"train": {k: getattr(args, k) for k in ("steps", "seed", "threads") if getattr(args, k) is not None}}
-    result = run_ablation(args.capture, args.out, variants, preset=args.preset, config_path=args.config,
+    if args.seeds < 1:
+        raise InputError(None, "--seeds", f"must be at least 1, got {args.seeds}")
+    try:
+        fit_steps = tuple(int(v) for v in args.fit_steps.split(",") if v.strip())
+    except ValueError:
+        raise InputError(None, "--fit-steps", f"expected comma-separated integers, got {args.fit_steps!r}") from None
+    overrides = {"train": {k: getattr(args, k) for k in ("steps", "threads") if getattr(args, k) is not None}}
+    result = run_ablation(args.capture, args.out, variants, seeds=[args.seed + i for i in range(args.seeds)],
+                          preset=args.preset, config_path=args.config,
                           overrides=overrides if overrides["train"] else None, max_frames=args.max_frames,
-                          lpips=not args.no_lpips, progress=not args.quiet)
+                          lpips=not args.no_lpips, fit_steps=fit_steps, progress=not args.quiet)
     print((args.out / "results.md").read_text(encoding="utf-8"), end="")
     print(f"wrote {args.out / 'results.json'}, {args.out / 'results.md'} and {args.out / 'figure.png'}")
     return 0 if result else 1

@@ -210,7 +210,7 @@ def write_report(out: pathlib.Path, facts: dict, metrics_md: str, clock: _Clock)
 
 
 def run(args) -> int:
-    from ..evaluate.protocols import evaluate_run
+    from ..evaluate.evaluation import evaluate_run
     from ..evaluate.report import markdown_table, strip_image
     from ..flame.model_file import write_model_file
     from ..flame.preview import render_preview_sheet

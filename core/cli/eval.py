@@ -30,7 +30,7 @@ def add_arguments(parser) -> None:
 
 def run(args) -> int:
     from ..errors import InputError
-    from ..evaluate.protocols import evaluate_run
+    from ..evaluate.evaluation import evaluate_run
     from ..evaluate.report import markdown_table
 
     if args.max_frames is not None and args.max_frames < 1:

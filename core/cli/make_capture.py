@@ -14,13 +14,25 @@ def add_arguments(parser):
     parser.add_argument("--views", type=int, default=d.views, help="cameras in the dome (default %(default)s)")
     parser.add_argument("--timesteps", type=int, default=d.timesteps, help="timesteps over all sequences (default %(default)s)")
     parser.add_argument("--size", type=int, default=d.size, help="image width and height in pixels (default %(default)s)")
+    groups = (("expr", "expression coefficients"), ("pose", "global, neck, jaw and eye rotations (radians)"),
+              ("translation", "translation (metres)"))
+    for group, what in groups:
+        parser.add_argument(
+            f"--{group}-noise", type=float,
+            help=f"std of the tracked {what}' drifting error (default {getattr(d, f'{group}_noise')}; 0 = none)",
+        )
+        parser.add_argument(
+            f"--{group}-correlation", type=float, default=getattr(d, f"{group}_correlation"),
+            help=f"correlation length in timesteps of that error (default %(default)s; 0 = independent per timestep)",
+        )
+        parser.add_argument(
+            f"--{group}-bias", type=float, default=getattr(d, f"{group}_bias"),
+            help=f"std of the tracked {what}' constant bias per coefficient (default %(default)s)",
+        )
     parser.add_argument(
-        "--expr-noise", type=float, default=d.expr_noise,
-        help="std of the tracked expression coefficients' error (default %(default)s; 0 = perfect tracking)",
-    )
-    parser.add_argument(
-        "--pose-noise", type=float, default=d.pose_noise,
-        help="std in radians of the tracked head, neck, jaw and eye rotations' error (default %(default)s)",
+        "--iid-noise", action="store_true",
+        help="the older error model: independent per timestep, no bias (expr 0.5, pose 0.01, translation 0.001 "
+        "unless given)",
     )
     parser.add_argument(
         "--camera-noise", type=float, default=d.camera_noise,
@@ -36,11 +48,18 @@ def run(args) -> int:
     import time
 
     from ..data.generator import CaptureSettings, make_capture
+    from ..data.sequences import NOISE_GROUPS
     from ..data.validate import validate_capture
 
+    given = {f"{g}_noise": getattr(args, f"{g}_noise") for g in NOISE_GROUPS if getattr(args, f"{g}_noise") is not None}
+    if args.iid_noise:
+        noise = CaptureSettings.iid_noise(**given)
+    else:
+        noise = {f"{g}_{k}": getattr(args, f"{g}_{k}") for g in NOISE_GROUPS for k in ("correlation", "bias")}
+        noise.update(given)
     settings = CaptureSettings(
         subject=args.subject, views=args.views, timesteps=args.timesteps, size=args.size,
-        expr_noise=args.expr_noise, pose_noise=args.pose_noise, camera_noise=args.camera_noise, seed=args.seed,
+        camera_noise=args.camera_noise, seed=args.seed, **noise,
     )
     start = time.monotonic()
     make_capture(args.out, settings, model_path=args.model, progress=not args.quiet)

@@ -27,7 +27,7 @@ from ..io.npz import save_npz
 from ..progress import ProgressBar
 from . import layout
 from .mesh_render import render_mesh, vertex_normals
-from .sequences import TEST_SEQUENCE, TrackingNoise, add_tracking_noise, make_sequences
+from .sequences import NOISE_GROUPS, TEST_SEQUENCE, GroupNoise, TrackingNoise, add_tracking_noise, make_sequences, tracking_biases
 from .writer import CaptureWriter, camera_fields
 
 GT_FLAME_DIR = "flame_param_gt"
@@ -44,8 +44,17 @@ class CaptureSettings:
     views: int = 16
     timesteps: int = 150
     size: int = 256
-    expr_noise: float = 0.5
-    pose_noise: float = 0.01
+    # The tracker's error per group: std of the drifting part, its correlation length in
+    # timesteps, std of the constant per-coefficient bias (docs/data-format.md says why these).
+    expr_noise: float = 0.4
+    expr_correlation: float = 5.0
+    expr_bias: float = 0.3
+    pose_noise: float = 0.008  # radians: global, neck, jaw and eye rotations
+    pose_correlation: float = 10.0
+    pose_bias: float = 0.006
+    translation_noise: float = 0.0008  # metres
+    translation_correlation: float = 10.0
+    translation_bias: float = 0.0006
     camera_noise: float = 0.0  # degrees of rotation error (and 5 mm of position error per degree)
     seed: int = 0
     supersample: int = 3
@@ -56,9 +65,25 @@ class CaptureSettings:
             value = getattr(self, name)
             if not low <= value <= high:
                 raise InputError(None, name, f"must lie in [{low}, {high}], got {value}")
-        for name in ("expr_noise", "pose_noise", "camera_noise"):
-            if not getattr(self, name) >= 0:
-                raise InputError(None, name, f"must be >= 0, got {getattr(self, name)}")
+        if not self.camera_noise >= 0:
+            raise InputError(None, "camera_noise", f"must be >= 0, got {self.camera_noise}")
+        self.tracking_noise().check()
+
+    def tracking_noise(self) -> TrackingNoise:
+        """The tracker's error model these settings describe."""
+        return TrackingNoise(**{
+            group: GroupNoise(getattr(self, f"{group}_noise"), getattr(self, f"{group}_correlation"),
+                              getattr(self, f"{group}_bias"))
+            for group in NOISE_GROUPS
+        })
+
+    @staticmethod
+    def iid_noise(**overrides) -> dict:
+        """Settings for the older error model: independent per timestep, no bias (the totals kept)."""
+        values = {"expr_noise": 0.5, "pose_noise": 0.01, "translation_noise": 0.001}
+        values.update({f"{g}_{k}": 0.0 for g in NOISE_GROUPS for k in ("correlation", "bias")})
+        values.update(overrides)
+        return values
 
 
 def camera_dome(views: int, size: int, vertices: np.ndarray, rng) -> tuple[list[Camera], int]:
@@ -150,7 +175,8 @@ def make_capture(
     reported = [perturb_camera(c, settings.camera_noise, rng) for c in cameras]
     sequences = make_sequences(settings.timesteps, model.n_shape, model.n_expr, mouth_components(arrays),
                                seed=settings.seed + 7919 * settings.subject)
-    noise = TrackingNoise(expr=settings.expr_noise, pose=settings.pose_noise)
+    noise = settings.tracking_noise()
+    biases = tracking_biases(sequences[0].params, noise, rng)  # one tracker, one bias per capture
 
     total = sum(s.length for s in sequences)
     bar = ProgressBar(total * len(cameras), "make-capture") if progress else None
@@ -158,7 +184,7 @@ def make_capture(
     ranges = {}
     with CaptureWriter(out, n_vertices=model.n_vertices) as writer:
         for sequence in sequences:
-            tracked = add_tracking_noise(sequence.params, noise, rng)
+            tracked = add_tracking_noise(sequence.params, noise, rng, biases)
             ranges[sequence.name] = [timestep, timestep + sequence.length]
             for local in range(sequence.length):
                 truth = {k: v[local] for k, v in sequence.params.items()}

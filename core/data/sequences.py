@@ -11,6 +11,8 @@ import dataclasses
 
 import numpy as np
 
+from ..errors import InputError
+
 # name, share of the timesteps
 SEQUENCES = (("EXP-1", 0.27), ("EXP-2", 0.27), ("SPEECH", 0.23), ("FREE", 0.23))
 TEST_SEQUENCE = "FREE"
@@ -140,22 +142,78 @@ def make_sequences(total_timesteps: int, n_shape: int, n_expr: int, mouth: list[
 
 
 @dataclasses.dataclass(frozen=True)
-class TrackingNoise:
-    """How far the "tracked" parameters stray from the truth, as a landmark tracker's do.
-
-    ``expr``: std of the per-timestep error of each expression coefficient; ``pose``: std in
-    radians of the global, neck, jaw and eye rotations (translation: ``pose``·0.1 m).
+class GroupNoise:
+    """A tracker's error on one parameter group: ``std`` of the fluctuating part, its correlation
+    length in timesteps (autocorrelation ``exp(-lag / correlation)``; 0 = independent per timestep)
+    and ``bias``, the std of a constant error per coefficient (per joint axis) over the whole capture.
     """
 
-    expr: float = 0.5
-    pose: float = 0.01
+    std: float
+    correlation: float = 0.0
+    bias: float = 0.0
+
+    def check(self, name: str) -> None:
+        for field in ("std", "correlation", "bias"):
+            value = getattr(self, field)
+            if not value >= 0:
+                raise InputError(None, f"{name}_{field}".replace("_std", "_noise"), f"must be >= 0, got {value}")
 
 
-def add_tracking_noise(params: dict[str, np.ndarray], noise: TrackingNoise, rng) -> dict[str, np.ndarray]:
-    """Ground truth → "tracked" parameters: independent Gaussian errors per timestep."""
+# Which FLAME parameters each noise group perturbs.
+NOISE_GROUPS = {"expr": ("expr",), "pose": ("rotation", "neck_pose", "jaw_pose", "eyes_pose"),
+                "translation": ("translation",)}
+
+
+@dataclasses.dataclass(frozen=True)
+class TrackingNoise:
+    """How far the "tracked" parameters stray from the truth, as a tracker's do: per group
+    (expression coefficients; global, neck, jaw and eye rotations in radians; translation in
+    metres) an error that drifts slowly in time plus a constant bias. See docs/data-format.md.
+    """
+
+    expr: GroupNoise = GroupNoise(0.5)
+    pose: GroupNoise = GroupNoise(0.01)
+    translation: GroupNoise = GroupNoise(0.001)
+
+    def check(self) -> None:
+        for name in NOISE_GROUPS:
+            getattr(self, name).check(name)
+
+
+def correlated_noise(rng, length: int, channels: int, correlation: float) -> np.ndarray:
+    """Unit-variance stationary AR(1) noise ``(length, channels)`` with autocorrelation
+    ``exp(-lag / correlation)``; independent per timestep when ``correlation`` is 0."""
+    white = rng.normal(size=(length, channels))
+    if correlation <= 0:
+        return white
+    a = float(np.exp(-1.0 / correlation))
+    scale = np.sqrt(1.0 - a * a)
+    out = np.empty_like(white)
+    out[0] = white[0]
+    for t in range(1, length):
+        out[t] = a * out[t - 1] + scale * white[t]
+    return out
+
+
+def tracking_biases(params: dict[str, np.ndarray], noise: TrackingNoise, rng) -> dict[str, np.ndarray]:
+    """The tracker's constant error per coefficient of every perturbed parameter (one per capture)."""
+    biases = {}
+    for group, names in NOISE_GROUPS.items():
+        for name in names:
+            biases[name] = rng.normal(scale=getattr(noise, group).bias, size=params[name].shape[1])
+    return biases
+
+
+def add_tracking_noise(params: dict[str, np.ndarray], noise: TrackingNoise, rng,
+                       biases: dict[str, np.ndarray] | None = None) -> dict[str, np.ndarray]:
+    """Ground truth of one sequence → "tracked" parameters: the group's bias (drawn here unless
+    ``biases`` gives the capture's) plus correlated noise, per coefficient."""
+    biases = tracking_biases(params, noise, rng) if biases is None else biases
     tracked = {k: v.copy() for k, v in params.items()}
-    tracked["expr"] = tracked["expr"] + rng.normal(scale=noise.expr, size=tracked["expr"].shape)
-    for name in ("rotation", "neck_pose", "jaw_pose", "eyes_pose"):
-        tracked[name] = tracked[name] + rng.normal(scale=noise.pose, size=tracked[name].shape)
-    tracked["translation"] = tracked["translation"] + rng.normal(scale=0.1 * noise.pose, size=tracked["translation"].shape)
+    for group, names in NOISE_GROUPS.items():
+        spec = getattr(noise, group)
+        for name in names:
+            length, channels = tracked[name].shape
+            drift = spec.std * correlated_noise(rng, length, channels, spec.correlation)
+            tracked[name] = tracked[name] + biases[name][None] + drift
     return {k: v.astype(np.float32) for k, v in tracked.items()}

@@ -15,19 +15,34 @@ import pathlib
 import numpy as np
 import torch
 
+from ..data import layout
 from ..errors import InputError
 from ..io.files import file_inside
 from ..flame.model import FlameModel
-from .run_folder import RunFolder, capture_info, load_flame_file
+from .run_folder import MOTION_KEYS, RunFolder, capture_info, load_flame_file
 
 
 def _mesh(model: FlameModel, params: dict[str, np.ndarray]) -> np.ndarray:
+    flame = {k: v for k, v in params.items() if k in layout.FLAME_KEYS}  # no texture feature or the like
     with torch.no_grad():
-        return model(**{k: torch.as_tensor(v, dtype=torch.float32)[None] for k, v in params.items()})[0].numpy()
+        return model(**{k: torch.as_tensor(v, dtype=torch.float32)[None] for k, v in flame.items()})[0].numpy()
 
 
 def _distance_mm(mesh: np.ndarray, truth: np.ndarray) -> float:
     return float(np.linalg.norm(mesh - truth, axis=1).mean() * 1000.0)
+
+
+def frame_errors(model: FlameModel, params: dict[str, np.ndarray], truth: dict[str, np.ndarray]) -> dict[str, float]:
+    """How far one frame's motion parameters are from the truth, with the truth's identity in both
+    meshes (so only motion counts): the expression coefficients' RMSE, the mean vertex distance (mm)
+    of the expression alone (true pose) and of the whole posed mesh (every motion parameter)."""
+    true_mesh = _mesh(model, truth)
+    motion = {**truth, **{k: params[k] for k in MOTION_KEYS if k in params}}
+    return {
+        "expr_rmse": float(np.sqrt(np.mean(np.square(params["expr"] - truth["expr"])))),
+        "expr_vertex_mm": _distance_mm(_mesh(model, {**truth, "expr": params["expr"]}), true_mesh),
+        "vertex_mm": _distance_mm(_mesh(model, motion), true_mesh),
+    }
 
 
 def expression_errors(run_dir: str | os.PathLike, capture: str | os.PathLike | None = None) -> dict:

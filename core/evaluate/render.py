@@ -13,7 +13,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..io.image import srgb_to_linear, write_exr, write_png
-from .mogaface_source import run_inference
+from .sources.mogaface import run_inference
 from .protocols import TrackedParams, render_frame
 from .run_folder import RunFolder, capture_info, load_flame_file
 

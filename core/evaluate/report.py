@@ -1,4 +1,4 @@
-"""What an evaluation leaves behind: the markdown table, comparison images, cross-identity strips."""
+"""What an evaluation leaves behind: the markdown table, comparison images, image strips."""
 
 from __future__ import annotations
 
@@ -73,34 +73,3 @@ def write_comparison(path: str | os.PathLike, item) -> None:
 def strip_image(rows: list[list[np.ndarray]]) -> np.ndarray:
     """Images in a grid: one row per camera, one column per timestep."""
     return np.concatenate([np.concatenate(row, axis=1) for row in rows], axis=0)
-
-
-def write_cross_identity(avatar, capture, run, driver, out: pathlib.Path, max_frames, progress, cameras=None) -> dict:
-    """Render subject A (the run) driven by ``driver``'s tracked motion: PNGs and a strip, no metrics."""
-    from ..data.capture import Capture
-    from ..progress import ProgressBar
-    from .protocols import DrivenParams, cross_identity
-
-    driving = Capture.open(driver)
-    identity = run.identity_params() or {
-        k: v for k, v in capture.flame_params(capture.timesteps[0]).items() if k in ("shape", "static_offset")
-    }
-    source = DrivenParams(identity, driving, n_expr=avatar.flame.n_expr)
-    cameras = list(capture.cameras) if cameras is None else list(cameras)
-    count = len(cameras) * min(len(driving.timesteps), max_frames or len(driving.timesteps))
-    bar = ProgressBar(count, "cross-identity") if progress else None
-    images: dict[str, list[tuple[int, np.ndarray]]] = {c: [] for c in cameras}  # cross_identity checks the ids
-    written = []
-    for timestep, camera_id, rgb, _ in cross_identity(avatar, capture, source, run.background, cameras, max_frames):
-        path = out / f"{timestep:05d}_{camera_id}.png"
-        write_png(path, rgb)
-        written.append(str(path))
-        images[camera_id].append((timestep, rgb))
-        if bar:
-            bar.update()
-    columns = max(len(v) for v in images.values())
-    picks = np.unique(np.round(np.linspace(0, columns - 1, min(columns, STRIP_COLUMNS))).astype(int))
-    strip = out / "strip.png"
-    write_png(strip, strip_image([[row[i][1] for i in picks] for row in images.values()]))
-    driver = str(pathlib.Path(driver).resolve())
-    return {"driver": driver, "frames": len(written), "strip": str(strip), "images": written}

@@ -1,9 +1,11 @@
 """The ablation ladder of the paper's tables 3 and 4 on one capture: train, score, tabulate, show.
 
-Every variant starts from the same settings and seed and differs only in its ``[mogaface]`` and ``[flame]``
-section. Scores: novel view (training timestamps, held-out camera; corrections from the bank or
-the training views), self-reenactment both parameter-driven and image-assisted (other views of
-the timestamp, scored view left out), and the expression error against the synthetic truth.
+Every variant starts from the same settings and differs only in its ``[mogaface]`` and ``[flame]``
+section; each is trained once per seed (``OUT/runs/NAME/seedS``). Each run is scored with every
+parameter source of :mod:`..evaluate.benchmark` (tracked, smoothed, test-time fitted, the method's
+image-assisted inference, the truth) on the held-out sequence (unseen frames) and the held-out
+camera, and its training timesteps' expression error against the synthetic truth. The tables give
+mean ± std over seeds and mark the differences beyond noise (:mod:`.ablation_table`).
 """
 
 from __future__ import annotations
@@ -40,7 +42,6 @@ LADDER: dict[str, dict] = {
 LABELS = {"freeze": "Freeze", "finetune": "Freeze + FLAME fine-tuning", "single": "Single-view",
           "multi": "Multi-view (O)", "multi_bank": "Multi-view + bank (M)", "multi_texture": "Multi-view + texture (T)",
           "full": "Full (multi + bank + texture)", "full_prior": "Full + zero-mean prior (the presets)"}
-METRICS = ("psnr", "ssim", "lpips")
 
 
 def _merge(a: dict, b: dict) -> dict:
@@ -86,49 +87,52 @@ def train_variant(capture, run_dir: pathlib.Path, name: str, preset, config_path
         trainer.events.close()
 
 
-def sources(run_dir):
-    """``(avatar, parameter-driven source, image-assisted source)`` of a run."""
-    from ..evaluate.mogaface_source import MoGaFaceParams
-    from ..evaluate.protocols import TrackedParams
+SCORES_FILE = "ablation_scores.json"  # a run's scores, reused while the run and the scoring options are unchanged
+
+
+def run_folder(out: pathlib.Path, name: str, seed: int) -> pathlib.Path:
+    return out / "runs" / name / f"seed{seed}"
+
+
+def image_source(run_dir):
+    """``(avatar, source)``: the run's own inference, image-assisted where it has modules."""
     from ..evaluate.run_folder import RunFolder
+    from ..evaluate.sources.mogaface import MoGaFaceParams
+    from ..evaluate.sources.tracked import TrackedParams
     from .avatar import ModulatedAvatar, load_run_avatar
 
     run = RunFolder(run_dir)
     capture = run.open_capture()
     avatar = load_run_avatar(run_dir)
     if not isinstance(avatar, ModulatedAvatar):
-        tracked = TrackedParams(capture, run)
-        return avatar, tracked, tracked
-    return avatar, MoGaFaceParams(capture, run, avatar.model, False), MoGaFaceParams(capture, run, avatar.model, True)
+        return avatar, TrackedParams(capture, run)
+    return avatar, MoGaFaceParams(capture, run, avatar.model, True)
 
 
-def _means(result: dict, protocol: str) -> dict:
-    summary = result["protocols"][protocol]
-    return {k: summary.get(k) for k in ("frames", *METRICS) if k in summary}
-
-
-def score_variant(run_dir: pathlib.Path, max_frames, lpips: bool) -> dict:
+def score_variant(run_dir: pathlib.Path, max_frames, lpips: bool, fit_steps) -> dict:
+    """Every parameter source on both protocols (:mod:`..evaluate.benchmark`), and the expression
+    error of the training timesteps (tracked → as training left them). Kept in the run folder, so
+    scoring several runs can go on side by side and the table be written again without rescoring."""
+    from ..errors import InputError
+    from ..evaluate.benchmark import benchmark_run
     from ..evaluate.expression_error import expression_errors
-    from ..evaluate.protocols import evaluate_run
+    from ..io.atomic import write_json
 
-    avatar, by_params, by_images = sources(run_dir)
-    out = {}
-    common = dict(max_frames=max_frames, lpips=lpips, avatar=avatar, comparisons=2)
-    novel = evaluate_run(run_dir, ["novel_view"], out_dir=run_dir / "eval" / "novel_view", source=by_images, **common)
-    out["novel_view"] = _means(novel, "novel_view")
-    params = evaluate_run(run_dir, ["self_reenactment"], out_dir=run_dir / "eval" / "self_reenactment_params",
-                          source=by_params, **common)
-    out["self_reenactment_params"] = _means(params, "self_reenactment")
-    if by_images is by_params:
-        out["self_reenactment_images"] = dict(out["self_reenactment_params"])
-    else:
-        images = evaluate_run(run_dir, ["self_reenactment"], out_dir=run_dir / "eval" / "self_reenactment_images",
-                              source=by_images, **common)
-        out["self_reenactment_images"] = _means(images, "self_reenactment")
+    options = {"max_frames": max_frames, "lpips": lpips, "fit_steps": list(fit_steps)}
+    cached = run_dir / SCORES_FILE
+    if cached.exists() and cached.stat().st_mtime >= (run_dir / "run.json").stat().st_mtime:
+        try:
+            earlier = json.loads(cached.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            earlier = {}
+        if earlier.get("options") == options:
+            return earlier["scores"]
+    out = benchmark_run(run_dir, max_frames=max_frames, lpips=lpips, fit_steps=fit_steps)
     try:
-        out["expression"] = expression_errors(run_dir)
-    except Exception as error:  # a capture without truth: report what is missing
-        out["expression"] = {"error": str(error)}
+        out["training_expression"] = expression_errors(run_dir)
+    except InputError as error:  # a capture without truth: report what is missing
+        out["training_expression"] = {"error": str(error)}
+    write_json(cached, {"options": options, "scores": out})
     return out
 
 
@@ -137,32 +141,6 @@ def _train_summary(run_dir: pathlib.Path) -> dict:
     steps, wall = info.get("final_step"), info.get("wall_time_s")
     return {"steps": steps, "wall_time_s": wall, "it_s": round(steps / wall, 3) if steps and wall else None,
             "gaussians": info.get("gaussians")}
-
-
-def _fmt(value, digits=2) -> str:
-    return "–" if value is None else f"{value:.{digits}f}"
-
-
-def markdown(results: dict) -> str:
-    """The results table: one row per variant."""
-    lines = [
-        "| variant | novel view PSNR | SSIM | LPIPS | self-reen. (params) PSNR | SSIM | LPIPS "
-        "| self-reen. (images) PSNR | SSIM | LPIPS | expr RMSE tracked → corrected "
-        "| expr vertex error mm tracked → corrected | mesh vertex error mm tracked → corrected | it/s |",
-        "|---|" + "---|" * 13,
-    ]
-    for name, entry in results["variants"].items():
-        cells = [LABELS.get(name, name)]
-        for key in ("novel_view", "self_reenactment_params", "self_reenactment_images"):
-            m = entry.get(key, {})
-            cells += [_fmt(m.get("psnr")), _fmt(m.get("ssim"), 4), _fmt(m.get("lpips"), 4)]
-        e = entry.get("expression", {})
-        cells.append(f"{_fmt(e.get('expr_rmse_tracked'), 3)} → {_fmt(e.get('expr_rmse_corrected'), 3)}")
-        for key in ("expr_vertex_mm", "vertex_mm"):
-            cells.append(f"{_fmt(e.get(key + '_tracked'), 2)} → {_fmt(e.get(key + '_corrected'), 2)}")
-        cells.append(_fmt(entry.get("train", {}).get("it_s"), 1))
-        lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines) + "\n"
 
 
 def write_figure(path: pathlib.Path, run_dirs: dict[str, pathlib.Path]) -> None:
@@ -183,7 +161,7 @@ def write_figure(path: pathlib.Path, run_dirs: dict[str, pathlib.Path]) -> None:
     for frame in picks:
         tiles = []
         for run_dir in run_dirs.values():
-            avatar, _, by_images = sources(run_dir)
+            avatar, by_images = image_source(run_dir)
             params = by_images.params_for(frame, exclude_view=frame.camera_id)
             rgb, _ = render_frame(avatar, params, capture.camera(frame), first.background)
             tiles.append(rgb)
@@ -202,34 +180,49 @@ def write_figure(path: pathlib.Path, run_dirs: dict[str, pathlib.Path]) -> None:
         canvas.save(tmp, format="PNG")
 
 
-def run_ablation(capture, out, variants, *, preset="mogaface-ablation", config_path=None, overrides=None,
-                 max_frames=None, lpips=True, progress=True) -> dict:
-    """Train and score ``variants`` of :data:`LADDER`; write results.json, results.md, figure.png."""
+def run_ablation(capture, out, variants, *, seeds=(0,), preset="mogaface-ablation", config_path=None, overrides=None,
+                 max_frames=None, lpips=True, fit_steps=None, progress=True) -> dict:
+    """Train and score ``variants`` of :data:`LADDER` with every seed; write results.json,
+    results.md (mean ± std over seeds, differences beyond noise marked) and figure.png (first seed)."""
+    from ..evaluate.benchmark import FIT_STEPS
+
+    fit_steps = FIT_STEPS if fit_steps is None else tuple(fit_steps)
     out = pathlib.Path(out)
     out.mkdir(parents=True, exist_ok=True)
     results = {"capture": str(pathlib.Path(capture).resolve()), "preset": preset,
                "config": None if config_path is None else str(config_path), "overrides": overrides or {},
-               "max_frames": max_frames, "cpu_count": os.cpu_count(), "variants": {}}
+               "max_frames": max_frames, "fit_steps": list(fit_steps), "cpu_count": os.cpu_count(),
+               "load_average": _load_average(), "variants": {}}
     scored: dict[str, dict] = {}
-    for name in variants:
-        run_dir = out / "runs" / name
-        train_variant(capture, run_dir, name, preset, config_path, overrides, progress)
-        entry = {"label": LABELS[name], "settings": LADDER[name], "train": _train_summary(run_dir)}
-        entry.update(score_variant(run_dir, max_frames, lpips))
-        scored[name] = entry
-        _write_results(out, results, scored)
-        if progress:
-            print(f"[ablate] {name}: {json.dumps({k: entry[k] for k in ('novel_view', 'expression')})}", flush=True)
-    results = _write_results(out, results, scored)
-    run_dirs = {name: out / "runs" / name for name in results["variants"]}
-    write_figure(out / "figure.png", run_dirs)
+    for seed in seeds:
+        for name in variants:
+            run_dir = run_folder(out, name, seed)
+            seeded = _merge(overrides or {}, {"train": {"seed": int(seed)}})
+            train_variant(capture, run_dir, name, preset, config_path, seeded, progress)
+            entry = {"train": _train_summary(run_dir), **score_variant(run_dir, max_frames, lpips, fit_steps)}
+            scored.setdefault(name, {})[str(seed)] = entry
+            results = _write_results(out, results, scored)
+            if progress:
+                free = entry["protocols"].get("self_reenactment", {})
+                print(f"[ablate] {name} seed {seed}: " + json.dumps({k: v.get("psnr") for k, v in free.items()}), flush=True)
+    first = str(seeds[0])
+    write_figure(out / "figure.png", {name: run_folder(out, name, first) for name in results["variants"]
+                                      if first in results["variants"][name]["seeds"]})
     return results
 
 
+def _load_average() -> list[float] | None:
+    try:
+        return [round(v, 2) for v in os.getloadavg()]
+    except OSError:
+        return None
+
+
 def _write_results(out: pathlib.Path, results: dict, scored: dict) -> dict:
-    """results.json and results.md with this call's variants and, in ladder order, the complete
-    variants an earlier call in the same folder scored (so parts of the ladder can run separately)."""
+    """results.json and results.md with this call's runs and, in ladder order, the complete runs an
+    earlier call in the same folder scored (so parts of the ladder and seeds can run separately)."""
     from ..io.atomic import write_json, write_text
+    from .ablation_table import markdown
 
     earlier = {}
     path = out / "results.json"
@@ -238,9 +231,14 @@ def _write_results(out: pathlib.Path, results: dict, scored: dict) -> dict:
             earlier = json.loads(path.read_text(encoding="utf-8")).get("variants", {})
         except (OSError, ValueError):
             earlier = {}
-    merged = {**earlier, **scored}
-    results = {**results, "variants": {name: merged[name] for name in LADDER
-                                       if name in merged and _complete(out / "runs" / name)}}
+    merged: dict[str, dict] = {}
+    for name in LADDER:
+        seeds = {**earlier.get(name, {}).get("seeds", {}), **scored.get(name, {})}
+        seeds = {s: v for s, v in sorted(seeds.items(), key=lambda kv: int(kv[0]))
+                 if _complete(run_folder(out, name, s))}
+        if seeds:
+            merged[name] = {"label": LABELS[name], "settings": LADDER[name], "seeds": seeds}
+    results = {**results, "variants": merged}
     write_json(path, results)
     write_text(out / "results.md", markdown(results))
     return results

@@ -1,4 +1,4 @@
-"""Parameter sources of a MoGaFace run: parameter-driven and image-assisted inference.
+"""The method's own parameter source (a MoGaFace run): parameter-driven and image-assisted inference.
 
 - training timestamps (novel view): the run's ``flame_param/`` already holds the corrected
   expressions (the bank's mean, built from training views only), and the texture attention reads
@@ -17,12 +17,13 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from ..data.capture import Capture, Frame
-from ..mogaface.avatar import FEATURE_KEY, MODULES_FILE, load_run_avatar
-from ..mogaface.model import MoGaFace
-from ..mogaface.views import ViewImages
-from .protocols import TrackedParams, views_at
-from .run_folder import RunFolder
+from ...data.capture import Capture, Frame
+from ...mogaface.avatar import FEATURE_KEY, MODULES_FILE, load_run_avatar
+from ...mogaface.model import MoGaFace
+from ...mogaface.views import ViewImages
+from ..run_folder import RunFolder
+from .base import timestep_of, views_at
+from .tracked import TrackedParams
 
 
 class MoGaFaceParams:
@@ -42,7 +43,7 @@ class MoGaFaceParams:
                             if self.image_assisted else "parameter-driven (MoGaFace: tracked parameters, no image)")
 
     def params_for(self, frame: Frame | int, exclude_view: str | None = None) -> dict[str, np.ndarray]:
-        timestep = frame if isinstance(frame, int) else frame.timestep_index
+        timestep = timestep_of(frame)
         params = dict(self.tracked.params_for(timestep))
         model = self.model
         feature = None

@@ -1,0 +1,99 @@
+"""Every parameter source of one run on the protocols: images and parameters against the truth.
+
+The benchmark an image-driven correction is measured on: on the held-out sequence (frames no
+training step saw) and on the held-out camera, each source's parameters are scored as images
+(PSNR, SSIM, LPIPS of the self-reenactment / novel-view render) and, on synthetic captures, against
+the true parameters (expression RMSE, expression-only and whole-mesh vertex error in mm), with the
+time per frame. The standard sources are the tracked parameters, their temporal smoothing, test-time
+fitting at two step counts, the method's own image-assisted inference and the truth (the ceiling).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..errors import InputError
+from .expression_error import frame_errors
+from .protocols import PROTOCOLS, protocol_frames, run_protocol, score
+from .run_folder import RunFolder
+from .sources.base import ParamSource
+
+FIT_STEPS = (10, 30)
+IMAGE_METRICS = ("psnr", "ssim", "lpips")
+PARAMETER_METRICS = ("expr_rmse", "expr_vertex_mm", "vertex_mm")
+
+
+def standard_sources(run: RunFolder, capture, avatar, fit_steps=FIT_STEPS) -> dict[str, ParamSource]:
+    """name → source, in table order: tracked, smoothed, fit_N…, method (MoGaFace runs), true."""
+    from .sources.fitted import FittedParams
+    from .sources.mogaface import MoGaFaceParams
+    from .sources.smoothed import SmoothedParams, choose_sigmas
+    from .sources.tracked import TrackedParams
+    from .run_folder import capture_info
+    from .sources.true import TrueParams, truth_dir
+
+    tracked = TrackedParams(capture, run)
+    sources: dict[str, ParamSource] = {"tracked": tracked}
+    try:
+        truth_dir(capture)
+        has_truth = True
+    except InputError:
+        has_truth = False
+    if has_truth:
+        held_out = [capture_info(capture.root).get("test_sequence")]
+        sources["smoothed"] = SmoothedParams(capture, tracked, choose_sigmas(capture, held_out))
+    for steps in fit_steps:
+        sources[f"fit_{steps}"] = FittedParams(avatar, capture, tracked, steps, run.background)
+    model = getattr(avatar, "model", None)
+    if model is not None and model.mode != "off":
+        sources["method"] = MoGaFaceParams(capture, run, model, image_assisted=True)
+    if has_truth:
+        sources["true"] = TrueParams(capture, run)
+    return sources
+
+
+def score_source(avatar, capture, source: ParamSource, frames, background, lpips: bool = True) -> dict:
+    """Mean image scores, parameter errors (where the truth is known) and seconds per frame."""
+    from .sources.true import true_params
+
+    rows = []
+    try:
+        true_params(capture, frames[0].timestep_index)
+        truth_known = True
+    except (InputError, IndexError):
+        truth_known = False
+    for item in run_protocol(avatar, capture, source, frames, background):
+        row = score(item, lpips)
+        if truth_known:
+            row.update(frame_errors(avatar.flame, item.params, true_params(capture, item.frame.timestep_index)))
+        row["source_s"] = item.source_seconds
+        row["frame_s"] = item.source_seconds + item.render_seconds
+        rows.append(row)
+    keys = [k for k in (*IMAGE_METRICS, *PARAMETER_METRICS, "source_s", "frame_s") if rows and k in rows[0]]
+    out = {"frames": len(rows)}
+    for key in keys:
+        values = [r[key] for r in rows]
+        out[key] = float(np.mean(values)) if all(math.isfinite(v) for v in values) else None
+    return out
+
+
+def benchmark_run(run_dir, protocols=PROTOCOLS, max_frames: int | None = None, lpips: bool = True,
+                  fit_steps=FIT_STEPS, sources: dict[str, ParamSource] | None = None, avatar=None) -> dict:
+    """``{"protocols": {protocol: {source: scores}}, "sources": {name: description}, "cameras": …}``."""
+    from ..mogaface.avatar import load_run_avatar
+    from .camera_error import camera_errors
+
+    run = RunFolder(run_dir)
+    capture = run.open_capture()
+    avatar = load_run_avatar(run.root) if avatar is None else avatar
+    sources = standard_sources(run, capture, avatar, fit_steps) if sources is None else sources
+    result = {"sources": {name: getattr(s, "description", type(s).__name__) for name, s in sources.items()},
+              "protocols": {}, "cameras": camera_errors(capture, run.root)}
+    for protocol in protocols:
+        frames = protocol_frames(capture, protocol, max_frames)
+        result["protocols"][protocol] = {
+            name: score_source(avatar, capture, source, frames, run.background, lpips) for name, source in sources.items()
+        }
+    return result

@@ -1,0 +1,70 @@
+"""What a scored frame is compared with and rendered by: the ground-truth image on the training
+background, the avatar's render, and the camera a frame is scored from."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import torch
+
+from ..data.capture import Capture, Frame
+from ..data.capture import _frame_camera as camera_from_entry
+from ..errors import InputError
+from .run_folder import capture_info
+
+
+def target_image(capture: Capture, frame: Frame, background, capture_background=None) -> np.ndarray:
+    """The ground truth on the training background: as stored when the capture was recorded on
+    that background, else composited onto it through the foreground mask."""
+    rgb, mask = capture.load_image(frame)
+    if capture_background is not None and np.allclose(capture_background, background):
+        return np.asarray(rgb, dtype=np.float32)
+    bg = np.asarray(background, dtype=np.float32)
+    return (rgb * mask[..., None] + bg * (1.0 - mask[..., None])).astype(np.float32)
+
+
+def render_frame(
+    avatar, params: dict[str, np.ndarray], camera, background, clamp: bool = True
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(rgb (H,W,3), alpha (H,W))`` of the avatar posed by ``params``, as numpy float32.
+
+    ``clamp=False`` keeps colours outside [0, 1] (SH can overshoot) for compositing later.
+    """
+    from ..avatar.avatar import flame_params_to_torch
+
+    with torch.no_grad():
+        out = avatar.render(flame_params_to_torch(params), camera, background)
+    rgb = out.rgb.clamp(0.0, 1.0) if clamp else out.rgb
+    return rgb.numpy().astype(np.float32), out.alpha.clamp(0.0, 1.0).numpy().astype(np.float32)
+
+
+def read_cameras(path) -> dict:
+    """A ``{camera id: camera fields}`` JSON file (``cameras_gt.json``, refined cameras) → cameras."""
+    try:
+        entries = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as error:
+        raise InputError(path, None, f"not readable JSON ({error})") from None
+    if not isinstance(entries, dict):
+        raise InputError(path, None, "expected an object of camera id → camera fields")
+    return {cid: camera_from_entry(entry, {}, cid, path, cid) for cid, entry in entries.items()}
+
+
+class ScoringCameras:
+    """The camera each scored frame is rendered from: the true one where the capture keeps the
+    truth (``cameras_gt.json``, synthetic captures with camera noise), else the capture's own.
+
+    A calibration error of the training cameras then costs what it costs, and a method that
+    refines cameras can show it; the held-out camera is never scored at a perturbed pose.
+    """
+
+    def __init__(self, capture: Capture):
+        self.capture = capture
+        self.truth: dict = {}
+        name = capture_info(capture.root).get("ground_truth", {}).get("cameras")
+        if name and (capture.root / name).exists():
+            self.truth = read_cameras(capture.root / name)
+        self.source = "true (cameras_gt.json)" if self.truth else "as calibrated"
+
+    def __call__(self, frame: Frame):
+        return self.truth.get(frame.camera_id) or self.capture.camera(frame)

@@ -1,0 +1,43 @@
+"""The ceiling: the true motion of a synthetic capture (``flame_param_gt/``)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ...data.capture import Capture, Frame
+from ...errors import InputError
+from ..run_folder import MOTION_KEYS, RunFolder, capture_info, load_flame_file
+from .base import timestep_of
+
+
+def truth_dir(capture: Capture):
+    """The folder of the capture's true parameters; an input error when it carries none."""
+    name = capture_info(capture.root).get("ground_truth", {}).get("flame_param")
+    if not name or not (capture.root / name).is_dir():
+        raise InputError(capture.root, "ground_truth.flame_param", "the capture carries no true parameters")
+    return capture.root / name
+
+
+def true_params(capture: Capture, timestep: int) -> dict[str, np.ndarray]:
+    """The true parameters of one timestep, as the capture stores them."""
+    return load_flame_file(truth_dir(capture) / f"{timestep:05d}.npz")
+
+
+class TrueParams:
+    """The true motion (expression, jaw, eyes, neck, rotation, translation) of each timestep with
+    the run's identity (shape and static offset as trained, as the other sources use): what a
+    perfect tracker would give this avatar. Looks at no image."""
+
+    uses_images = False
+    description = "true parameters (flame_param_gt; the ceiling)"
+
+    def __init__(self, capture: Capture, run: RunFolder | None = None):
+        self.capture = capture
+        truth_dir(capture)  # fail early on a capture without truth
+        self._identity = run.identity_params() if run is not None else None
+
+    def params_for(self, frame: Frame | int, exclude_view: str | None = None) -> dict[str, np.ndarray]:
+        truth = true_params(self.capture, timestep_of(frame))
+        if not self._identity:
+            return truth
+        return {**{k: truth[k] for k in MOTION_KEYS if k in truth}, **self._identity}

@@ -1,0 +1,199 @@
+"""Parameter sources below the protocols: smoothing and test-time fitting improve a known-noisy
+input, the ceiling renders with the truth, frames are scored from the true camera, and no scored
+view ever reaches a source."""
+
+import numpy as np
+import pytest
+
+from mogaface.core.data.capture import Capture
+from mogaface.core.data.generator import CaptureSettings, make_capture
+from mogaface.core.evaluate.benchmark import benchmark_run, standard_sources
+from mogaface.core.evaluate.expression_error import frame_errors
+from mogaface.core.evaluate.images import ScoringCameras, render_frame
+from mogaface.core.evaluate.protocols import protocol_frames, run_protocol
+from mogaface.core.evaluate.run_folder import MOTION_KEYS, RunFolder
+from mogaface.core.evaluate.sources import smoothed as smoothed_module
+from mogaface.core.evaluate.sources.fitted import FittedParams
+from mogaface.core.evaluate.sources.smoothed import SmoothedParams, choose_sigmas, sequence_timesteps
+from mogaface.core.evaluate.sources.true import TrueParams, true_params
+from test_evaluate_fixtures import fake_run, random_avatar, tiny_capture
+
+
+@pytest.fixture(scope="module")
+def capture(tmp_path_factory):
+    return Capture.open(tiny_capture(tmp_path_factory))
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    return RunFolder(fake_run(tmp_path_factory))
+
+
+class Offset:
+    """The truth plus a known error (what a tracker with that error would report)."""
+
+    uses_images = False
+    description = "known offset"
+
+    def __init__(self, capture, expr=0.6, rotation=0.03, translation=0.002):
+        self.capture, self.expr, self.rotation, self.translation = capture, expr, rotation, translation
+
+    def params_for(self, frame, exclude_view=None):
+        t = frame if isinstance(frame, int) else frame.timestep_index
+        p = dict(true_params(self.capture, t))
+        signs = np.where(np.arange(len(p["expr"])) % 2 == 0, 1.0, -1.0).astype(np.float32)
+        p["expr"] = p["expr"] + self.expr * signs
+        p["rotation"] = p["rotation"] + np.float32(self.rotation)
+        p["translation"] = p["translation"] + np.float32(self.translation)
+        return p
+
+
+class RenderedCapture:
+    """The capture with every image replaced by ``avatar``'s render at the true parameters (so a
+    perfect fit exists); records every image a source loads."""
+
+    def __init__(self, capture, avatar):
+        self.capture, self.avatar, self.loaded = capture, avatar, []
+
+    def __getattr__(self, name):
+        return getattr(self.capture, name)
+
+    def load_image(self, frame):
+        self.loaded.append((frame.timestep_index, frame.camera_id))
+        return render_frame(self.avatar, true_params(self.capture, frame.timestep_index), self.capture.camera(frame),
+                            (1.0, 1.0, 1.0))
+
+
+def test_test_time_fitting_improves_a_known_noisy_input(capture, run):
+    avatar = random_avatar(run.root / "head.pkl", seed=1)
+    rendered = RenderedCapture(capture, avatar)
+    frame = protocol_frames(capture, "self_reenactment")[0]
+    truth = true_params(capture, frame.timestep_index)
+    start = frame_errors(avatar.flame, Offset(capture).params_for(frame), truth)
+    source = FittedParams(avatar, rendered, Offset(capture), steps=10, background=(1.0, 1.0, 1.0),
+                          views_per_step=2, scale=1.0)
+    fitted = source.params_for(frame, exclude_view=frame.camera_id)
+    after = frame_errors(avatar.flame, fitted, truth)
+    assert after["vertex_mm"] < 0.5 * start["vertex_mm"], (start, after)
+    assert after["expr_rmse"] < 0.8 * start["expr_rmse"], (start, after)
+    np.testing.assert_array_equal(fitted["shape"], truth["shape"])  # identity is not fitted
+    # Only the other views of the timestep were looked at.
+    assert rendered.loaded and (frame.timestep_index, frame.camera_id) not in rendered.loaded
+    assert {t for t, _ in rendered.loaded} == {frame.timestep_index}
+    assert source.inputs == [(frame.camera_id, [c for c in capture.cameras if c != frame.camera_id])]
+    # The avatar is frozen: fitting changed none of its weights.
+    assert all(p.grad is None or not p.grad.any() for p in avatar.parameters())
+
+
+def test_smoothing_improves_a_known_noisy_input(tmp_path):
+    settings = CaptureSettings(views=2, timesteps=120, size=32, supersample=1,
+                               **CaptureSettings.iid_noise(expr_noise=0.5, pose_noise=0.02))
+    capture = Capture.open(make_capture(tmp_path / "iid", settings, progress=False))
+    sigmas = choose_sigmas(capture, held_out=["FREE"])
+    assert sigmas["expr"] > 0 and sigmas["pose"] > 0  # independent noise: some smoothing pays on training sequences
+    free = sequence_timesteps(capture)["FREE"]
+    tracked = _Tracked(capture)
+    source = SmoothedParams(capture, tracked, sigmas)
+    for key, group in (("expr", "expr"), ("jaw_pose", "pose")):
+        before = np.sqrt(np.mean([np.square(tracked.params_for(t)[key] - true_params(capture, t)[key]) for t in free]))
+        after = np.sqrt(np.mean([np.square(source.params_for(t)[key] - true_params(capture, t)[key]) for t in free]))
+        assert after < 0.8 * before, (key, before, after)
+    assert "expr" in source.description
+
+
+def test_smoothing_sigma_is_never_chosen_on_the_held_out_sequence(capture, monkeypatch):
+    read = []
+    real = smoothed_module.true_params
+
+    def spy(cap, timestep):
+        read.append(timestep)
+        return real(cap, timestep)
+
+    monkeypatch.setattr(smoothed_module, "true_params", spy)
+    choose_sigmas(capture, held_out=["FREE"])
+    free = set(sequence_timesteps(capture)["FREE"])
+    assert read and not free & set(read)
+
+
+class _Tracked:
+    uses_images = False
+
+    def __init__(self, capture):
+        self.capture = capture
+
+    def params_for(self, frame, exclude_view=None):
+        return dict(self.capture.flame_params(frame if isinstance(frame, int) else frame.timestep_index))
+
+
+def test_the_ceiling_renders_with_the_true_parameters(capture, run):
+    avatar = run.load_avatar()
+    frames = protocol_frames(capture, "self_reenactment", max_frames=2)
+    identity = run.identity_params()
+    for item in run_protocol(avatar, capture, TrueParams(capture, run), frames, run.background):
+        truth = true_params(capture, item.frame.timestep_index)
+        for key in MOTION_KEYS:
+            np.testing.assert_array_equal(item.params[key], truth[key])
+        np.testing.assert_array_equal(item.params["shape"], identity["shape"])
+        expected, _ = render_frame(avatar, {**truth, **identity}, ScoringCameras(capture)(item.frame), run.background)
+        np.testing.assert_array_equal(item.prediction, expected)
+    assert not np.allclose(capture.flame_params(frames[0].timestep_index)["expr"], true_params(capture, frames[0].timestep_index)["expr"])
+
+
+def test_camera_noise_is_scored_from_the_true_held_out_pose(tmp_path_factory, run):
+    root = tmp_path_factory.mktemp("camera_noise")
+    noisy = Capture.open(make_capture(root, CaptureSettings(views=3, timesteps=16, size=48, supersample=1,
+                                                            camera_noise=2.0), progress=False))
+    avatar = run.load_avatar()
+    frame = protocol_frames(noisy, "novel_view", max_frames=1)[0]
+    true_camera = ScoringCameras(noisy)(frame)
+    assert not np.allclose(true_camera.w2c, noisy.camera(frame).w2c)  # the calibration is off
+    source = _Tracked(noisy)
+    item = next(run_protocol(avatar, noisy, source, [frame], run.background))
+    params = source.params_for(frame)
+    np.testing.assert_array_equal(item.prediction, render_frame(avatar, params, true_camera, run.background)[0])
+    assert not np.allclose(item.prediction, render_frame(avatar, params, noisy.camera(frame), run.background)[0])
+    from mogaface.core.evaluate.camera_error import camera_errors
+
+    calibrated = camera_errors(noisy)["calibrated"]
+    assert calibrated["cameras"] == 3 and 0.5 < calibrated["rotation_deg"] < 8.0
+
+
+def test_no_scored_view_reaches_any_source(capture, run, monkeypatch):
+    """Every standard source, on both protocols: the scored image is never loaded while the
+    source computes that frame's parameters, and every request names the scored view."""
+    avatar = run.load_avatar()
+    loaded = []
+    real = Capture.load_image
+
+    def spy(self, frame):
+        loaded.append((frame.timestep_index, frame.camera_id))
+        return real(self, frame)
+
+    monkeypatch.setattr(Capture, "load_image", spy)
+    sources = standard_sources(run, capture, avatar, fit_steps=(1,))
+    assert set(sources) == {"tracked", "smoothed", "fit_1", "true"}
+    checked = 0
+    for name, source in sources.items():
+        real_params = source.params_for
+
+        def guarded(frame, exclude_view=None, _real=real_params, _name=name):
+            nonlocal checked
+            before = len(loaded)
+            params = _real(frame, exclude_view=exclude_view)
+            seen = loaded[before:]
+            if isinstance(frame, int):  # a source asking its image-free base for a timestep
+                assert not seen, _name
+                return params
+            assert exclude_view == frame.camera_id, _name
+            assert (frame.timestep_index, frame.camera_id) not in seen, _name
+            if _name.startswith("fit"):
+                assert seen, "test-time fitting looked at no view"
+            checked += 1
+            return params
+
+        monkeypatch.setattr(source, "params_for", guarded)
+    result = benchmark_run(run.root, max_frames=2, lpips=False, sources=sources, avatar=avatar)
+    assert checked == 2 * 2 * len(sources)
+    free = result["protocols"]["self_reenactment"]
+    assert free["true"]["vertex_mm"] == pytest.approx(0.0, abs=1e-6) and free["tracked"]["vertex_mm"] > 0.1
+    assert all(scores["frame_s"] > 0 for scores in free.values())
