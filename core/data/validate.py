@@ -97,45 +97,41 @@ def validate_capture(
     )
 
 
-def _check_images(capture: Capture) -> None:
+def _named_images(capture: Capture):
+    """``(frame, path, where)`` of every image and mask the capture names, each file once."""
     checked: set[str] = set()
     for frame in capture.frames():
-        camera = capture.camera(frame)
         for name in ("file_path", "fg_mask_path"):
             rel = getattr(frame, name)
             if rel is None or rel in checked:
                 continue
             checked.add(rel)
-            path = capture.path(frame, name)
-            where = f"{frame.source} {frame.field(name)}"
-            try:
-                size = image_size(path)
-            except InputError as error:
-                raise CaptureError(path, where, error.problem) from None
-            if size != (camera.width, camera.height):
-                raise CaptureError(
-                    path, f"{frame.source} {frame.field('w/h')}",
-                    f"image is {size[0]}x{size[1]}, the frame says {camera.width}x{camera.height}",
-                )
+            yield frame, capture.path(frame, name), f"{frame.source} {frame.field(name)}"
+
+
+def _check_images(capture: Capture) -> None:
+    for frame, path, where in _named_images(capture):
+        camera = capture.camera(frame)
+        try:
+            size = image_size(path)
+        except InputError as error:
+            raise CaptureError(path, where, error.problem) from None
+        if size != (camera.width, camera.height):
+            raise CaptureError(
+                path, f"{frame.source} {frame.field('w/h')}",
+                f"image is {size[0]}x{size[1]}, the frame says {camera.width}x{camera.height}",
+            )
 
 
 def _decode_images(capture: Capture) -> None:
     """Decode every image and mask once (nothing kept): the errors training would meet later."""
-    checked: set[str] = set()
-    for frame in capture.frames():
-        for name in ("file_path", "fg_mask_path"):
-            rel = getattr(frame, name)
-            if rel is None or rel in checked:
-                continue
-            checked.add(rel)
-            path = capture.path(frame, name)
-            where = f"{frame.source} {frame.field(name)}"
-            try:
-                pixels = read_image(path)
-            except InputError as error:
-                raise CaptureError(path, where, error.problem) from None
-            if not np.isfinite(pixels).all():
-                raise CaptureError(path, where, "holds NaN or infinite pixel values")
+    for _frame, path, where in _named_images(capture):
+        try:
+            pixels = read_image(path)
+        except InputError as error:
+            raise CaptureError(path, where, error.problem) from None
+        if not np.isfinite(pixels).all():
+            raise CaptureError(path, where, "holds NaN or infinite pixel values")
 
 
 def _check_flame_files(capture: Capture) -> dict[str, tuple[int, ...]]:
