@@ -13,7 +13,7 @@ import os
 import bpy
 from bpy.props import BoolProperty, EnumProperty, IntProperty, StringProperty
 
-from .common import clear_status_text, core_or_report, run_core
+from .common import clear_status_text, core_or_report, redraw_areas, run_core
 from .dependencies import LazyModule
 from .head_rig import AVATAR_PATH_PROPERTY, expression_values, head_objects, is_head, pose_values, rig_of
 
@@ -383,18 +383,11 @@ class MOGAFACE_OT_render_animation(_RenderBase, bpy.types.Operator):
         running = job is not None and job.step()
         if running:
             context.workspace.status_text_set(f"MoGaFace rendering: {job.text()} (Esc to cancel)")
-            _redraw_sidebar(context)
+            redraw_areas(context)
             return {"PASS_THROUGH"}
         context.window_manager.event_timer_remove(self._timer)
         clear_status_text()
         return self._finish(context, job)
-
-
-def _redraw_sidebar(context) -> None:
-    for window in context.window_manager.windows:
-        for area in window.screen.areas:
-            if area.type == "VIEW_3D":
-                area.tag_redraw()
 
 
 class MOGAFACE_OT_render_cancel(bpy.types.Operator):

@@ -32,6 +32,14 @@ def run_core(operator, function, *args, **kwargs):
     return None
 
 
+def redraw_areas(context, types=("VIEW_3D",)) -> None:
+    """Redraw every area of these types in every window (a job's progress changed)."""
+    for window in getattr(context.window_manager, "windows", ()):
+        for area in window.screen.areas:
+            if area.type in types:
+                area.tag_redraw()
+
+
 def clear_status_text() -> None:
     """Take a job's progress off every window's status bar (a job ends, or the extension goes)."""
     import bpy

@@ -11,6 +11,7 @@ from __future__ import annotations
 import bpy
 
 from . import dependencies
+from .common import redraw_areas
 
 OFFLINE_MESSAGE = "Online access is off: allow it in Preferences › System › Network, then try again"
 
@@ -35,13 +36,6 @@ def cancel_running_install() -> None:
     if job is not None:
         job.cancel()
         _install["job"], _install["last"] = None, job.progress
-
-
-def _redraw_all(context) -> None:
-    for window in getattr(context.window_manager, "windows", ()):
-        for area in window.screen.areas:
-            if area.type in ("VIEW_3D", "PREFERENCES"):
-                area.tag_redraw()
 
 
 class MOGAFACE_OT_install_dependencies(bpy.types.Operator):
@@ -89,7 +83,7 @@ class MOGAFACE_OT_install_dependencies(bpy.types.Operator):
             return {"PASS_THROUGH"}
         job = _install["job"]
         progress = job.poll() if job is not None else _install["last"]
-        _redraw_all(context)
+        redraw_areas(context, ("VIEW_3D", "PREFERENCES"))
         if progress is not None and not progress.finished:
             return {"PASS_THROUGH"}
         context.window_manager.event_timer_remove(self._timer)

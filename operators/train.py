@@ -14,7 +14,7 @@ import os
 import bpy
 from bpy.props import EnumProperty, IntProperty, StringProperty
 
-from .common import clear_status_text, core_or_report
+from .common import clear_status_text, core_or_report, redraw_areas
 from .dependencies import interpreter, top_package, worker_paths
 
 #: Training presets (core.train.config.PRESETS) offered in the UI, with a one-line description each.
@@ -83,13 +83,6 @@ def cancel_running_job() -> None:
         finally:
             worker.kill()
             _job["worker"] = None
-
-
-def _redraw(context) -> None:
-    for window in getattr(context.window_manager, "windows", ()):
-        for area in window.screen.areas:
-            if area.type == "VIEW_3D":
-                area.tag_redraw()
 
 
 class MOGAFACE_OT_train(bpy.types.Operator):
@@ -176,13 +169,13 @@ class MOGAFACE_OT_train(bpy.types.Operator):
             return {"PASS_THROUGH"}
         progress = self._worker.poll()
         context.workspace.status_text_set(f"MoGaFace training: {progress.text()}")
-        _redraw(context)
+        redraw_areas(context)
         if not progress.finished:
             return {"PASS_THROUGH"}
         context.window_manager.event_timer_remove(self._timer)
         context.workspace.status_text_set(None)
         result = finish_job(self, progress, context.scene.mogaface)
-        _redraw(context)
+        redraw_areas(context)
         return result
 
 
