@@ -3,10 +3,11 @@
 import math
 
 import numpy as np
+import pytest
 import torch
 
 from mogaface.core.splat import tiles
-from mogaface.core.splat.function import Project
+from mogaface.core.splat.function import Project, tile_queue
 from mogaface.core.splat.reference import look_at_camera, project, random_scene
 from mogaface.core.splat.sh import sh_basis, sh_degree
 
@@ -132,3 +133,15 @@ def test_polynomial_exp_is_accurate_where_splats_count():
     approx = np.array([_exp_neg(x) for x in xs], np.float64)
     rel = np.abs(approx / np.exp(xs.astype(np.float64)) - 1)
     assert rel.max() < 2e-6
+
+
+@pytest.mark.parametrize("threads", [1, 2, 3, 8])
+def test_tile_queue_gives_each_thread_an_equal_block_of_work(threads):
+    """The compositing kernels split the queue into one contiguous block per thread; with tiles
+    sorted heavy-first a block held all the heavy tiles and the other thread idled."""
+    work = np.random.default_rng(threads).pareto(1.5, size=1024).astype(np.int64)
+    queue = tile_queue(work, threads)
+    assert sorted(queue.tolist()) == list(range(work.shape[0]))
+    blocks = np.array_split(queue, threads)
+    sums = np.array([work[b].sum() for b in blocks])
+    assert sums.max() - sums.min() <= work.max()

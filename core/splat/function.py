@@ -70,13 +70,14 @@ class Project(torch.autograd.Function):
         return torch.from_numpy(v_m), torch.from_numpy(v_q), torch.from_numpy(v_s), None, None, None, None
 
 
-def _run_balanced(kernel, *args):
-    """Hand tiles to threads one at a time (heavy tiles first), not in fixed blocks."""
-    old = numba.set_parallel_chunksize(1)
-    try:
-        kernel(*args)
-    finally:
-        numba.set_parallel_chunksize(old)
+def tile_queue(work: np.ndarray, threads: int) -> np.ndarray:
+    """Tile order for the compositing kernels: numba hands each thread one contiguous block of the
+    queue, so tiles sorted by work are dealt round-robin (block ``b`` holds the ``b``-th, ``b+T``-th,
+    ... heaviest), which gives every thread the same work within one tile. Each tile writes only its
+    own pixels and slots, so the order changes no result."""
+    by_work = np.argsort(-work, kind="stable")
+    deal = np.argsort(np.arange(by_work.shape[0]) % max(1, threads), kind="stable")
+    return by_work[deal].astype(np.int64)
 
 
 class Rasterize(torch.autograd.Function):
@@ -89,13 +90,13 @@ class Rasterize(torch.autograd.Function):
             bins = tiles.bin_gaussians(m2, _np(cov2d), dep, op, _np(radii), width, height)
             packed = raster.pack(bins.order, m2, con, _np(cov2d), op, col, dep)
         work = np.diff(bins.tile_offsets)
-        queue = np.argsort(-work, kind="stable").astype(np.int64)
+        queue = tile_queue(work, numba.get_num_threads())
         rgb = np.empty((height, width, 3), np.float32)
         depth = np.empty((height, width), np.float32)
         trans = np.empty((height, width), np.float32)
         last = np.empty((height, width), np.int32)
-        _run_balanced(raster.forward, packed, bins.ranks, bins.tile_offsets, queue, bins.tiles_x,
-                      width, height, _np(background), rgb, depth, trans, last)
+        raster.forward(packed, bins.ranks, bins.tile_offsets, queue, bins.tiles_x,
+                       width, height, _np(background), rgb, depth, trans, last)
         ctx.state = (bins, packed, queue, rgb, depth, trans, last, width, height, means2d.shape[0])
         visible = torch.from_numpy(bins.visible)
         ctx.mark_non_differentiable(visible)
@@ -105,8 +106,8 @@ class Rasterize(torch.autograd.Function):
     def backward(ctx, v_rgb, v_alpha, v_depth, _visible):
         bins, packed, queue, rgb, depth, trans, last, width, height, n = ctx.state
         slot = np.empty((bins.ranks.shape[0], raster.NGRAD), np.float32)
-        _run_balanced(raster.backward, packed, bins.ranks, bins.tile_offsets, queue, bins.tiles_x,
-                      width, height, rgb, depth, trans, last, _np(v_rgb), _np(v_alpha), _np(v_depth), slot)
+        raster.backward(packed, bins.ranks, bins.tile_offsets, queue, bins.tiles_x,
+                        width, height, rgb, depth, trans, last, _np(v_rgb), _np(v_alpha), _np(v_depth), slot)
         v_m2 = np.empty((n, 2), np.float32)
         v_con = np.empty((n, 3), np.float32)
         v_op = np.empty(n, np.float32)
