@@ -17,6 +17,9 @@ from .base import ParamSource, timestep_of, views_at
 
 # Adam step sizes per parameter: about a tenth of the tracker's default error per step.
 RATES = {"expr": 0.05, "rotation": 2e-3, "neck_pose": 2e-3, "jaw_pose": 2e-3, "eyes_pose": 2e-3, "translation": 2e-4}
+# The tracker's expected error per parameter (make-capture's defaults), the width of the prior.
+PRIOR_SIGMA = {k: 10 * v for k, v in RATES.items()}
+PRIOR_WEIGHT = 1e-3
 
 
 @contextlib.contextmanager
@@ -50,7 +53,8 @@ class FittedParams:
     uses_images = True
 
     def __init__(self, avatar, capture: Capture, base: ParamSource, steps: int, background,
-                 views_per_step: int = 2, scale: float = 0.5, rates: dict[str, float] | None = None):
+                 views_per_step: int = 2, scale: float = 0.5, rates: dict[str, float] | None = None,
+                 prior_weight: float = PRIOR_WEIGHT, decay: bool = True):
         self.avatar = avatar
         self.capture = capture
         self.base = base
@@ -59,6 +63,8 @@ class FittedParams:
         self.views_per_step = views_per_step
         self.scale = scale
         self.rates = dict(RATES if rates is None else rates)
+        self.prior_weight = float(prior_weight)
+        self.decay = decay
         self.recorded = capture_info(capture.root).get("background")
         self.inputs: list[tuple[str | None, list[str]]] = []
         self.description = (f"test-time fitting ({steps} Adam steps on expression and pose, "
@@ -82,17 +88,24 @@ class FittedParams:
         free = {k: torch.tensor(np.asarray(start[k], np.float32))[None].requires_grad_(True)
                 for k in self.rates if k in start}
         fixed = {k: torch.as_tensor(np.asarray(v, np.float32))[None] for k, v in start.items() if k not in free}
+        anchor = {k: v.detach().clone() for k, v in free.items()}
         optimiser = torch.optim.Adam([{"params": [v], "lr": self.rates[k]} for k, v in free.items()])
         order = np.random.default_rng(timestep).permutation(len(views))
         cursor = 0
         model = getattr(self.avatar, "model", None)
         with frozen(self.avatar, model), torch.enable_grad():
-            for _ in range(self.steps):
+            for step in range(self.steps):
+                if self.decay:  # cosine to zero: the last steps settle instead of jumping by a full rate
+                    for group, key in zip(optimiser.param_groups, free):
+                        group["lr"] = self.rates[key] * 0.5 * (1 + np.cos(np.pi * step / self.steps))
                 picks = [order[(cursor + i) % len(views)] for i in range(min(self.views_per_step, len(views)))]
                 cursor += len(picks)
                 params = {**fixed, **free}
                 loss = sum((self.avatar.render(params, views[i][0], self.background).rgb - views[i][1]).abs().mean()
                            for i in picks) / len(picks)
+                if self.prior_weight > 0:  # the start is the tracker's estimate: stay near it where images say little
+                    loss = loss + self.prior_weight * sum(
+                        (((v - anchor[k]) / PRIOR_SIGMA[k]) ** 2).mean() for k, v in free.items())
                 optimiser.zero_grad()
                 loss.backward()
                 optimiser.step()
