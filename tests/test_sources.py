@@ -13,7 +13,7 @@ from mogaface.core.evaluate.images import ScoringCameras, render_frame
 from mogaface.core.evaluate.protocols import protocol_frames, run_protocol
 from mogaface.core.evaluate.run_folder import MOTION_KEYS, RunFolder
 from mogaface.core.evaluate.sources import smoothed as smoothed_module
-from mogaface.core.evaluate.sources.fitted import FittedParams
+from mogaface.core.evaluate.sources.fitted import PRIOR_WEIGHT, FittedParams
 from mogaface.core.evaluate.sources.smoothed import SmoothedParams, choose_sigmas, sequence_timesteps
 from mogaface.core.evaluate.sources.true import TrueParams, true_params
 from test_evaluate_fixtures import fake_run, random_avatar, tiny_capture
@@ -83,6 +83,24 @@ def test_test_time_fitting_improves_a_known_noisy_input(capture, run):
     assert source.inputs == [(frame.camera_id, [c for c in capture.cameras if c != frame.camera_id])]
     # The avatar is frozen: fitting changed none of its weights.
     assert all(p.grad is None or not p.grad.any() for p in avatar.parameters())
+
+
+def test_test_time_fitting_stays_near_a_right_start_the_avatar_cannot_match(capture, run):
+    """Images the avatar cannot reproduce (another avatar rendered them) pull the parameters away
+    from a start that is already right; the prior toward the start holds them near it."""
+    avatar = random_avatar(run.root / "head.pkl", seed=1)
+    rendered = RenderedCapture(capture, random_avatar(run.root / "head.pkl", seed=2))
+    frame = protocol_frames(capture, "self_reenactment")[0]
+    truth = true_params(capture, frame.timestep_index)
+    exact = Offset(capture, expr=0.0, rotation=0.0, translation=0.0)
+    drift = {}
+    for name, weight in {"no prior": 0.0, "default": PRIOR_WEIGHT}.items():
+        source = FittedParams(avatar, rendered, exact, steps=20, background=(1.0, 1.0, 1.0), views_per_step=2,
+                              scale=1.0, prior_weight=weight)
+        drift[name] = frame_errors(avatar.flame, source.params_for(frame, exclude_view=frame.camera_id), truth)
+    assert drift["no prior"]["vertex_mm"] > 0.05, drift  # the mismatch does pull
+    assert drift["default"]["vertex_mm"] < 0.5 * drift["no prior"]["vertex_mm"], drift
+    assert drift["default"]["expr_rmse"] < 0.5 * drift["no prior"]["expr_rmse"], drift
 
 
 def test_smoothing_improves_a_known_noisy_input(tmp_path):

@@ -118,7 +118,9 @@ def score_variant(run_dir: pathlib.Path, max_frames, lpips: bool, fit_steps) -> 
     from ..evaluate.expression_error import expression_errors
     from ..io.atomic import write_json
 
-    options = {"max_frames": max_frames, "lpips": lpips, "fit_steps": list(fit_steps)}
+    from ..evaluate.sources.fitted import fitting_settings
+
+    options = {"max_frames": max_frames, "lpips": lpips, "fit_steps": list(fit_steps), "fitting": fitting_settings()}
     cached = run_dir / SCORES_FILE
     if cached.exists() and cached.stat().st_mtime >= (run_dir / "run.json").stat().st_mtime:
         try:

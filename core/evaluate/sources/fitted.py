@@ -15,11 +15,19 @@ from ..images import target_image
 from ..run_folder import capture_info
 from .base import ParamSource, timestep_of, views_at
 
-# Adam step sizes per parameter: about a tenth of the tracker's default error per step.
-RATES = {"expr": 0.05, "rotation": 2e-3, "neck_pose": 2e-3, "jaw_pose": 2e-3, "eyes_pose": 2e-3, "translation": 2e-4}
-# The tracker's expected error per parameter (make-capture's defaults), the width of the prior.
-PRIOR_SIGMA = {k: 10 * v for k, v in RATES.items()}
+# The width of the prior toward the start per parameter (make-capture's default tracker error for
+# the expression, twice it for rotations and translation), and the scale of the Adam step sizes,
+# which start at a fifth of it and decay to zero over the fit (cosine). A constant rate of a tenth kept walking away from a start that was
+# already right (fine-tuned training timesteps: -2 to -3 dB); measured choices in docs/results.md.
+PRIOR_SIGMA = {"expr": 0.5, "rotation": 0.02, "neck_pose": 0.02, "jaw_pose": 0.02, "eyes_pose": 0.02,
+               "translation": 2e-3}
+RATES = {k: v / 5 for k, v in PRIOR_SIGMA.items()}
 PRIOR_WEIGHT = 1e-3
+
+
+def fitting_settings() -> dict:
+    """The defaults that decide what fitting returns: scores kept with other settings are stale."""
+    return {"rates": RATES, "prior_sigma": PRIOR_SIGMA, "prior_weight": PRIOR_WEIGHT, "decay": "cosine"}
 
 
 @contextlib.contextmanager
