@@ -92,6 +92,36 @@ class RestrictedUnpickler(pickle.Unpickler):
         raise UnsafePickleError(self._path, None, "refused a persistent reference in the pickle")
 
 
+def nested_elements(value, limit: int) -> int:
+    """How many elements ``np.asarray(value)`` would hold, counted without expanding anything.
+
+    A pickle can make a list of a thousand references to one list of a thousand references to…
+    in a few bytes; the array made from it is the product. Each distinct container is counted once
+    (by identity), so the walk costs what the pickle stored, and it stops as soon as ``limit`` is
+    passed (the count returned is then above ``limit``).
+    """
+    counted: dict[int, int] = {}
+
+    def count(item, depth: int) -> int:
+        if isinstance(item, np.ndarray):
+            return int(item.size)
+        if not isinstance(item, (list, tuple)):
+            return 1
+        if depth > 64:  # numpy arrays have at most 64 dimensions
+            return limit + 1
+        key = id(item)
+        if key not in counted:
+            total = 0
+            for child in item:
+                total += count(child, depth + 1)
+                if total > limit:
+                    break
+            counted[key] = total
+        return counted[key]
+
+    return count(value, 0)
+
+
 def restricted_load(path: str | os.PathLike, allowed: Mapping[str, Resolver], what: str):
     """Read one pickled object from ``path`` with :class:`RestrictedUnpickler`.
 

@@ -93,3 +93,18 @@ def raw_pickle(path, obj):
 def ply_with_header(path, lines, data=b""):
     path.write_bytes(("\n".join(["ply", "format binary_little_endian 1.0", *lines, "end_header"]) + "\n").encode()
                      + data)
+
+
+def shared_reference_pickle(path, key="v_template", width=250, depth=4, chumpy=False):
+    """A pickle of a few hundred bytes whose value is ``depth`` nested lists of ``width`` references
+    to one list below (MARK, DUP and LIST opcodes): width ** depth elements once made an array."""
+    body = pickle.MARK * depth + pickle.BINFLOAT + bytes(8) + (pickle.DUP * (width - 1) + pickle.LIST) * depth
+    name = key.encode()
+    value = body
+    if chumpy:  # chumpy.ch.Ch() with state {'x': value}, as the official files store their arrays
+        value = (pickle.GLOBAL + b"chumpy.ch\nCh\n" + pickle.EMPTY_TUPLE + pickle.NEWOBJ + pickle.EMPTY_DICT
+                 + pickle.SHORT_BINUNICODE + b"\x01x" + body + pickle.SETITEM + pickle.BUILD)
+    data = (pickle.PROTO + b"\x02" + pickle.EMPTY_DICT + pickle.SHORT_BINUNICODE + bytes([len(name)]) + name
+            + value + pickle.SETITEM + pickle.STOP)
+    path.write_bytes(data)
+    return path

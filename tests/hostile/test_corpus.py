@@ -124,6 +124,12 @@ CASES = [
     ("pickle-reconstruct-bomb", lambda c, t: (b.raw_pickle(t / "m.pkl", {"v_template": b.Reconstruct((10 ** 10,))}),
                                               ["preview-head", t / "m.pkl", "--out", t / "p"])[1],
      ["m.pkl", "refused an array"]),
+    ("pickle-shared-references", lambda c, t: (b.shared_reference_pickle(t / "m.pkl"),
+                                               ["preview-head", t / "m.pkl", "--out", t / "p"])[1],
+     ["m.pkl", "v_template", "shared references"]),
+    ("pickle-shared-references-chumpy", lambda c, t: (b.shared_reference_pickle(t / "m.pkl", chumpy=True),
+                                                      ["preview-head", t / "m.pkl", "--out", t / "p"])[1],
+     ["m.pkl", "v_template", "shared references"]),
     ("pickle-many-arrays", lambda c, t: (b.raw_pickle(t / "m.pkl", {"x": b.many_arrays((500_000_000,), 6)}),
                                          ["preview-head", t / "m.pkl", "--out", t / "p"])[1],
      ["m.pkl", "in all"]),
@@ -264,3 +270,16 @@ def test_capture_writer_refuses_what_the_reader_refuses(tmp_path):
     with pytest.raises(CaptureError, match="camera_id"):
         writer.camera_index("../evil")
     assert writer.camera_index("cam_07") == 0
+
+
+def test_nested_elements_counts_what_numpy_would_make_without_expanding():
+    from mogaface.core.io.restricted_pickle import nested_elements
+
+    row = [1.0, 2.0, 3.0]
+    shared = [row] * 4  # four references to one row
+    for value in (row, shared, (shared, shared), np.zeros((2, 5)), [np.zeros(3), np.ones(3)], 7.0):
+        assert nested_elements(value, 10 ** 6) == np.asarray(value).size
+    huge = [0.0]
+    for _ in range(6):
+        huge = [huge] * 1000  # 10^18 elements from a few thousand references
+    assert nested_elements(huge, 10 ** 6) > 10 ** 6
