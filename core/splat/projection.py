@@ -40,7 +40,7 @@ def _limits(K, width, height):
     )
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def project_forward(means, quats, scales, viewmat, K, width, height,
                     means2d, conics, depths, cov2d, radii):
     """Fill ``means2d (N,2)``, ``conics (N,3)``, ``depths``, ``cov2d (N,3) f64``, ``radii``.
@@ -124,7 +124,7 @@ def project_forward(means, quats, scales, viewmat, K, width, height,
         radii[g] = np.int32(math.ceil(min(3.0 * math.sqrt(lam), MAX_RADIUS)))
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def project_backward(means, quats, scales, viewmat, K, width, height, radii,
                      v_means2d, v_conics, v_depths, v_means, v_quats, v_scales):
     """Chain the gradients of ``means2d, conics, depths`` back to ``means, quats, scales``."""

@@ -25,7 +25,7 @@ NPACK = 16
 MX, MY, CA, CB, CC, OP, CR, CG, CBL, DZ, QM, KX, SQS, ISYY, EY = range(15)
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def pack(order, means2d, conics, cov2d, opacities, colors, depths):
     """Gather the per-splat data the kernels read, in depth order, as contiguous float32 rows."""
     n = order.shape[0]
@@ -90,7 +90,7 @@ def _exp_neg(x):
     return e * e
 
 
-@njit(cache=True, parallel=True, fastmath=True)
+@njit(cache=True, parallel=True, fastmath=True, nogil=True)
 def forward(packed, ranks, tile_offsets, tile_queue, tiles_x, width, height, background,
             rgb, depth, trans, last):
     """Composite every tile; writes ``rgb (H,W,3)``, ``depth``, final transmittance ``trans`` and
@@ -177,7 +177,7 @@ def forward(packed, ranks, tile_offsets, tile_queue, tiles_x, width, height, bac
 NGRAD = 10  # per-slot gradient: mean2d x, y, conic a, b, c, opacity, colour r, g, b, depth
 
 
-@njit(cache=True, parallel=True, fastmath=True)
+@njit(cache=True, parallel=True, fastmath=True, nogil=True)
 def backward(packed, ranks, tile_offsets, tile_queue, tiles_x, width, height,
              rgb, depth, trans, last, v_rgb, v_alpha, v_depth, slot_grads):
     """Per-slot gradients of the splats' 2D mean, conic, opacity, colour and depth.
@@ -295,7 +295,7 @@ def backward(packed, ranks, tile_offsets, tile_queue, tiles_x, width, height,
                 slot_grads[k, c] = 0.0
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def reduce_slots(order, rank_offsets, isect_of, slot_grads, n, v_means2d, v_conics, v_opacities,
                  v_colors, v_depths):
     """Sum each splat's per-tile gradient slots into per-Gaussian gradients (original order)."""

@@ -56,7 +56,7 @@ def pixel_span(lo, hi, first, last):
     return a, b
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def pixel_bounds(means2d, cov2d, opacities, radii, width, height, bounds):
     """Fill ``bounds (N,4) int32`` = first/last pixel column and row of each support; visibility."""
     n = means2d.shape[0]
@@ -99,7 +99,7 @@ def _tile_cols(g, ty, means2d, cov2d, opacities, bounds):
     return j0 // TILE, j1 // TILE
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def _count(order, means2d, cov2d, opacities, bounds, counts):
     for r in prange(order.shape[0]):
         g = order[r]
@@ -110,7 +110,7 @@ def _count(order, means2d, cov2d, opacities, bounds, counts):
         counts[r] = c
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def _tiles_of_ranks(order, means2d, cov2d, opacities, bounds, tiles_x, rank_offsets, tile_ids):
     """The tiles of each rank, rank-major: ``tile_ids[rank_offsets[r]:rank_offsets[r+1]]``."""
     for r in prange(order.shape[0]):

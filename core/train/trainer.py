@@ -27,6 +27,7 @@ from ..data import layout
 from ..errors import InputError, MogafaceError
 from ..io.atomic import atomic_path, write_json, write_text
 from ..io.npz import save_npz
+from ..interrupts import exit_on_second_signal
 from . import config as config_module
 from .checkpoint import latest_checkpoint, newest_intact_checkpoint, save_checkpoint
 from .run_lock import resume_notes, take_run_folder
@@ -350,6 +351,7 @@ class Trainer:
 
         for signum in (signal.SIGINT, signal.SIGTERM):
             signal.signal(signum, handle)
+        exit_on_second_signal()  # the second one also while a render kernel runs
 
     def run(self, until: int | None = None) -> dict:
         """Train to step ``until`` (default: the configured steps), then write the results.
