@@ -163,7 +163,7 @@ def test_symlinks_out_of_the_tree_are_refused_inside_allowed(data, tmp_path):
 
 
 # -- cy ------------------------------------------------------------------------------------------
-def test_bottom_origin_cy_projects_the_tracked_mesh_into_the_masks(data, head, flame):
+def test_bottom_origin_cy_projects_the_tracked_mesh_into_the_masks(data, head, flame, tmp_path):
     seq = data["sequences"][0]
     frame_json = json.loads((seq / "transforms_train.json").read_text())["frames"][0]
     cap = Capture.open(seq)
@@ -192,6 +192,11 @@ def test_bottom_origin_cy_projects_the_tracked_mesh_into_the_masks(data, head, f
     try:
         report = check_cy(Capture.open(seq), head)
         assert report.verdict == "mirrored" and "cy_origin" in report.reason
+        # Training such a folder says so at its start (a warning event), and goes on.
+        trainer = Trainer(seq, tmp_path / "run", tiny_config(), head_file=head)
+        trainer.events.close()
+        warnings = [json.loads(line) for line in (tmp_path / "run" / "events.jsonl").read_text().splitlines()]
+        assert any(e["event"] == "warning" and "mirrored" in e["message"] for e in warnings), warnings
     finally:
         for name in ("train", "val", "test"):
             path = seq / f"transforms_{name}.json"

@@ -61,6 +61,15 @@ def position_lr(config: TrainConfig, extent: float, step: int) -> float:
     return config.lr.position * extent * math.exp(t * math.log(config.lr.position_final_ratio))
 
 
+def principal_point_notes(capture, head) -> list[str]:
+    """A warning when the masks fit the other reading of ``cy`` better (a capture written with
+    ``cy`` from the top edge and no ``"cy_origin": "top"``): training would go on, misaligned."""
+    from ..data.cy_check import check_cy
+
+    report = check_cy(capture, head)
+    return [f"{capture.root}: {report.line()}"] if report.verdict == "mirrored" else []
+
+
 class Trainer:
     """A training run in a run folder: create it fresh, or resume it from its latest checkpoint.
 
@@ -128,6 +137,7 @@ class Trainer:
                                         len(self.avatar.flame.faces))
         if self.comm.is_writer:
             self._write_run_json(complete=False)
+            self._notes.extend(principal_point_notes(self.data.capture, head))
 
     def _restore(self, state: dict) -> None:
         self.avatar = Avatar.from_state(state["avatar"], self.run_folder.root, source=self.run_folder.checkpoints)
