@@ -176,6 +176,32 @@ def test_camera_noise_is_scored_from_the_true_held_out_pose(tmp_path_factory, ru
     assert calibrated["cameras"] == 3 and 0.5 < calibrated["rotation_deg"] < 8.0
 
 
+def test_true_cameras_follow_the_captures_cy_convention(tmp_path):
+    """A capture written with ``cy`` from the top edge says so in its split files; its true cameras
+    (``cameras_gt.json``) are read the same way, so scoring cameras match the calibrated ones."""
+    import json
+
+    root = make_capture(tmp_path / "cap", CaptureSettings(views=3, timesteps=16, size=48, supersample=1),
+                        progress=False)
+    bottom = Capture.open(root)
+    for path in [*root.glob("transforms*.json"), root / "cameras_gt.json"]:
+        doc = json.loads(path.read_text())
+        entries = doc.values() if path.name == "cameras_gt.json" else [doc, *doc.get("frames", [])]
+        for entry in entries:
+            if "cy" in entry:
+                entry["cy"] = entry.get("h", doc.get("h")) - entry["cy"]
+        if path.name != "cameras_gt.json":
+            doc["cy_origin"] = "top"
+        path.write_text(json.dumps(doc))
+    top = Capture.open(root)
+    frame = top.frames()[0]
+    assert abs(2 * bottom.camera(frame).cy - 48) > 0.01  # off-centre: the two readings differ
+    truth = ScoringCameras(top)
+    assert truth.truth  # the synthetic capture keeps its true cameras
+    np.testing.assert_allclose(truth(frame).K, top.camera(frame).K)
+    np.testing.assert_allclose(top.camera(frame).K, bottom.camera(frame).K)
+
+
 def test_no_scored_view_reaches_any_source(capture, run, monkeypatch):
     """Every standard source, on both protocols: the scored image is never loaded while the
     source computes that frame's parameters, and every request names the scored view."""

@@ -39,15 +39,18 @@ def render_frame(
     return rgb.numpy().astype(np.float32), out.alpha.clamp(0.0, 1.0).numpy().astype(np.float32)
 
 
-def read_cameras(path) -> dict:
-    """A ``{camera id: camera fields}`` JSON file (``cameras_gt.json``, refined cameras) → cameras."""
+def read_cameras(path, cy_origin: str = "bottom") -> dict:
+    """A ``{camera id: camera fields}`` JSON file (``cameras_gt.json``, refined cameras) → cameras.
+
+    ``cy`` is read by the capture's convention (its split files' ``cy_origin``), as it was written.
+    """
     try:
         entries = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, ValueError) as error:
         raise InputError(path, None, f"not readable JSON ({error})") from None
     if not isinstance(entries, dict):
         raise InputError(path, None, "expected an object of camera id → camera fields")
-    return {cid: camera_from_entry(entry, {}, cid, path, cid) for cid, entry in entries.items()}
+    return {cid: camera_from_entry(entry, {"cy_origin": cy_origin}, cid, path, cid) for cid, entry in entries.items()}
 
 
 class ScoringCameras:
@@ -63,7 +66,7 @@ class ScoringCameras:
         self.truth: dict = {}
         name = capture_info(capture.root).get("ground_truth", {}).get("cameras")
         if name and (capture.root / name).exists():
-            self.truth = read_cameras(capture.root / name)
+            self.truth = read_cameras(capture.root / name, capture.declared_cy_origin)
         self.source = "true (cameras_gt.json)" if self.truth else "as calibrated"
 
     def __call__(self, frame: Frame):
