@@ -18,6 +18,7 @@ from mogaface.core.cli import main
 from mogaface.core.io.ply import gaussian_property_names
 
 from hostile import breakers as b
+from hostile import pickle_bombs as pb
 from conftest import make_toy_model
 
 
@@ -127,6 +128,9 @@ CASES = [
     ("pickle-many-arrays", lambda c, t: (b.raw_pickle(t / "m.pkl", {"x": b.many_arrays((500_000_000,), 6)}),
                                          ["preview-head", t / "m.pkl", "--out", t / "p"])[1],
      ["m.pkl", "in all"]),
+    ("pickle-shared-references", lambda c, t: ((t / "m.pkl").write_bytes(pb.doubling_tuples(29)),
+                                               ["preview-head", t / "m.pkl", "--out", t / "p"])[1],
+     ["m.pkl", "counting a shared one each time it is reached"]),
     # PLY
     ("ply-1e15-vertices", lambda c, t: (b.ply_with_header(t / "x.ply", ["element vertex 1000000000000000",
                                                                         "property float x"]),
