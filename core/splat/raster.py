@@ -112,7 +112,7 @@ def forward(packed, ranks, tile_offsets, tile_queue, tiles_x, width, height, bac
     (pixels outside its support fail the tests), so the row loop is branch-free and vectorises:
     per-pixel state lives in one buffer at fixed offsets, indices are unsigned, and a stopped
     pixel keeps its transmittance with a negative sign. Once ``cancel[0]`` is set, each tile stops
-    after its current splat and the tiles not started are skipped (the caller then discards the
+    within 64 splats and the tiles not started are skipped (the caller then discards the
     image; see ``cancel.py``).
     """
     q_max = np.float32(SIGMAS * SIGMAS)
@@ -175,7 +175,7 @@ def forward(packed, ranks, tile_offsets, tile_queue, tiles_x, width, height, bac
                     st[n5 + pix] = max(st[n5 + pix], kf if use else zero - one)
                     stops += np.int32(1) if stop else np.int32(0)
                 n_live -= stops
-            if n_live == 0 or _flag(cancel) != 0:
+            if n_live == 0 or ((k & 63) == 0 and _flag(cancel) != 0):
                 break
         for i in range(y0, y1 + 1):
             for j in range(x0, x1 + 1):
@@ -241,7 +241,7 @@ def backward(packed, ranks, tile_offsets, tile_queue, tiles_x, width, height,
                     st[n6 + pix] = np.float32(last[i, j] - k0)
                 k_end = max(k_end, last[i, j] + 1)
         for k in range(k0, k_end):
-            if _flag(cancel) != 0:
+            if (k & 63) == 0 and _flag(cancel) != 0:
                 break
             p = packed[ranks[k]]
             mx, my = p[MX], p[MY]
