@@ -268,3 +268,20 @@ def test_capture_writer_refuses_what_the_reader_refuses(tmp_path):
     with pytest.raises(CaptureError, match="camera_id"):
         writer.camera_index("../evil")
     assert writer.camera_index("cam_07") == 0
+
+
+def test_an_image_linked_from_outside_the_capture_is_refused(copies, tmp_path, capsys):
+    image = copies["capture"] / "images" / "00000_00.png"
+    outside = tmp_path / "elsewhere.png"
+    outside.write_bytes(image.read_bytes())
+    image.unlink()
+    image.symlink_to(outside)
+    code, err = run_cli(cap(copies), capsys)
+    assert code == 2 and "00000_00.png" in err and "Traceback" not in err, err
+
+
+def test_a_model_file_outside_the_capture_is_never_copied_into_the_run(copies, tmp_path, capsys):
+    b.edit_json(copies["capture"] / "capture_info.json", lambda d: d.update(model_file="/etc/passwd"))
+    code, err = run_cli(train(copies, tmp_path), capsys)
+    assert code == 2 and "model_file" in err
+    assert not (tmp_path / "newrun" / "head.pkl").exists()
