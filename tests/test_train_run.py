@@ -163,6 +163,25 @@ def test_a_step_cancelled_mid_render_resumes_exactly(tiny_capture, tmp_path, mon
     assert torch.equal(a_state["rng"]["torch"], b_state["rng"]["torch"])
 
 
+def test_a_signal_during_the_final_evaluation_leaves_a_resumable_run(tiny_capture, tmp_path, monkeypatch):
+    from mogaface.core.splat import cancel
+
+    config = tiny_config(train={"steps": 3})
+    run = tmp_path / "run"
+    finish = Trainer.finish
+
+    def cancelled(self):
+        self.request_stop(signal.SIGINT)
+        raise cancel.RenderCancelled("render cancelled by a signal")
+
+    monkeypatch.setattr(Trainer, "finish", cancelled)
+    assert Trainer(tiny_capture, run, config).run() == {"step": 3, "stopped": signal.SIGINT, "complete": False}
+    assert load_checkpoint(latest_checkpoint(run / "checkpoints"))["step"] == 3
+    monkeypatch.setattr(Trainer, "finish", finish)
+    assert Trainer(tiny_capture, run, resume=True).run()["complete"]
+    assert json.loads((run / "run.json").read_text())["complete"]
+
+
 def test_sigterm_checkpoints_and_resume_finishes(tiny_capture, tmp_path):
     run = tmp_path / "run"
     config = tmp_path / "tiny.toml"

@@ -440,7 +440,13 @@ class Trainer:
                 self.events.emit("time_limit", step=self.step, elapsed_s=self.elapsed)
             self.checkpoint()
             if self.comm.is_writer:
-                self.finish()
+                try:
+                    self.finish()
+                except RenderCancelled:  # a signal during the final evaluation: the checkpoint holds the run
+                    if self._stop_signal is None:
+                        raise
+                    self.events.emit("stopped", step=self.step, signal=signal.Signals(self._stop_signal).name)
+                    return {"step": self.step, "stopped": self._stop_signal, "complete": False}
             self.comm.wait_for_writer()
             return {"step": self.step, "stopped": None, "complete": True}
         except MogafaceError:
