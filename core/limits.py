@@ -15,3 +15,7 @@ MAX_PICKLE_BYTES = 2 * 1024 ** 3  # bytes a restricted pickle may build in total
 MAX_PLY_VERTICES = 50_000_000  # Gaussians in one PLY
 MAX_PARAM_FILE_BYTES = 16 * 1024 ** 2  # all arrays of one per-timestep FLAME parameter .npz
 MAX_PARAM_VECTOR = 4096  # coefficients of one FLAME parameter vector (FLAME: 300 shape, 100 expression)
+MAX_PICKLE_OBJECTS = 1_000_000  # objects (containers and their elements) one pickle may build, and its opcodes (FLAME: ~300)
+PICKLE_OBJECTS_PER_BYTE = 16  # ... and at most this many per byte of the file (+4096): a shared container counts each time it is reached
+MAX_PICKLE_DEPTH = 64  # containers inside containers in a pickle (FLAME files: 4)
+MAX_SCALAR_BYTES = 4096  # one numpy scalar in a pickle (a number or a short string)

@@ -133,6 +133,55 @@ def test_resume_continues_exactly(tiny_capture, tmp_path):
     assert [e["event"] for e in read_events(split)].count("resume") == 1
 
 
+def test_a_step_cancelled_mid_render_resumes_exactly(tiny_capture, tmp_path, monkeypatch):
+    """A signal that cancels step 7's render mid-way: that step is abandoned with its draws put
+    back, the checkpoint is step 7, and resuming ends bit-identical to an uninterrupted run."""
+    from mogaface.core.splat import cancel
+
+    config = tiny_config()
+    straight, split = tmp_path / "straight", tmp_path / "split"
+    Trainer(tiny_capture, straight, config).run()
+    render_view = Trainer._render_view
+
+    def signalled_during_step_7(self, frame, index):
+        if self.step == 7:
+            self.request_stop(signal.SIGINT)  # what the handler does
+            cancel.FLAG[0] = 1  # what the watcher thread does
+        return render_view(self, frame, index)
+
+    monkeypatch.setattr(Trainer, "_render_view", signalled_during_step_7)
+    try:
+        assert Trainer(tiny_capture, split, config).run() == {"step": 7, "stopped": signal.SIGINT, "complete": False}
+    finally:
+        cancel.FLAG[0] = 0
+    monkeypatch.setattr(Trainer, "_render_view", render_view)
+    Trainer(tiny_capture, split, resume=True).run()
+    a, a_moments, a_state = final_tensors(straight)
+    b, b_moments, b_state = final_tensors(split)
+    for name in a:
+        assert torch.equal(a[name], b[name]), name
+    assert torch.equal(a_state["rng"]["torch"], b_state["rng"]["torch"])
+
+
+def test_a_signal_during_the_final_evaluation_leaves_a_resumable_run(tiny_capture, tmp_path, monkeypatch):
+    from mogaface.core.splat import cancel
+
+    config = tiny_config(train={"steps": 3})
+    run = tmp_path / "run"
+    finish = Trainer.finish
+
+    def cancelled(self):
+        self.request_stop(signal.SIGINT)
+        raise cancel.RenderCancelled("render cancelled by a signal")
+
+    monkeypatch.setattr(Trainer, "finish", cancelled)
+    assert Trainer(tiny_capture, run, config).run() == {"step": 3, "stopped": signal.SIGINT, "complete": False}
+    assert load_checkpoint(latest_checkpoint(run / "checkpoints"))["step"] == 3
+    monkeypatch.setattr(Trainer, "finish", finish)
+    assert Trainer(tiny_capture, run, resume=True).run()["complete"]
+    assert json.loads((run / "run.json").read_text())["complete"]
+
+
 def test_sigterm_checkpoints_and_resume_finishes(tiny_capture, tmp_path):
     run = tmp_path / "run"
     config = tmp_path / "tiny.toml"

@@ -7,6 +7,7 @@ import json
 import sys
 
 BENCHMARKS = {
+    "cancel_latency": "SIGINT to exit while a raster kernel runs, at the largest allowed frame and in train",
     "distributed": "data-parallel training: ranks against threads, all-reduce volume and time per step",
     "splat": "the CPU Gaussian splat engine against its torch reference",
     "splat_fuzz": "the splat engine on degenerate Gaussians and intrinsics (hangs, non-finite values)",

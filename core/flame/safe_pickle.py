@@ -19,7 +19,7 @@ import numpy as np
 from ..errors import ModelFileError, UnsafePickleError
 from ..io.atomic import atomic_open
 from ..limits import MAX_ARRAY_ELEMENTS
-from ..io.restricted_pickle import NUMPY_ARRAY_GLOBALS, nested_elements, restricted_load
+from ..io.restricted_pickle import NUMPY_ARRAY_GLOBALS, restricted_load
 
 
 class ChumpyArray:
@@ -110,18 +110,8 @@ def _latin1_encode(text, encoding="latin1"):
     return text.encode("latin1")
 
 
-def _bounded(value):
-    """``value`` unchanged, once the array it would make is known to be within the limit."""
-    if nested_elements(value, MAX_ARRAY_ELEMENTS) > MAX_ARRAY_ELEMENTS:
-        raise ValueError(f"nested lists that would make an array of more than {MAX_ARRAY_ELEMENTS} elements "
-                         f"(shared references in the pickle)")
-    return value
-
-
 def _plain(value):
     """Turn chumpy / sparse stand-ins into numpy arrays; leave everything else as it is."""
-    for part in (value.__dict__.values() if isinstance(value, (ChumpyArray, SparseMatrix)) else (value,)):
-        _bounded(part)
     if isinstance(value, ChumpyArray):
         if not hasattr(value, "x"):
             raise ValueError("chumpy object without its array 'x'")

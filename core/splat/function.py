@@ -11,7 +11,7 @@ import numba
 import numpy as np
 import torch
 
-from . import projection, raster, tiles
+from . import cancel, projection, raster, tiles
 
 
 def _np(t: torch.Tensor) -> np.ndarray:
@@ -96,7 +96,8 @@ class Rasterize(torch.autograd.Function):
         trans = np.empty((height, width), np.float32)
         last = np.empty((height, width), np.int32)
         raster.forward(packed, bins.ranks, bins.tile_offsets, queue, bins.tiles_x,
-                       width, height, _np(background), rgb, depth, trans, last)
+                       width, height, _np(background), rgb, depth, trans, last, cancel.FLAG)
+        cancel.raise_if_requested()  # a partial image must never be used
         ctx.state = (bins, packed, queue, rgb, depth, trans, last, width, height, means2d.shape[0])
         visible = torch.from_numpy(bins.visible)
         ctx.mark_non_differentiable(visible)
@@ -107,7 +108,9 @@ class Rasterize(torch.autograd.Function):
         bins, packed, queue, rgb, depth, trans, last, width, height, n = ctx.state
         slot = np.empty((bins.ranks.shape[0], raster.NGRAD), np.float32)
         raster.backward(packed, bins.ranks, bins.tile_offsets, queue, bins.tiles_x,
-                        width, height, rgb, depth, trans, last, _np(v_rgb), _np(v_alpha), _np(v_depth), slot)
+                        width, height, rgb, depth, trans, last, _np(v_rgb), _np(v_alpha), _np(v_depth), slot,
+                        cancel.FLAG)
+        cancel.raise_if_requested()
         v_m2 = np.empty((n, 2), np.float32)
         v_con = np.empty((n, 3), np.float32)
         v_op = np.empty(n, np.float32)

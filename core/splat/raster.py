@@ -13,7 +13,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit, prange
+from numba import njit, prange, types
+from numba.extending import intrinsic
 
 from .tiles import ALPHA_MIN, MAX_HALF, SIGMAS, TILE, margin, support_q
 
@@ -50,6 +51,17 @@ def pack(order, means2d, conics, cov2d, opacities, colors, depths):
         out[r, ISYY] = 1.0 / syy
         out[r, EY] = min(math.sqrt(qm * syy), MAX_HALF)
     return out
+
+
+@intrinsic
+def _flag(typingctx, flags):
+    """``flags[0]`` (an int32 array) read as an atomic load, which the compiler may not hoist out of
+    a loop: another thread sets it while the kernel runs (``cancel.py``)."""
+    def codegen(context, builder, signature, args):
+        array = context.make_array(signature.args[0])(context, builder, args[0])
+        return builder.load_atomic(array.data, "monotonic", 4)
+
+    return types.int32(flags), codegen
 
 
 @njit(cache=True, inline="always")
@@ -92,14 +104,16 @@ def _exp_neg(x):
 
 @njit(cache=True, parallel=True, fastmath=True, nogil=True)
 def forward(packed, ranks, tile_offsets, tile_queue, tiles_x, width, height, background,
-            rgb, depth, trans, last):
+            rgb, depth, trans, last, cancel):
     """Composite every tile; writes ``rgb (H,W,3)``, ``depth``, final transmittance ``trans`` and
     ``last`` (the slot of the last splat that counted in each pixel, -1 if none).
 
     A splat visits the tile rows its ellipse reaches and tests all pixels of such a row exactly
     (pixels outside its support fail the tests), so the row loop is branch-free and vectorises:
     per-pixel state lives in one buffer at fixed offsets, indices are unsigned, and a stopped
-    pixel keeps its transmittance with a negative sign.
+    pixel keeps its transmittance with a negative sign. Once ``cancel[0]`` is set, each tile stops
+    within 64 splats and the tiles not started are skipped (the caller then discards the
+    image; see ``cancel.py``).
     """
     q_max = np.float32(SIGMAS * SIGMAS)
     a_min = np.float32(ALPHA_MIN)
@@ -111,6 +125,8 @@ def forward(packed, ranks, tile_offsets, tile_queue, tiles_x, width, height, bac
     n = np.uint64(TILE * TILE)
     n2, n3, n4, n5 = n + n, n + n + n, n * np.uint64(4), n * np.uint64(5)
     for qi in prange(tile_queue.shape[0]):
+        if _flag(cancel) != 0:
+            continue
         t = tile_queue[qi]
         ty, tx = t // tiles_x, t % tiles_x
         x0, y0 = tx * TILE, ty * TILE
@@ -159,7 +175,7 @@ def forward(packed, ranks, tile_offsets, tile_queue, tiles_x, width, height, bac
                     st[n5 + pix] = max(st[n5 + pix], kf if use else zero - one)
                     stops += np.int32(1) if stop else np.int32(0)
                 n_live -= stops
-            if n_live == 0:
+            if n_live == 0 or ((k & 63) == 0 and _flag(cancel) != 0):
                 break
         for i in range(y0, y1 + 1):
             for j in range(x0, x1 + 1):
@@ -179,12 +195,13 @@ NGRAD = 10  # per-slot gradient: mean2d x, y, conic a, b, c, opacity, colour r, 
 
 @njit(cache=True, parallel=True, fastmath=True, nogil=True)
 def backward(packed, ranks, tile_offsets, tile_queue, tiles_x, width, height,
-             rgb, depth, trans, last, v_rgb, v_alpha, v_depth, slot_grads):
+             rgb, depth, trans, last, v_rgb, v_alpha, v_depth, slot_grads, cancel):
     """Per-slot gradients of the splats' 2D mean, conic, opacity, colour and depth.
 
     Front to back like the forward: with ``S`` the pixel's total (colour and depth dotted with
     their gradients, minus the alpha term) and ``R_i = S - Σ_{j<=i} w_j f_j`` what lies behind
-    splat ``i``, ``dL/dalpha_i = T_i f_i - R_i / (1 - alpha_i)``.
+    splat ``i``, ``dL/dalpha_i = T_i f_i - R_i / (1 - alpha_i)``. Stops as the forward does once
+    ``cancel[0]`` is set.
     """
     q_max = np.float32(SIGMAS * SIGMAS)
     a_min = np.float32(ALPHA_MIN)
@@ -197,6 +214,8 @@ def backward(packed, ranks, tile_offsets, tile_queue, tiles_x, width, height,
     n = np.uint64(TILE * TILE)
     n2, n3, n4, n5, n6 = n + n, n + n + n, n * np.uint64(4), n * np.uint64(5), n * np.uint64(6)
     for qi in prange(tile_queue.shape[0]):
+        if _flag(cancel) != 0:
+            continue
         t = tile_queue[qi]
         ty, tx = t // tiles_x, t % tiles_x
         x0, y0 = tx * TILE, ty * TILE
@@ -222,6 +241,8 @@ def backward(packed, ranks, tile_offsets, tile_queue, tiles_x, width, height,
                     st[n6 + pix] = np.float32(last[i, j] - k0)
                 k_end = max(k_end, last[i, j] + 1)
         for k in range(k0, k_end):
+            if (k & 63) == 0 and _flag(cancel) != 0:
+                break
             p = packed[ranks[k]]
             mx, my = p[MX], p[MY]
             ca, cbb, cc, op = p[CA], p[CB], p[CC], p[OP]

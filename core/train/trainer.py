@@ -27,7 +27,8 @@ from ..data import layout
 from ..errors import InputError, MogafaceError
 from ..io.atomic import atomic_path, write_json, write_text
 from ..io.npz import save_npz
-from ..interrupts import exit_on_second_signal
+from ..splat import cancel
+from ..splat.cancel import RenderCancelled
 from . import config as config_module
 from .checkpoint import latest_checkpoint, newest_intact_checkpoint, save_checkpoint
 from .run_lock import resume_notes, take_run_folder
@@ -66,7 +67,10 @@ def principal_point_notes(capture, head) -> list[str]:
     ``cy`` from the top edge and no ``"cy_origin": "top"``): training would go on, misaligned."""
     from ..data.cy_check import check_cy
 
-    report = check_cy(capture, head)
+    try:
+        report = check_cy(capture, head)
+    except MogafaceError:  # an unreadable image: training reports it where it meets it, with a checkpoint
+        return []
     return [f"{capture.root}: {report.line()}"] if report.verdict == "mirrored" else []
 
 
@@ -295,6 +299,22 @@ class Trainer:
     def train_step(self) -> dict:
         """Run step ``self.step`` (0-based) and advance; returns its losses and what densification did.
 
+        A render cancelled by a signal (``RenderCancelled``) abandons the step before anything is
+        updated; what it drew from the random sampler is put back, so a checkpoint written then
+        equals the one an uninterrupted run writes at this step.
+        """
+        drawn = (self.generator.get_state(), self._order, self._position)
+        try:
+            return self._run_step()
+        except RenderCancelled:
+            self.generator.set_state(drawn[0])
+            self._order, self._position = drawn[1], drawn[2]
+            self.optimizer.zero_grad(set_to_none=True)
+            raise
+
+    def _run_step(self) -> dict:
+        """The step itself (see :meth:`train_step`).
+
         A step scores ``train.batch`` training images (their mean loss); with several ranks each
         renders its share and the gradients are summed over the ranks before the optimiser step.
         """
@@ -361,7 +381,8 @@ class Trainer:
 
         for signum in (signal.SIGINT, signal.SIGTERM):
             signal.signal(signum, handle)
-        exit_on_second_signal()  # the second one also while a render kernel runs
+        if self.comm.world == 1:  # ranks must finish a step together: they stop between steps
+            cancel.arm((signal.SIGINT, signal.SIGTERM))
 
     def run(self, until: int | None = None) -> dict:
         """Train to step ``until`` (default: the configured steps), then write the results.
@@ -393,7 +414,12 @@ class Trainer:
                 if timed:
                     out_of_time = True
                     break
-                result = self.train_step()
+                try:
+                    result = self.train_step()
+                except RenderCancelled:
+                    if self._stop_signal is None:  # only a signal sets the flag
+                        raise
+                    break
                 now = time.monotonic()
                 self.elapsed += now - last
                 last = now
@@ -410,7 +436,10 @@ class Trainer:
                                      elapsed_s=self.elapsed)
                     window_start, window_steps = now, 0
                 if self.config.eval.every and self.step % self.config.eval.every == 0 and self.comm.is_writer:
-                    self._quick_check()
+                    try:
+                        self._quick_check()
+                    except RenderCancelled:
+                        break
                     last = time.monotonic()
                 if cfg.checkpoint_every and self.step % cfg.checkpoint_every == 0 and self.step < cfg.steps:
                     self.checkpoint()
@@ -424,7 +453,13 @@ class Trainer:
                 self.events.emit("time_limit", step=self.step, elapsed_s=self.elapsed)
             self.checkpoint()
             if self.comm.is_writer:
-                self.finish()
+                try:
+                    self.finish()
+                except RenderCancelled:  # a signal during the final evaluation: the checkpoint holds the run
+                    if self._stop_signal is None:
+                        raise
+                    self.events.emit("stopped", step=self.step, signal=signal.Signals(self._stop_signal).name)
+                    return {"step": self.step, "stopped": self._stop_signal, "complete": False}
             self.comm.wait_for_writer()
             return {"step": self.step, "stopped": None, "complete": True}
         except MogafaceError:

@@ -18,6 +18,7 @@ from mogaface.core.cli import main
 from mogaface.core.io.ply import gaussian_property_names
 
 from hostile import breakers as b
+from hostile import pickle_bombs as pb
 from conftest import make_toy_model
 
 
@@ -124,15 +125,18 @@ CASES = [
     ("pickle-reconstruct-bomb", lambda c, t: (b.raw_pickle(t / "m.pkl", {"v_template": b.Reconstruct((10 ** 10,))}),
                                               ["preview-head", t / "m.pkl", "--out", t / "p"])[1],
      ["m.pkl", "refused an array"]),
-    ("pickle-shared-references", lambda c, t: (b.shared_reference_pickle(t / "m.pkl"),
-                                               ["preview-head", t / "m.pkl", "--out", t / "p"])[1],
-     ["m.pkl", "v_template", "shared references"]),
-    ("pickle-shared-references-chumpy", lambda c, t: (b.shared_reference_pickle(t / "m.pkl", chumpy=True),
-                                                      ["preview-head", t / "m.pkl", "--out", t / "p"])[1],
-     ["m.pkl", "v_template", "shared references"]),
+    ("pickle-nested-lists", lambda c, t: (b.shared_reference_pickle(t / "m.pkl"),
+                                          ["preview-head", t / "m.pkl", "--out", t / "p"])[1],
+     ["m.pkl", "counting a shared one"]),
+    ("pickle-nested-lists-chumpy", lambda c, t: (b.shared_reference_pickle(t / "m.pkl", chumpy=True),
+                                                 ["preview-head", t / "m.pkl", "--out", t / "p"])[1],
+     ["m.pkl", "counting a shared one"]),
     ("pickle-many-arrays", lambda c, t: (b.raw_pickle(t / "m.pkl", {"x": b.many_arrays((500_000_000,), 6)}),
                                          ["preview-head", t / "m.pkl", "--out", t / "p"])[1],
      ["m.pkl", "in all"]),
+    ("pickle-shared-references", lambda c, t: ((t / "m.pkl").write_bytes(pb.doubling_tuples(29)),
+                                               ["preview-head", t / "m.pkl", "--out", t / "p"])[1],
+     ["m.pkl", "counting a shared one each time it is reached"]),
     # PLY
     ("ply-1e15-vertices", lambda c, t: (b.ply_with_header(t / "x.ply", ["element vertex 1000000000000000",
                                                                         "property float x"]),
@@ -272,14 +276,18 @@ def test_capture_writer_refuses_what_the_reader_refuses(tmp_path):
     assert writer.camera_index("cam_07") == 0
 
 
-def test_nested_elements_counts_what_numpy_would_make_without_expanding():
-    from mogaface.core.io.restricted_pickle import nested_elements
+def test_an_image_linked_from_outside_the_capture_is_refused(copies, tmp_path, capsys):
+    image = copies["capture"] / "images" / "00000_00.png"
+    outside = tmp_path / "elsewhere.png"
+    outside.write_bytes(image.read_bytes())
+    image.unlink()
+    image.symlink_to(outside)
+    code, err = run_cli(cap(copies), capsys)
+    assert code == 2 and "00000_00.png" in err and "Traceback" not in err, err
 
-    row = [1.0, 2.0, 3.0]
-    shared = [row] * 4  # four references to one row
-    for value in (row, shared, (shared, shared), np.zeros((2, 5)), [np.zeros(3), np.ones(3)], 7.0):
-        assert nested_elements(value, 10 ** 6) == np.asarray(value).size
-    huge = [0.0]
-    for _ in range(6):
-        huge = [huge] * 1000  # 10^18 elements from a few thousand references
-    assert nested_elements(huge, 10 ** 6) > 10 ** 6
+
+def test_a_model_file_outside_the_capture_is_never_copied_into_the_run(copies, tmp_path, capsys):
+    b.edit_json(copies["capture"] / "capture_info.json", lambda d: d.update(model_file="/etc/passwd"))
+    code, err = run_cli(train(copies, tmp_path), capsys)
+    assert code == 2 and "model_file" in err
+    assert not (tmp_path / "newrun" / "head.pkl").exists()

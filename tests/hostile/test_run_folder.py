@@ -173,3 +173,74 @@ def test_double_interrupt_exits_with_the_signal_status(copies, tmp_path):
     assert process.returncode == 128 + signal.SIGINT, err
     assert "Traceback" not in err
     assert not [p for p in (out / "checkpoints").glob(".*")] if (out / "checkpoints").exists() else True
+
+
+def test_interrupt_while_training_checkpoints_the_step_before_the_cancelled_render(copies, tmp_path):
+    """The first SIGINT also cancels the render under way (the flag the kernels poll); the step it
+    belonged to is abandoned and its draw from the sampler put back, so the checkpoint is a clean
+    step boundary that resumes."""
+    process, out = _train_process(copies, tmp_path)
+    try:
+        deadline = time.monotonic() + 180
+        while not ((out / "events.jsonl").exists() and any(e["event"] == "iter" for e in events(out))):
+            assert process.poll() is None and time.monotonic() < deadline, process.communicate()
+            time.sleep(0.2)
+        process.send_signal(signal.SIGINT)
+        _, err = process.communicate(timeout=120)
+    finally:
+        if process.poll() is None:
+            process.kill()
+    assert process.returncode == 128 + signal.SIGINT and "Traceback" not in err, err
+    assert [e for e in events(out) if e["event"] == "stopped"][-1]["signal"] == "SIGINT"
+    state = load_checkpoint(latest_checkpoint(out / "checkpoints"))
+    iters = [e["step"] for e in events(out) if e["event"] == "iter"]
+    assert state["step"] >= iters[-1]
+    sampler = state["sampler"]  # one frame drawn per step (batch 1): nothing drawn for the abandoned step
+    assert sampler["position"] == state["step"] % len(sampler["order"]) or sampler["position"] == len(sampler["order"])
+    config = C.resolve(path=out / "config.toml", overrides={"train": {"steps": state["step"] + 1}})
+    assert Trainer(copies["capture"], out, config, resume=True).run()["step"] == state["step"] + 1
+
+
+def test_the_cancel_flag_stops_a_running_raster_kernel():
+    """A flag set by another thread while the kernel runs (nogil) stops it part-way: tiles it had
+    not reached keep their sentinel, and the engine raises instead of returning the image."""
+    import threading
+
+    import numba
+    import numpy as np
+
+    from mogaface.bench.splat import head_scene
+    from mogaface.core.splat import cancel, projection, raster, tiles
+    from mogaface.core.splat.api import rasterize
+    from mogaface.core.splat.function import tile_queue
+
+    size = 1024
+    (means, quats, scales, opacities, colors), viewmat, K = head_scene(200_000, size, size)
+    n = means.shape[0]
+    means2d, conics, cov2d = (np.empty((n, k), np.float32) for k in (2, 3, 3))
+    depths, radii = np.empty(n, np.float32), np.empty(n, np.int32)
+    projection.project_forward(means.numpy(), (quats / quats.norm(dim=1, keepdim=True)).numpy(), scales.numpy(),
+                               viewmat.numpy(), K.numpy(), size, size, means2d, conics, depths, cov2d, radii)
+    op, col = opacities.numpy(), colors.numpy()
+    bins = tiles.bin_gaussians(means2d, cov2d, depths, op, radii, size, size)
+    packed = raster.pack(bins.order, means2d, conics, cov2d, op, col, depths)
+    queue = tile_queue(np.diff(bins.tile_offsets), numba.get_num_threads())
+
+    def forward(width, height):
+        rgb = np.full((height, width, 3), np.nan, np.float32)
+        rest = [np.empty((height, width), np.float32) for _ in range(2)] + [np.empty((height, width), np.int32)]
+        raster.forward(packed, bins.ranks, bins.tile_offsets, queue, bins.tiles_x, width, height,
+                       np.zeros(3, np.float32), rgb, *rest, cancel.FLAG)
+        return rgb
+
+    assert not np.isnan(forward(size, size)).any()  # compiled, and complete without the flag
+    setter = threading.Timer(0.05, lambda: cancel.FLAG.__setitem__(0, 1))
+    try:
+        setter.start()
+        rgb = forward(size, size)  # about a second of work: the flag comes part-way
+        assert np.isnan(rgb).any()
+        with pytest.raises(cancel.RenderCancelled):
+            rasterize(means, quats, scales, opacities, colors, viewmat, K, 64, 64)
+    finally:
+        setter.join()
+        cancel.FLAG[0] = 0
