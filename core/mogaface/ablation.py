@@ -118,7 +118,11 @@ def score_variant(run_dir: pathlib.Path, max_frames, lpips: bool, fit_steps) -> 
     from ..evaluate.expression_error import expression_errors
     from ..io.atomic import write_json
 
-    options = {"max_frames": max_frames, "lpips": lpips, "fit_steps": list(fit_steps)}
+    from ..refiner.files import REFINER_FILE
+
+    refiner = run_dir / REFINER_FILE  # a refiner trained later makes its rows: score again
+    options = {"max_frames": max_frames, "lpips": lpips, "fit_steps": list(fit_steps),
+               "refiner": refiner.stat().st_mtime_ns if refiner.exists() else None}
     cached = run_dir / SCORES_FILE
     if cached.exists() and cached.stat().st_mtime >= (run_dir / "run.json").stat().st_mtime:
         try:
