@@ -152,7 +152,8 @@ def train_refiner(run_dir, settings: RefinerSettings | None = None, out: str | p
     losses = []
     for step in range(1, settings.steps + 1):
         if should_stop():
-            emit("stopped", step=step - 1)
+            step -= 1
+            emit("stopped", step=step)
             break
         for group in optimiser.param_groups:
             group["lr"] = settings.lr * 0.5 * (1.0 + math.cos(math.pi * (step - 1) / settings.steps))
