@@ -47,7 +47,7 @@ def crop_camera(camera: Camera, window: Window, size: int) -> Camera:
 
 def crop_image(image: np.ndarray | torch.Tensor, window: Window, size: int, background) -> torch.Tensor:
     """``(3, size, size)``: ``window`` of an ``(H, W, 3)`` image, area-averaged then resampled."""
-    rgb = torch.as_tensor(np.asarray(image, np.float32)).permute(2, 0, 1)[None]
+    rgb = torch.as_tensor(np.array(image, np.float32)).permute(2, 0, 1)[None]
     bg = torch.as_tensor(background, dtype=torch.float32).reshape(1, 3, 1, 1)
     shrink = max(1, int(window.side // size))
     if shrink > 1:
