@@ -202,9 +202,26 @@ def test_true_cameras_follow_the_captures_cy_convention(tmp_path):
     np.testing.assert_allclose(top.camera(frame).K, bottom.camera(frame).K)
 
 
-def test_no_scored_view_reaches_any_source(capture, run, monkeypatch):
+@pytest.fixture(scope="module")
+def run_with_refiner(run, tmp_path_factory):
+    """The fake run with an (untrained, small) refiner beside it: the refined sources join in."""
+    import shutil
+
+    from mogaface.core.refiner.files import REFINER_FILE, save_refiner
+    from mogaface.core.refiner.network import Refiner
+
+    root = tmp_path_factory.mktemp("with_refiner") / "run"
+    shutil.copytree(run.root, root)
+    n_expr = run.load_avatar().flame.n_expr
+    save_refiner(Refiner({"crop": 32, "width": 8, "feature_dim": 32, "heads": 2, "layers": 1, "n_expr": n_expr}),
+                 root / REFINER_FILE)
+    return RunFolder(root)
+
+
+def test_no_scored_view_reaches_any_source(capture, run_with_refiner, monkeypatch):
     """Every standard source, on both protocols: the scored image is never loaded while the
     source computes that frame's parameters, and every request names the scored view."""
+    run = run_with_refiner
     avatar = run.load_avatar()
     loaded = []
     real = Capture.load_image
@@ -215,8 +232,9 @@ def test_no_scored_view_reaches_any_source(capture, run, monkeypatch):
 
     monkeypatch.setattr(Capture, "load_image", spy)
     sources = standard_sources(run, capture, avatar, fit_steps=(1,))
-    assert set(sources) == {"tracked", "smoothed", "fit_1", "true"}
+    assert set(sources) == {"tracked", "smoothed", "fit_1", "refined_1", "refined_3", "true"}
     checked = 0
+    source_of = dict(sources)
     for name, source in sources.items():
         real_params = source.params_for
 
@@ -230,8 +248,10 @@ def test_no_scored_view_reaches_any_source(capture, run, monkeypatch):
                 return params
             assert exclude_view == frame.camera_id, _name
             assert (frame.timestep_index, frame.camera_id) not in seen, _name
-            if _name.startswith("fit"):
-                assert seen, "test-time fitting looked at no view"
+            if _name.startswith(("fit", "refined")):
+                assert seen, f"{_name} looked at no view"
+                scored, looked_at = source_of[_name].inputs[-1]
+                assert scored == frame.camera_id and frame.camera_id not in looked_at, _name
             checked += 1
             return params
 

@@ -32,6 +32,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "train": ("train", "train an avatar on a capture (resumable run folder)"),
     "bench": ("bench", "run a benchmark and print JSON"),
     "environment": ("environment", "print where this process finds its code and packages (JSON)"),
+    "train-refiner": ("train_refiner", "train the multi-view refiner of per-frame parameters on a finished run"),
     "ablate": ("ablate", "train and score the MoGaFace ablation ladder on one capture (results.json, results.md)"),
 }
 

@@ -21,14 +21,18 @@ from .run_folder import RunFolder
 from .sources.base import ParamSource
 
 FIT_STEPS = (10, 30)
+REFINER_PASSES = (1, 3)
 IMAGE_METRICS = ("psnr", "ssim", "lpips")
 PARAMETER_METRICS = ("expr_rmse", "expr_vertex_mm", "vertex_mm")
 
 
-def standard_sources(run: RunFolder, capture, avatar, fit_steps=FIT_STEPS) -> dict[str, ParamSource]:
-    """name → source, in table order: tracked, smoothed, fit_N…, method (MoGaFace runs), true."""
+def standard_sources(run: RunFolder, capture, avatar, fit_steps=FIT_STEPS,
+                     refiner_passes=REFINER_PASSES) -> dict[str, ParamSource]:
+    """name → source, in table order: tracked, smoothed, fit_N…, refined_K… (runs with a refiner),
+    method (MoGaFace runs), true."""
     from .sources.fitted import FittedParams
     from .sources.mogaface import MoGaFaceParams
+    from .sources.refined import RefinedParams, run_refiner
     from .sources.smoothed import SmoothedParams, choose_sigmas
     from .sources.tracked import TrackedParams
     from .run_folder import capture_info
@@ -46,6 +50,10 @@ def standard_sources(run: RunFolder, capture, avatar, fit_steps=FIT_STEPS) -> di
         sources["smoothed"] = SmoothedParams(capture, tracked, choose_sigmas(capture, held_out))
     for steps in fit_steps:
         sources[f"fit_{steps}"] = FittedParams(avatar, capture, tracked, steps, run.background)
+    refiner = run_refiner(run.root, avatar)
+    if refiner is not None:
+        for passes in refiner_passes:
+            sources[f"refined_{passes}"] = RefinedParams(avatar, capture, tracked, refiner, run.background, passes)
     model = getattr(avatar, "model", None)
     if model is not None and model.mode != "off":
         sources["method"] = MoGaFaceParams(capture, run, model, image_assisted=True)

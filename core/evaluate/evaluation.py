@@ -64,6 +64,7 @@ def evaluate_run(
         from .sources.mogaface import run_inference
 
         avatar, source = run_inference(run, cap)  # MoGaFace runs: modules + image-assisted inference
+        avatar, source = _with_refiner(run, cap, avatar, source)
     avatar = run.load_avatar() if avatar is None else avatar
     source = TrackedParams(cap, run) if source is None else source
     skipped = {name: reason for name in protocols if (reason := protocol_unavailable(cap, name)) is not None}
@@ -106,6 +107,17 @@ def evaluate_run(
     write_json(out / "metrics.json", report.json_safe(result))
     write_text(out / "metrics.md", report.markdown_table(result))
     return result
+
+
+def _with_refiner(run, capture, avatar, source):
+    """A run with a refiner (``RUN/refiner.pt``) is scored with it, starting from the tracked parameters."""
+    from .sources.refined import RefinedParams, run_refiner
+
+    avatar = run.load_avatar() if avatar is None else avatar
+    refiner = run_refiner(run.root, avatar)
+    if refiner is None:
+        return avatar, source
+    return avatar, RefinedParams(avatar, capture, TrackedParams(capture, run), refiner, run.background, passes=3)
 
 
 def write_cross_identity(avatar, capture, run, driver, out: pathlib.Path, max_frames, progress, cameras=None) -> dict:

@@ -119,8 +119,11 @@ def score_variant(run_dir: pathlib.Path, max_frames, lpips: bool, fit_steps) -> 
     from ..io.atomic import write_json
 
     from ..evaluate.sources.fitted import fitting_settings
+    from ..refiner.files import REFINER_FILE
 
-    options = {"max_frames": max_frames, "lpips": lpips, "fit_steps": list(fit_steps), "fitting": fitting_settings()}
+    refiner = run_dir / REFINER_FILE  # a refiner trained later makes its rows: score again
+    options = {"max_frames": max_frames, "lpips": lpips, "fit_steps": list(fit_steps), "fitting": fitting_settings(),
+               "refiner": refiner.stat().st_mtime_ns if refiner.exists() else None}
     cached = run_dir / SCORES_FILE
     if cached.exists() and cached.stat().st_mtime >= (run_dir / "run.json").stat().st_mtime:
         try:

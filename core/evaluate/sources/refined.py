@@ -1,0 +1,59 @@
+"""The multi-view refiner's parameters (``RUN/refiner.pt``): the frozen avatar renders the frame
+at the base source's parameters, the refiner compares those renders with the other views of the
+timestep (the scored view left out) and regresses an offset; ``passes`` times, re-rendering between.
+
+Every set of views it looks at is recorded in :attr:`inputs` (scored camera, cameras seen).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ...data.capture import Capture, Frame
+from ...refiner.inference import refine
+from ..images import target_image
+from ..run_folder import capture_info
+from .base import ParamSource, timestep_of, views_at
+
+
+class RefinedParams:
+    uses_images = True
+
+    def __init__(self, avatar, capture: Capture, base: ParamSource, refiner, background, passes: int = 1,
+                 max_views: int = 4):
+        self.avatar = avatar
+        self.capture = capture
+        self.base = base
+        self.refiner = refiner
+        self.background = tuple(float(v) for v in background)
+        self.passes = passes
+        self.max_views = max_views
+        self.recorded = capture_info(capture.root).get("background")
+        self.inputs: list[tuple[str | None, list[str]]] = []
+        self.description = (f"multi-view refiner ({passes} pass{'es' if passes > 1 else ''}, "
+                            f"{max_views} other views; scored view left out)")
+
+    def _chosen(self, frames: list[Frame]) -> list[Frame]:
+        """At most ``max_views`` of the other views, spread over the rig."""
+        if len(frames) <= self.max_views:
+            return frames
+        return [frames[i] for i in np.unique(np.round(np.linspace(0, len(frames) - 1, self.max_views)).astype(int))]
+
+    def params_for(self, frame: Frame | int, exclude_view: str | None = None) -> dict[str, np.ndarray]:
+        timestep = timestep_of(frame)
+        start = self.base.params_for(timestep)
+        frames = self._chosen(views_at(self.capture, timestep, exclude_view))
+        if not frames or self.passes <= 0:
+            return start
+        self.inputs.append((exclude_view, [f.camera_id for f in frames]))
+        images = [target_image(self.capture, f, self.background, self.recorded) for f in frames]
+        cameras = [self.capture.camera(f) for f in frames]
+        return refine(self.avatar, self.refiner, start, cameras, images, self.background, self.passes)[-1]
+
+
+def run_refiner(run_root, avatar):
+    """The run's refiner, or None when it has none (``RUN/refiner.pt``)."""
+    from ...refiner.files import REFINER_FILE, load_refiner
+
+    path = run_root / REFINER_FILE
+    return load_refiner(path, avatar.flame.n_expr)[0] if path.exists() else None
