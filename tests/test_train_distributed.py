@@ -28,6 +28,7 @@ SETTINGS = {
     "eval": {"at_end": False, "lpips": False},
     "mogaface": {**C.FULL_METHOD, "encoder_views": 2, "input_size": 32},
     "flame": C.FLAME_FINETUNE,
+    "cameras": {"refine": True, "rotation_lr": 1e-3, "translation_lr": 1e-4},
 }
 
 
@@ -81,6 +82,9 @@ def assert_same_training(a: dict, b: dict):
             assert_close_under_adam(ga[key], gb[key], rates[key], a["step"], key)
     for key in ("expr", "jaw_pose", "translation"):
         assert_close_under_adam(a["table"][key], b["table"][key], rates[f"flame.{key}"], a["step"], key)
+    for key in ("rotation", "translation"):  # the camera offsets' gradients are reduced like the rest
+        assert a["cameras"][key].abs().max() > 0, key
+        assert_close_under_adam(a["cameras"][key], b["cameras"][key], rates[f"cameras.{key}"], a["step"], key)
     module_lr = max(g["lr"] for g in a["mogaface"]["optimizer"]["param_groups"])
     for key, value in a["mogaface"]["model"].items():
         other = b["mogaface"]["model"][key]

@@ -81,6 +81,16 @@ class FlameSection:
 
 
 @dataclasses.dataclass
+class CamerasSection:
+    refine: bool = _setting(False, "learn a 6-DoF offset per training camera (shared by all timesteps) for captures "
+                                   "whose calibration is off; writes RUN/cameras_refined.json")
+    rotation_lr: float = _setting(5e-4, "learning rate of the camera rotation offsets (radians)")
+    translation_lr: float = _setting(5e-5, "learning rate of the camera centre offsets (metres)")
+    gauge: str = _setting("mean", "'mean': the offsets' mean over the training cameras stays zero (the rig as a "
+                                  "whole keeps its calibrated pose); 'none': free")
+
+
+@dataclasses.dataclass
 class EvalSection:
     at_end: bool = _setting(True, "evaluate on the val split (held-out camera) after training")
     max_frames: int = _setting(0, "val frames to evaluate, evenly spaced (0: all)")
@@ -125,6 +135,7 @@ class TrainConfig:
     lr: LrSection = dataclasses.field(default_factory=LrSection)
     densify: DensifySection = dataclasses.field(default_factory=DensifySection)
     flame: FlameSection = dataclasses.field(default_factory=FlameSection)
+    cameras: CamerasSection = dataclasses.field(default_factory=CamerasSection)
     eval: EvalSection = dataclasses.field(default_factory=EvalSection)
     mogaface: MogafaceSection = dataclasses.field(default_factory=MogafaceSection)
 
@@ -152,6 +163,8 @@ class TrainConfig:
         if not 0 <= self.loss.ssim_weight <= 1:
             raise InputError(source, "loss.ssim_weight", "must lie in [0, 1]")
         _check_mogaface(self.mogaface, source)
+        if self.cameras.gauge not in ("mean", "none"):
+            raise InputError(source, "cameras.gauge", f"expected 'mean' or 'none', got {self.cameras.gauge!r}")
         from .config_ranges import check_ranges
 
         check_ranges(self, source)
