@@ -155,7 +155,7 @@ def test_training_refines_checkpoints_resumes_and_writes_the_cameras(capture, tm
         assert np.allclose(written[cid].w2c, refined.refined_camera(cid).w2c, atol=1e-9)
         assert not np.allclose(written[cid].w2c, calibrated[cid].w2c, atol=1e-7)
     errors = camera_errors(Capture.open(capture), straight)
-    assert errors["refined"]["cameras"] == len(a["ids"])
+    assert errors["refined"]["cameras"] == errors["calibrated_refined_cameras"]["cameras"] == len(a["ids"])
     assert json.loads((straight / "run.json").read_text())["cameras_refined"] is True
     assert offsets.ids == a["ids"]
 
