@@ -84,8 +84,8 @@ class FlameSection:
 class CamerasSection:
     refine: bool = _setting(False, "learn a 6-DoF offset per training camera (shared by all timesteps) for captures "
                                    "whose calibration is off; writes RUN/cameras_refined.json")
-    rotation_lr: float = _setting(5e-4, "learning rate of the camera rotation offsets (radians)")
-    translation_lr: float = _setting(5e-5, "learning rate of the camera centre offsets (metres)")
+    rotation_lr: float = _setting(2e-3, "learning rate of the camera rotation offsets (radians)")
+    translation_lr: float = _setting(2e-4, "learning rate of the camera centre offsets (metres)")
     gauge: str = _setting("mean", "'mean': the offsets' mean over the training cameras stays zero (the rig as a "
                                   "whole keeps its calibrated pose); 'none': free")
 
