@@ -249,8 +249,8 @@ def test_refined_cameras_of_a_run_replace_the_calibrated_poses(scenario, tmp_pat
         assert np.abs(got - expected).max() < 1e-2, camera_id
     unknown = tmp_path / "unknown.json"
     unknown.write_text(json.dumps({"cX": camera_fields(moved["c0"])}))
-    assert bpy.ops.mogaface.import_capture(filepath=str(scenario["capture"]), refined_cameras=str(unknown)) \
-        == {"CANCELLED"}
+    with pytest.raises(RuntimeError, match="cX.*camera id not in the capture"):  # reported, nothing imported
+        bpy.ops.mogaface.import_capture(filepath=str(scenario["capture"]), refined_cameras=str(unknown))
     assert bpy.ops.mogaface.import_capture(filepath=str(scenario["capture"])) == {"FINISHED"}  # as calibrated again
     bpy.context.scene.frame_start, bpy.context.scene.frame_end = 1, 4
 
