@@ -115,7 +115,7 @@ class MogafaceSection:
                                           "as in the paper)")
     rendered_offset: float = _setting(0.5, "std of the known expression offsets of those renders")
     rendered_views: int = _setting(4, "views rendered per step for that loss (the encoder's cameras)")
-    texture: bool = _setting(False, "latent texture attention (triplane + image feature → Δμ Δs Δr Δα)")
+    texture: bool = _setting(False, "latent texture attention (triplane + FLAME code → Δμ Δs Δr Δα)")
     plane_size: int = _setting(64, "triplane resolution n_f")
     plane_dim: int = _setting(16, "feature channels of each triplane plane")
     texture_hidden: int = _setting(32, "width of the texture attention and its MLP heads")
