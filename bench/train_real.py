@@ -112,9 +112,8 @@ def worker(capture: str, run: str, threads: int, steps: int, out: str) -> None:
     model = trainer.mogaface.model
     table_row = sum(v[0].numel() * v.element_size() for v in trainer.table.trainable().values())
     # Per timestep: its FLAME row and that row's two Adam moments (fine-tuning), its bank row
-    # (views × expression) with the written flags, and its stored image feature.
-    per_timestep = (3 * table_row + model.bank.values[0].numel() * 4 + model.bank.written[0].numel()
-                    + model.timestep_features[0].numel() * 4)
+    # (views × expression) with the written flags.
+    per_timestep = 3 * table_row + model.bank.values[0].numel() * 4 + model.bank.written[0].numel()
     result = {"gaussians": len(trainer.avatar.gaussians), "steps": steps, "threads": threads,
               "it_s": round(len(times) / sum(times), 3), "median_step_s": round(statistics.median(times), 3),
               "peak_rss_mb": round(_peak_rss_mb(), 1), "bytes_per_timestep": round(per_timestep),

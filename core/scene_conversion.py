@@ -139,13 +139,16 @@ class CaptureScene:
     moving_cameras: list[str] = dataclasses.field(default_factory=list)
 
 
-def capture_scene(folder) -> CaptureScene:
+def capture_scene(folder, refined_cameras=None) -> CaptureScene:
     """Open a capture folder and describe its Blender scene (cameras, images, timeline).
 
     Each camera's background image is its view at the first timestep it was captured in.
+    ``refined_cameras``: a run's ``cameras_refined.json`` (camera refinement); the cameras it
+    names take its poses, the others (the held-out camera) keep the capture's.
     Raises :class:`~mogaface.core.errors.CaptureError` naming the file of the first problem.
     """
     capture = Capture.open(folder)
+    refined = _refined_poses(capture, refined_cameras)
     first_frame = {}
     for frame in sorted(capture.frames(), key=lambda f: (f.timestep_index, f.camera_index)):
         first_frame.setdefault(frame.camera_id, frame)
@@ -153,9 +156,9 @@ def capture_scene(folder) -> CaptureScene:
     for camera_id, camera in capture.cameras.items():
         frame = first_frame.get(camera_id)
         image = capture.path(frame, "file_path") if frame is not None else None
-        pose = capture.camera(frame) if frame is not None else camera
+        pose = refined.get(camera_id) or (capture.camera(frame) if frame is not None else camera)
         cameras.append(blender_camera(pose, f"Camera {camera_id}", image))
-    moving = sorted({f.camera_id for f in capture.frames()
+    moving = sorted({f.camera_id for f in capture.frames() if f.camera_id not in refined
                      if not np.allclose(capture.camera(f).w2c, capture.camera(first_frame[f.camera_id]).w2c)})
     return CaptureScene(
         root=os.fspath(capture.root),
@@ -165,6 +168,23 @@ def capture_scene(folder) -> CaptureScene:
         n_timesteps=len(capture.timesteps),
         moving_cameras=moving,
     )
+
+
+def _refined_poses(capture: Capture, path) -> dict[str, Camera]:
+    """The refined cameras of ``path`` (none when ``path`` is empty), checked against the capture."""
+    if not path:
+        return {}
+    from .evaluate.images import read_cameras
+
+    path = pathlib.Path(path)
+    if not path.is_file():
+        raise InputError(path, None, "refined cameras file not found")
+    refined = read_cameras(path)
+    unknown = sorted(set(refined) - set(capture.cameras))
+    if unknown:
+        raise InputError(path, unknown[0], f"camera id not in the capture {capture.root} "
+                                           f"(known: {', '.join(sorted(capture.cameras))})")
+    return refined
 
 
 # -- images -------------------------------------------------------------------------------------

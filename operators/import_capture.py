@@ -98,6 +98,10 @@ class MOGAFACE_OT_import_capture(bpy.types.Operator):
 
     filepath: StringProperty(name="Capture Folder", subtype="DIR_PATH", description="Folder with transforms_train.json")
     filter_folder: BoolProperty(default=True, options={"HIDDEN"})
+    refined_cameras: StringProperty(
+        name="Refined Cameras", subtype="FILE_PATH", default="",
+        description="A training run's cameras_refined.json (camera refinement): the cameras it names take its "
+                    "poses; empty: the capture's calibration")
 
     def invoke(self, context, event):
         if self.filepath:
@@ -112,7 +116,8 @@ class MOGAFACE_OT_import_capture(bpy.types.Operator):
         folder = bpy.path.abspath(self.filepath)
         if os.path.isfile(folder):  # a file of the capture was picked: use its folder
             folder = os.path.dirname(folder)
-        description = run_core(self, core.capture_scene, folder)
+        refined = bpy.path.abspath(self.refined_cameras) if self.refined_cameras else None
+        description = run_core(self, core.capture_scene, folder, refined)
         if description is None:
             return {"CANCELLED"}
         scene = context.scene
@@ -126,6 +131,8 @@ class MOGAFACE_OT_import_capture(bpy.types.Operator):
         scene.frame_set(description.frame_start)
         scene.mogaface.capture_folder = description.root
         message = f"Imported {len(cameras)} cameras, {description.n_timesteps} timesteps"
+        if refined:
+            message += " (refined poses from the run)"
         if description.moving_cameras:
             message += (f"; {len(description.moving_cameras)} cameras move between sequences (a union dataset): "
                         "placed as in the first sequence")

@@ -207,6 +207,54 @@ def test_importing_a_capture_again_updates_its_cameras(scenario):
     bpy.context.scene.frame_start, bpy.context.scene.frame_end = 1, 4
 
 
+def _project_with_file_fields(fields: dict, points: np.ndarray) -> np.ndarray:
+    """Pixels of world points under a camera entry read as VHAP/GaussianAvatars readers do: an OpenGL
+    camera-to-world ``transform_matrix`` (camera looks down −z, y up) and ``fl_x, fl_y, cx, cy``."""
+    c2w = np.array(fields["transform_matrix"], dtype=np.float64)
+    local = (points - c2w[:3, 3]) @ c2w[:3, :3]  # world → OpenGL camera axes
+    x, y, z = local[:, 0], -local[:, 1], -local[:, 2]
+    cy = fields["h"] - fields["cy"]  # VHAP's cy counts from the bottom edge (docs/data-format.md)
+    return np.stack([fields["fl_x"] * x / z + fields["cx"], fields["fl_y"] * y / z + cy], axis=1)
+
+
+def test_refined_cameras_of_a_run_replace_the_calibrated_poses(scenario, tmp_path):
+    from mogaface.core.data.generator import perturb_camera
+    from mogaface.core.data.writer import camera_fields
+
+    capture = Capture.open(scenario["capture"])
+    rng = np.random.default_rng(3)
+    moved = {cid: perturb_camera(capture.cameras[cid], 2.0, rng) for cid in ("c0", "c1")}  # c2: held out
+    refined = tmp_path / "cameras_refined.json"
+    refined.write_text(json.dumps({cid: camera_fields(c) for cid, c in moved.items()}))
+    assert bpy.ops.mogaface.import_capture(filepath=str(scenario["capture"]), refined_cameras=str(refined)) \
+        == {"FINISHED"}
+    bpy.context.scene.frame_set(2)
+    head = evaluated_vertices(scenario["head_object"])
+    flame_points = sc.blender_to_flame(head)
+    cameras = {obj["mogaface_camera_id"]: obj for obj in bpy.data.collections["MoGaFace Capture"].objects}
+    entries = json.loads(refined.read_text())
+    scene = bpy.context.scene
+    for camera_id in ("c0", "c1", "c2"):
+        obj = cameras[camera_id]
+        apply = importlib.import_module(MODULE + ".operators.import_capture").apply_render_settings
+        assert apply(scene, obj)
+        if camera_id in entries:
+            expected = _project_with_file_fields(entries[camera_id], flame_points)
+            calibrated, _ = capture.cameras[camera_id].project(flame_points)
+            assert np.abs(calibrated - expected).max() > 1.0  # the refined pose is a different one
+        else:
+            expected, _ = capture.cameras[camera_id].project(flame_points)
+        got = np.array([(v.x * capture.cameras[camera_id].width, (1.0 - v.y) * capture.cameras[camera_id].height)
+                        for v in (world_to_camera_view(scene, obj, Vector(p)) for p in head)])
+        assert np.abs(got - expected).max() < 1e-2, camera_id
+    unknown = tmp_path / "unknown.json"
+    unknown.write_text(json.dumps({"cX": camera_fields(moved["c0"])}))
+    with pytest.raises(RuntimeError, match="cX.*camera id not in the capture"):  # reported, nothing imported
+        bpy.ops.mogaface.import_capture(filepath=str(scenario["capture"]), refined_cameras=str(unknown))
+    assert bpy.ops.mogaface.import_capture(filepath=str(scenario["capture"])) == {"FINISHED"}  # as calibrated again
+    bpy.context.scene.frame_start, bpy.context.scene.frame_end = 1, 4
+
+
 def test_timeline_covers_the_tracked_timesteps(scenario):
     scene = bpy.context.scene
     assert (scene.frame_start, scene.frame_end) == (1, 4)  # timestep t on frame t + 1

@@ -22,6 +22,14 @@ def _mesh(seed=0, faces=12):
     return vertices, torch.arange(3 * faces).view(faces, 3)
 
 
+def _code_params(n_expr, seed=None):
+    """A frame's FLAME parameters (batch 1) as the texture attention reads them (zeros: rest)."""
+    g = torch.Generator().manual_seed(seed) if seed is not None else None
+    draw = (lambda n: 0.3 * torch.randn(1, n, generator=g)) if g is not None else (lambda n: torch.zeros(1, n))
+    return {"expr": draw(n_expr), "jaw_pose": draw(3), "neck_pose": draw(3), "eyes_pose": draw(6),
+            "rotation": draw(3), "translation": draw(3)}
+
+
 def _gaussians(n_faces, seed=0):
     g = BoundGaussians.one_per_triangle(n_faces, 1)
     gen = torch.Generator().manual_seed(seed)
@@ -40,7 +48,7 @@ def test_shapes_and_zero_start():
     assert per_view.shape == (3, 5) and feature.shape == (16,)
     assert torch.count_nonzero(per_view) == 0  # zero-initialised last layer: no correction at start
     g = _gaussians(len(faces))
-    offsets = model.texture_offsets(g, faces, feature)
+    offsets = model.texture_offsets(g, faces, _code_params(5))
     assert {k: tuple(v.shape) for k, v in offsets.items()} == {
         "position": (12, 3), "log_scale": (12, 3), "rotation": (12, 4), "opacity": (12, 1)}
     plain = g.world(vertices, faces)
@@ -112,7 +120,7 @@ def test_texture_offsets_move_with_the_mesh():
     """Offsets live in triangle space: a rigid motion of the mesh moves the modulated Gaussians rigidly."""
     vertices, faces = _mesh(3)
     g = _gaussians(len(faces), 1)
-    texture = LatentTextureAttention(8, 8, 4, 8)
+    texture = LatentTextureAttention(8, 8, 4, 8)  # an 8-number code
     for head in texture.heads.values():
         torch.nn.init.normal_(head.weight, std=0.3)
     points = torch.rand(len(faces), 3) * 2 - 1
@@ -139,3 +147,50 @@ def test_model_file_round_trip(tmp_path):
     assert again.spec == model.spec and again.timesteps == [0, 4]
     for key, value in model.state_dict().items():
         assert torch.equal(value, again.state_dict()[key]), key
+
+
+def _trained_like(model):
+    """Non-zero output heads, as after training (they start at zero)."""
+    with torch.no_grad():
+        for head in model.texture.heads.values():
+            torch.nn.init.normal_(head.weight, std=0.3, generator=torch.Generator().manual_seed(4))
+    return model
+
+
+def test_texture_follows_the_flame_code_and_nothing_per_timestamp():
+    """The texture reads the expression and jaw/neck/eye rotations: it changes with them, not with the
+    rigid head pose, and two timestamps given the same parameters look the same."""
+    vertices, faces = _mesh()
+    model = _trained_like(MoGaFace(SPEC, [0, 1, 2], ["a", "b"], vertices))
+    g = _gaussians(len(faces))
+    params = _code_params(5, seed=1)
+    base = model.texture_offsets(g, faces, params)
+    for name in ("expr", "jaw_pose", "neck_pose", "eyes_pose"):
+        moved = {**params, name: params[name] + 0.2}
+        assert (model.texture_offsets(g, faces, moved)["position"] - base["position"]).abs().max() > 1e-4, name
+    rigid = {**params, "rotation": params["rotation"] + 0.5, "translation": params["translation"] + 0.1}
+    assert torch.equal(model.texture_offsets(g, faces, rigid)["position"], base["position"])
+    # Nothing in the model is indexed by timestamp for the texture: the same code, the same offsets,
+    # whatever the bank or the other per-timestamp memory holds.
+    model.bank.update(1, torch.tensor([0]), torch.ones(1, 5), 0.0)
+    assert torch.equal(model.texture_offsets(g, faces, params)["position"], base["position"])
+    assert not any("feature" in key for key in model.state_dict())
+
+
+def test_version_1_module_files_load_without_texture_and_are_refused_with_it(tmp_path):
+    from mogaface.core.io.torch_file import save_torch_state
+
+    vertices, _ = _mesh()
+    for texture in (False, True):
+        model = MoGaFace({**SPEC, "texture": texture}, [0, 4], ["a", "b"], vertices)
+        state = model.to_file_state()
+        state["version"] = 1
+        state["state"]["default_feature"] = torch.zeros(16)  # what version 1 also stored
+        state["state"]["timestep_features"] = torch.zeros(2, 16)
+        save_torch_state(state, tmp_path / "old.pt")
+        if texture:
+            with pytest.raises(InputError, match="version-1 .*texture attention.*train the run again"):
+                MoGaFace.load(tmp_path / "old.pt")
+        else:
+            again = MoGaFace.load(tmp_path / "old.pt")
+            assert torch.equal(again.bank.values, model.bank.values)

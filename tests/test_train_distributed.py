@@ -123,6 +123,26 @@ def test_two_ranks_train_the_same_avatar_as_one_process_with_the_batch(one_proce
     assert psnr(a, render_initial(one_process)) < 35.0  # training did change the picture
 
 
+def test_two_ranks_refine_the_cameras_as_one_process(capture, tmp_path):
+    """Camera offsets' gradients are summed over the ranks like the Gaussians' (a Freeze run with
+    refinement: the modules are left out, whose rounding-noise gradients Adam would amplify)."""
+    settings = {**SETTINGS, "mogaface": {"mode": "off"}, "flame": {"finetune": False},
+                "cameras": {"refine": True, "rotation_lr": 1e-3, "translation_lr": 1e-4}}
+    config = tmp_path / "config.toml"
+    config.write_text(C.to_toml(C.resolve(overrides=settings)))
+    Trainer(capture, tmp_path / "one", C.load(config)).run()
+    process = torchrun(2, "train", capture, "--out", tmp_path / "two", "--config", config, "--quiet")
+    _, err = process.communicate(timeout=600)
+    assert process.returncode == 0, err[-3000:]
+    a, b = (load_checkpoint(list_checkpoints(tmp_path / run / "checkpoints")[-1]) for run in ("one", "two"))
+    rates = {g["name"]: g["lr"] for g in a["optimizer"]["param_groups"]}
+    assert a["cameras"]["ids"] == b["cameras"]["ids"]
+    for key in ("rotation", "translation"):
+        assert a["cameras"][key].abs().max() > 0, key
+        assert_close_under_adam(a["cameras"][key], b["cameras"][key], rates[f"cameras.{key}"], a["step"], key)
+    assert torch.equal(avatar_tensors(a)["binding"], avatar_tensors(b)["binding"])
+
+
 def render(run, initial=False):
     from mogaface.core.avatar.avatar import Avatar
     from mogaface.core.train.data import TrainingData

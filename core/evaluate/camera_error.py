@@ -33,12 +33,17 @@ def _summary(cameras: dict, truth: dict) -> dict:
 
 
 def camera_errors(capture, run_dir: str | os.PathLike | None = None) -> dict:
-    """``{"calibrated": {...}, "refined": {...}}`` mean errors; ``{}`` for captures without true cameras."""
+    """``{"calibrated": {...}, "refined": {...}, "calibrated_refined_cameras": {...}}`` mean errors;
+    ``{}`` for captures without true cameras."""
     truth = ScoringCameras(capture).truth
     if not truth:
         return {}
     result = {"calibrated": _summary(capture.cameras, truth)}
     refined = pathlib.Path(run_dir) / REFINED_CAMERAS_FILE if run_dir is not None else None
     if refined is not None and refined.exists():
-        result["refined"] = _summary(read_cameras(refined), truth)
+        cameras = read_cameras(refined)
+        result["refined"] = _summary(cameras, truth)
+        # the calibration of the same cameras (the held-out one is not refined): the fair "before"
+        result["calibrated_refined_cameras"] = _summary({cid: capture.cameras[cid] for cid in cameras
+                                                         if cid in capture.cameras}, truth)
     return result

@@ -1,8 +1,8 @@
 """A trained avatar with its MoGaFace modules: the same ``render`` call, texture offsets included.
 
-Evaluation, rendering and Blender call ``render(flame_params, camera, background)``; a parameter
-dict may carry the timestamp's image feature as ``"texture_feature"`` (what the texture
-attention reads); without it the learned default feature is used (parameter-driven inference).
+Evaluation, rendering and Blender call ``render(flame_params, camera, background)``; the texture
+attention reads the same parameters (expression, jaw, neck, eyes), so the avatar's appearance
+follows whichever parameters drive it (tracked, smoothed, fitted, keyed in Blender).
 """
 
 from __future__ import annotations
@@ -18,7 +18,6 @@ from .model import MoGaFace
 from .posing import world_with_offsets
 
 MODULES_FILE = "mogaface.pt"
-FEATURE_KEY = "texture_feature"
 
 
 class ModulatedAvatar:
@@ -31,30 +30,15 @@ class ModulatedAvatar:
     def __getattr__(self, name):
         return getattr(self.avatar, name)
 
-    @staticmethod
-    def _split(flame_params: dict) -> tuple[dict, torch.Tensor | None]:
-        params = dict(flame_params)
-        feature = params.pop(FEATURE_KEY, None)
-        if feature is not None:
-            feature = torch.as_tensor(feature, dtype=torch.float32).reshape(-1)
-        return params, feature
-
-    def world_posed(self, vertices: torch.Tensor, feature: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
-        """World Gaussians on a posed mesh, modulated by the texture attention reading ``feature``."""
+    def world_posed(self, vertices: torch.Tensor, flame_params: dict) -> dict[str, torch.Tensor]:
+        """World Gaussians on the mesh ``vertices`` posed by ``flame_params``, modulated by the
+        texture attention reading those parameters."""
         faces = self.avatar.flame.faces
-        offsets = self.model.texture_offsets(self.avatar.gaussians, faces, feature)
+        offsets = self.model.texture_offsets(self.avatar.gaussians, faces, flame_params)
         return world_with_offsets(self.avatar.gaussians, vertices, faces, offsets)
 
     def world_gaussians(self, flame_params: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
-        params, feature = self._split(flame_params)
-        return self.world_posed(self.avatar.posed_vertices(params), feature)
-
-    def posed_vertices(self, flame_params: dict[str, torch.Tensor]) -> torch.Tensor:
-        return self.avatar.posed_vertices(self._split(flame_params)[0])
-
-    def render_posed(self, vertices: torch.Tensor, camera, background=(1.0, 1.0, 1.0),
-                     feature: torch.Tensor | None = None) -> SplatOutput:
-        return render_world(self.world_posed(vertices, feature), camera, background)
+        return self.world_posed(self.avatar.posed_vertices(flame_params), flame_params)
 
     def render(self, flame_params: dict[str, torch.Tensor], camera, background=(1.0, 1.0, 1.0)) -> SplatOutput:
         return render_world(self.world_gaussians(flame_params), camera, background)

@@ -1,8 +1,7 @@
 """Multi-view fusion: multi-head cross-attention of each view's feature over all views of a timestamp.
 
 Each view's feature asks (query) the features of every view of the timestamp (keys, values),
-so its correction is informed by the whole rig; the mean of the fused features is the
-timestamp's image feature ``F`` that the texture attention reads.
+so its correction is informed by the whole rig.
 """
 
 from __future__ import annotations

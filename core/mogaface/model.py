@@ -22,10 +22,11 @@ from .encoder import ViewEncoder
 from .fusion import MultiViewFusion
 from ..avatar.binding import triangle_frames
 from .posing import canonical_points
-from .texture_attention import LatentTextureAttention
+from .texture_attention import LatentTextureAttention, code_size, flame_code
 
 MODEL_FORMAT = "mogaface-modules"
-MODEL_VERSION = 1
+# 2: the texture attention reads the FLAME code (1 read a per-timestamp image feature).
+MODEL_VERSION = 2
 MODES = ("off", "single", "multi")
 SPEC_KEYS = ("mode", "bank", "texture", "input_size", "feature_dim", "encoder_width", "heads", "hidden",
              "plane_size", "plane_dim", "texture_hidden", "n_expr")
@@ -58,16 +59,13 @@ class MoGaFace(nn.Module):
         self.fusion = MultiViewFusion(d, spec["heads"])
         self.head = CorrectionHead(d, spec["n_expr"], spec["hidden"])
         self.bank = ExpressionBank(len(self.timesteps), len(self.cameras), spec["n_expr"]) if spec["bank"] else None
-        self.texture = LatentTextureAttention(d, spec["plane_size"], spec["plane_dim"], spec["texture_hidden"]) \
-            if spec["texture"] else None
+        self.texture = LatentTextureAttention(code_size(spec["n_expr"]), spec["plane_size"], spec["plane_dim"],
+                                              spec["texture_hidden"]) if spec["texture"] else None
         vertices = canonical_vertices.detach().float()
         low, high = vertices.min(0).values, vertices.max(0).values
         self.register_buffer("canonical_vertices", vertices.clone())
         self.register_buffer("canonical_centre", 0.5 * (low + high))
         self.register_buffer("canonical_half_extent", (0.55 * (high - low).max()).reshape(1))
-        self.register_buffer("default_feature", torch.zeros(d))
-        self.register_buffer("default_feature_count", torch.zeros((), dtype=torch.long))
-        self.register_buffer("timestep_features", torch.zeros(len(self.timesteps), d))
         self.register_buffer("correction_mean", torch.zeros(spec["n_expr"]))
         self._canonical_frames = None  # the neutral mesh's triangle frames, computed once
 
@@ -86,29 +84,21 @@ class MoGaFace(nn.Module):
         return self.head(fused, tracked_expr), fused.mean(0)
 
     @torch.no_grad()
-    def observe_feature(self, feature: torch.Tensor, decay: float = 0.99) -> None:
-        """Keep a running mean of image features: the feature of parameter-driven inference."""
-        count = int(self.default_feature_count)
-        rate = 1.0 / (count + 1) if count < 100 else 1.0 - decay
-        self.default_feature.mul_(1.0 - rate).add_(rate * feature.detach())
-        self.default_feature_count.add_(1)
-
-    @torch.no_grad()
     def observe_correction(self, delta: torch.Tensor, decay: float = 0.99) -> None:
         """Running mean of the mesh corrections over training steps (its drift is penalised)."""
         self.correction_mean.mul_(decay).add_((1.0 - decay) * delta.detach())
 
     # -- texture ------------------------------------------------------------------------------
-    def texture_offsets(self, gaussians, faces: torch.Tensor, feature: torch.Tensor | None):
-        """Per-Gaussian local offsets, or None without the texture module."""
+    def texture_offsets(self, gaussians, faces: torch.Tensor, params: dict):
+        """Per-Gaussian local offsets for a frame's FLAME ``params`` (its corrected expression and
+        pose), or None without the texture module."""
         if self.texture is None:
             return None
-        feature = self.default_feature if feature is None else feature
         if self._canonical_frames is None or len(self._canonical_frames.scale) != len(faces):
             self._canonical_frames = triangle_frames(self.canonical_vertices, faces)
         points = canonical_points(gaussians, self._canonical_frames, self.canonical_centre,
                                   self.canonical_half_extent)
-        return self.texture(points, feature)
+        return self.texture(points, flame_code(params, int(self.spec["n_expr"])))
 
     # -- files --------------------------------------------------------------------------------
     def to_file_state(self) -> dict:
@@ -122,6 +112,8 @@ class MoGaFace(nn.Module):
 
     @classmethod
     def from_file_state(cls, state: dict, source=None) -> "MoGaFace":
+        if isinstance(state, dict) and state.get("format") == MODEL_FORMAT and state.get("version") == 1:
+            state = _from_version_1(state, source)
         check_format(state, source, MODEL_FORMAT, MODEL_VERSION)
         tensors = state["state"]
         model = cls(state["spec"], state["timesteps"], state["cameras"], tensors["canonical_vertices"])
@@ -131,3 +123,17 @@ class MoGaFace(nn.Module):
     @classmethod
     def load(cls, path: str | os.PathLike) -> "MoGaFace":
         return cls.from_file_state(load_torch_state(path, "MoGaFace module file"), source=path)
+
+
+_VERSION_1_FEATURES = ("default_feature", "default_feature_count", "timestep_features")
+
+
+def _from_version_1(state: dict, source) -> dict:
+    """A version-1 file without texture attention loads (its image-feature memory is dropped); one
+    with texture attention cannot: that module read image features, which version 2 no longer has."""
+    if state.get("spec", {}).get("texture"):
+        raise InputError(source, "version", "a version-1 MoGaFace module file whose texture attention reads "
+                                            "per-timestamp image features; this version conditions it on the "
+                                            "FLAME code: train the run again")
+    tensors = {k: v for k, v in state["state"].items() if k not in _VERSION_1_FEATURES}
+    return {**state, "version": MODEL_VERSION, "state": tensors}

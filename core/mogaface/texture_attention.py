@@ -1,10 +1,15 @@
 """Latent texture attention: a triplane read at each Gaussian's canonical position, fused with the
-timestamp's image feature by a light attention block, decoded by a multi-head MLP into per-Gaussian
+frame's FLAME code by a light attention block, decoded by a multi-head MLP into per-Gaussian
 offsets ``Δμ (3), Δs (3), Δr (4), Δα (1)`` in the Gaussian's triangle-local space.
 
-The image feature is split into a few tokens; each Gaussian's triplane descriptor queries them
-(one head of dot-product attention), so what the views show modulates each Gaussian differently.
-Every output head starts at zero: an untrained module changes nothing.
+The code (:func:`flame_code`: the corrected expression and the jaw, neck and eye rotations) is split
+into a few tokens; each Gaussian's triplane descriptor queries them (one head of dot-product
+attention), so the expression modulates each Gaussian differently. The paper conditions on the
+timestamp's image feature instead; a per-timestamp input lets the module learn a per-frame
+correction that no parameter reproduces (it absorbed the tracker's frame-by-frame misalignment
+here) and leaves it nothing to animate with on a new frame. Read from the parameters, the
+texture follows whichever parameters drive the avatar. Every output head starts at zero: an
+untrained module changes nothing.
 """
 
 from __future__ import annotations
@@ -16,18 +21,41 @@ import torch.nn.functional as F
 from torch import nn
 
 OFFSET_SIZES = {"position": 3, "log_scale": 3, "rotation": 4, "opacity": 1}
+# The FLAME parameters the texture reads, and their sizes besides the expression's. The global
+# rotation and the translation move the head rigidly and do not change how it looks.
+CODE_JOINTS = {"jaw_pose": 3, "neck_pose": 3, "eyes_pose": 6}
+
+
+def code_size(n_expr: int) -> int:
+    return n_expr + sum(CODE_JOINTS.values())
+
+
+def flame_code(params: dict, n_expr: int) -> torch.Tensor:
+    """``(code_size,)``: one frame's expression (first ``n_expr`` coefficients) and jaw, neck and eye
+    rotations from a FLAME parameter dict (batch 1; differentiable)."""
+    from ..errors import InputError
+
+    parts = []
+    for name, size in {"expr": n_expr, **CODE_JOINTS}.items():
+        if name not in params:
+            raise InputError(None, name, "the texture attention needs this FLAME parameter")
+        value = torch.as_tensor(params[name], dtype=torch.float32).reshape(-1)
+        if value.numel() < size:
+            raise InputError(None, name, f"expected at least {size} values, got {value.numel()}")
+        parts.append(value[:size])
+    return torch.cat(parts)
 
 
 class LatentTextureAttention(nn.Module):
-    """Canonical points ``(N, 3)`` in [-1, 1]³ and an image feature ``(d,)`` → offsets per Gaussian."""
+    """Canonical points ``(N, 3)`` in [-1, 1]³ and a FLAME code ``(code_dim,)`` → offsets per Gaussian."""
 
-    def __init__(self, feature_dim: int = 64, plane_size: int = 64, plane_dim: int = 16, hidden: int = 32,
+    def __init__(self, code_dim: int, plane_size: int = 64, plane_dim: int = 16, hidden: int = 32,
                  tokens: int = 4):
         super().__init__()
         self.planes = nn.Parameter(0.1 * torch.randn(3, plane_dim, plane_size, plane_size,
                                                      generator=torch.Generator().manual_seed(0)))
         self.tokens, self.hidden_dim = tokens, hidden
-        self.to_tokens = nn.Linear(feature_dim, tokens * hidden)
+        self.to_tokens = nn.Linear(code_dim, tokens * hidden)
         self.query = nn.Linear(3 * plane_dim, hidden)
         self.mix = nn.Sequential(nn.Linear(3 * plane_dim + hidden, hidden), nn.ReLU(inplace=True))
         self.heads = nn.ModuleDict({name: nn.Linear(hidden, size) for name, size in OFFSET_SIZES.items()})
@@ -43,9 +71,9 @@ class LatentTextureAttention(nn.Module):
                                 align_corners=False)  # (3, C, 1, N)
         return sampled[:, :, 0].permute(2, 0, 1).reshape(points.shape[0], -1)
 
-    def forward(self, points: torch.Tensor, feature: torch.Tensor) -> dict[str, torch.Tensor]:
+    def forward(self, points: torch.Tensor, code: torch.Tensor) -> dict[str, torch.Tensor]:
         h = self.sample(points)
-        tokens = self.to_tokens(feature.reshape(-1)).view(self.tokens, self.hidden_dim)
+        tokens = self.to_tokens(code.reshape(-1)).view(self.tokens, self.hidden_dim)
         scores = self.query(h) @ tokens.T / math.sqrt(self.hidden_dim)  # (N, tokens)
         attended = scores.softmax(-1) @ tokens  # (N, hidden)
         v = self.mix(torch.cat([h, attended], dim=1))

@@ -24,7 +24,6 @@ class StepCorrection:
     """What the trainer needs from MoGaFace for one image."""
 
     expr_delta: torch.Tensor  # (n_expr,) differentiable
-    feature: torch.Tensor  # (d,) differentiable
     consistency: torch.Tensor  # scalar
     centring: torch.Tensor  # scalar: the correction's drift against its running mean
     inputs: list  # the encoder's frames
@@ -79,7 +78,7 @@ class CorrectionTraining:
         model = self.model
         inputs = self.encoder_frames(frame, generator)
         images = self.views.batch(inputs)
-        per_view, feature = model.correct(images, tracked_expr.detach())
+        per_view, _ = model.correct(images, tracked_expr.detach())
         row = model.row[frame.timestep_index]
         zero = per_view.sum() * 0
         slots = blended = None
@@ -93,14 +92,14 @@ class CorrectionTraining:
             blended = bank.blend(row, slots, per_view, momentum)
             delta = bank.mean_with(row, slots, blended)
         centring = (model.correction_mean.detach().clone() * delta).sum()
-        return StepCorrection(delta, feature, consistency, centring, inputs, row, slots, blended)
+        return StepCorrection(delta, consistency, centring, inputs, row, slots, blended)
 
     # -- what a step leaves behind (bank writes, running means) ----------------------------------
     def record_size(self) -> int:
-        """Length of one view's :meth:`record`: row, slot mask, bank values, feature, correction."""
+        """Length of one view's :meth:`record`: row, slot mask, bank values, correction."""
         model = self.model
         views, n_expr = len(model.cameras), int(model.spec["n_expr"])
-        return 1 + views + views * n_expr + int(model.spec["feature_dim"]) + n_expr
+        return 1 + views + views * n_expr + n_expr
 
     def record(self, correction: StepCorrection) -> torch.Tensor:
         """One view's step outcome as a flat tensor, so ranks can sum the records of their views."""
@@ -112,13 +111,13 @@ class CorrectionTraining:
             mask[correction.slots] = 1.0
             values[correction.slots] = correction.blended.detach()
         return torch.cat([torch.tensor([float(correction.row)]), mask, values.reshape(-1),
-                          correction.feature.detach().reshape(-1), correction.expr_delta.detach().reshape(-1)])
+                          correction.expr_delta.detach().reshape(-1)])
 
     @torch.no_grad()
     def commit(self, record: torch.Tensor) -> None:
-        """Apply one view's record after the optimiser step: bank write, running feature and correction."""
+        """Apply one view's record after the optimiser step: bank write, running correction."""
         model = self.model
-        views, n_expr, d = len(model.cameras), int(model.spec["n_expr"]), int(model.spec["feature_dim"])
+        views, n_expr = len(model.cameras), int(model.spec["n_expr"])
         row = int(round(float(record[0])))
         mask = record[1:1 + views] > 0.5
         values = record[1 + views:1 + views + views * n_expr].view(views, n_expr)
@@ -126,8 +125,7 @@ class CorrectionTraining:
         if model.bank is not None and mask.any():
             slots = torch.nonzero(mask)[:, 0]
             model.bank.store(row, slots, values[slots])
-        model.observe_feature(rest[:d])
-        model.observe_correction(rest[d:d + n_expr])
+        model.observe_correction(rest[:n_expr])
 
     def rendered_loss(self, avatar, params: dict, inputs: list, background, generator: torch.Generator):
         """The self-supervised correction loss on renders from the first ``rendered_views`` encoder cameras."""
@@ -144,8 +142,8 @@ class CorrectionTraining:
 
     # -- after training -----------------------------------------------------------------------
     @torch.no_grad()
-    def timestep_correction(self, timestep: int, tracked_expr: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """The final ``Δψ`` and image feature of a training timestamp, from its training views only.
+    def timestep_correction(self, timestep: int, tracked_expr: torch.Tensor) -> torch.Tensor:
+        """The final ``Δψ`` of a training timestamp, from its training views only.
 
         With the bank, ``Δψ`` is the bank's mean (what training posed the mesh with); without it,
         the modules' regression over all the timestamp's training views.
@@ -155,13 +153,12 @@ class CorrectionTraining:
         if model.mode == "single":  # one view per regression, averaged over every training view
             outputs = [model.correct(self.views.batch([f]), tracked_expr) for f in frames]
             per_view = torch.cat([o[0] for o in outputs])
-            feature = torch.stack([o[1] for o in outputs]).mean(0)
         else:
-            per_view, feature = model.correct(self.views.batch(frames), tracked_expr)
+            per_view, _ = model.correct(self.views.batch(frames), tracked_expr)
         row = model.row[timestep]
         if model.bank is not None and model.bank.has(row):
-            return model.bank.mean(row), feature
-        return per_view.mean(0), feature
+            return model.bank.mean(row)
+        return per_view.mean(0)
 
     def state_dict(self) -> dict:
         return {"model": {k: v.detach().clone() for k, v in self.model.state_dict().items()},

@@ -81,6 +81,16 @@ class FlameSection:
 
 
 @dataclasses.dataclass
+class CamerasSection:
+    refine: bool = _setting(False, "learn a 6-DoF offset per training camera (shared by all timesteps) for captures "
+                                   "whose calibration is off; writes RUN/cameras_refined.json")
+    rotation_lr: float = _setting(2e-3, "learning rate of the camera rotation offsets (radians)")
+    translation_lr: float = _setting(2e-4, "learning rate of the camera centre offsets (metres)")
+    gauge: str = _setting("mean", "'mean': the offsets' mean over the training cameras stays zero (the rig as a "
+                                  "whole keeps its calibrated pose); 'none': free")
+
+
+@dataclasses.dataclass
 class EvalSection:
     at_end: bool = _setting(True, "evaluate on the val split (held-out camera) after training")
     max_frames: int = _setting(0, "val frames to evaluate, evenly spaced (0: all)")
@@ -105,7 +115,7 @@ class MogafaceSection:
                                           "as in the paper)")
     rendered_offset: float = _setting(0.5, "std of the known expression offsets of those renders")
     rendered_views: int = _setting(4, "views rendered per step for that loss (the encoder's cameras)")
-    texture: bool = _setting(False, "latent texture attention (triplane + image feature → Δμ Δs Δr Δα)")
+    texture: bool = _setting(False, "latent texture attention (triplane + FLAME code → Δμ Δs Δr Δα)")
     plane_size: int = _setting(64, "triplane resolution n_f")
     plane_dim: int = _setting(16, "feature channels of each triplane plane")
     texture_hidden: int = _setting(32, "width of the texture attention and its MLP heads")
@@ -125,6 +135,7 @@ class TrainConfig:
     lr: LrSection = dataclasses.field(default_factory=LrSection)
     densify: DensifySection = dataclasses.field(default_factory=DensifySection)
     flame: FlameSection = dataclasses.field(default_factory=FlameSection)
+    cameras: CamerasSection = dataclasses.field(default_factory=CamerasSection)
     eval: EvalSection = dataclasses.field(default_factory=EvalSection)
     mogaface: MogafaceSection = dataclasses.field(default_factory=MogafaceSection)
 
@@ -152,6 +163,8 @@ class TrainConfig:
         if not 0 <= self.loss.ssim_weight <= 1:
             raise InputError(source, "loss.ssim_weight", "must lie in [0, 1]")
         _check_mogaface(self.mogaface, source)
+        if self.cameras.gauge not in ("mean", "none"):
+            raise InputError(source, "cameras.gauge", f"expected 'mean' or 'none', got {self.cameras.gauge!r}")
         from .config_ranges import check_ranges
 
         check_ranges(self, source)

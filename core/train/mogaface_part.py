@@ -13,7 +13,7 @@ import torch
 
 from ..data import layout
 from ..io.npz import save_npz
-from ..mogaface.avatar import FEATURE_KEY, MODULES_FILE, ModulatedAvatar, render_world
+from ..mogaface.avatar import MODULES_FILE, ModulatedAvatar, render_world
 from ..mogaface.posing import world_with_offsets
 from ..mogaface.training import CorrectionTraining
 
@@ -33,7 +33,8 @@ def build_mogaface(config, data, table, avatar) -> CorrectionTraining | None:
                               int(table.expr.shape[1]), config.train.steps, seed=config.train.seed)
 
 
-def mogaface_world(part: CorrectionTraining, avatar, table, frame, background, step: int, generator):
+def mogaface_world(part: CorrectionTraining, avatar, table, frame, background, step: int, generator,
+                   move_scene=None):
     """Posed vertices, world Gaussians and the step's correction for one training image."""
     params = table.params(frame.timestep_index)
     correction = part.step(frame, params["expr"][0], step, generator)
@@ -42,34 +43,33 @@ def mogaface_world(part: CorrectionTraining, avatar, table, frame, background, s
     params = {**params, "expr": params["expr"] + correction.expr_delta[None]}
     vertices = avatar.posed_vertices(params)
     faces = avatar.flame.faces
-    offsets = part.model.texture_offsets(avatar.gaussians, faces, correction.feature)
-    return vertices, world_with_offsets(avatar.gaussians, vertices, faces, offsets), correction
+    offsets = part.model.texture_offsets(avatar.gaussians, faces, params)  # the corrected code
+    world = world_with_offsets(avatar.gaussians, vertices, faces, offsets)
+    return vertices, world if move_scene is None else move_scene(world), correction
 
 
-def mogaface_render(part: CorrectionTraining, avatar, table, frame, camera, background, step: int, generator):
-    """Posed vertices, the render and the step's correction for one training image."""
-    vertices, world, correction = mogaface_world(part, avatar, table, frame, background, step, generator)
+def mogaface_render(part: CorrectionTraining, avatar, table, frame, camera, background, step: int, generator,
+                    move_scene=None):
+    """Posed vertices, the render and the step's correction for one training image (``move_scene``:
+    the camera refinement's scene motion for that camera, or None)."""
+    vertices, world, correction = mogaface_world(part, avatar, table, frame, background, step, generator,
+                                                 move_scene)
     return vertices, render_world(world, camera, background), correction
 
 
 @torch.no_grad()
 def finish_mogaface(part: CorrectionTraining, avatar, table, root: pathlib.Path):
-    """Store per-timestamp features, save ``mogaface.pt`` and ``flame_param_corrected/``.
+    """Save ``mogaface.pt`` and ``flame_param_corrected/``.
 
-    Returns the corrected table, the modulated avatar and the render extras for the val check.
+    Returns the corrected table and the modulated avatar (whose texture attention reads the
+    corrected parameters).
     """
     model = part.model
     corrected = copy.deepcopy(table)
     for t in table.timesteps:
         row = table.row[t]
-        delta, feature = part.timestep_correction(t, table.expr[row])
-        corrected.expr[row] += delta
-        model.timestep_features[model.row[t]] = feature
+        corrected.expr[row] += part.timestep_correction(t, table.expr[row])
     model.save(root / MODULES_FILE)
     for t in table.timesteps:
         save_npz(root / CORRECTED_DIR / f"{t:05d}.npz", layout.batched_flame_params(corrected.numpy(t)))
-
-    def extra(timestep: int) -> dict:
-        return {FEATURE_KEY: model.timestep_features[model.row[timestep]][None]} if model.texture is not None else {}
-
-    return corrected, ModulatedAvatar(avatar, model), extra
+    return corrected, ModulatedAvatar(avatar, model)

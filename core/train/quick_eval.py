@@ -19,12 +19,8 @@ def evenly_spaced(items: list, count: int) -> list:
     return [items[i] for i in np.linspace(0, len(items) - 1, count).round().astype(int)]
 
 
-def evaluate_val(avatar: Avatar, data: TrainingData, table: FlameTable, settings: EvalSection,
-                 extra=None) -> dict:
-    """Mean PSNR/SSIM(/LPIPS) over val frames, on the whole image and on the foreground mask.
-
-    ``extra(timestep)`` may add render inputs (a MoGaFace run's stored image feature).
-    """
+def evaluate_val(avatar: Avatar, data: TrainingData, table: FlameTable, settings: EvalSection) -> dict:
+    """Mean PSNR/SSIM(/LPIPS) over val frames, on the whole image and on the foreground mask."""
     frames = [f for f in data.capture.frames("val") if f.timestep_index in table.row]
     frames = evenly_spaced(frames, settings.max_frames)
     background = torch.tensor(data.background, dtype=torch.float32)
@@ -32,8 +28,6 @@ def evaluate_val(avatar: Avatar, data: TrainingData, table: FlameTable, settings
     for frame in frames:
         with torch.no_grad():
             params = table.params(frame.timestep_index)
-            if extra is not None:
-                params = {**params, **extra(frame.timestep_index)}
             out = avatar.render(params, data.capture.camera(frame), background)
         pred = out.rgb.clamp(0, 1).numpy()
         target, mask = data.capture.load_image(frame)

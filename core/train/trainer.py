@@ -25,11 +25,13 @@ from ..avatar.binding import triangle_frames
 from ..avatar.densify import DensifySchedule, DensifyStrategy
 from ..data import layout
 from ..errors import InputError, MogafaceError
+from ..evaluate.camera_error import REFINED_CAMERAS_FILE
 from ..io.atomic import atomic_path, write_json, write_text
 from ..io.npz import save_npz
 from ..splat import cancel
 from ..splat.cancel import RenderCancelled
 from . import config as config_module
+from .camera_refine import CameraOffsets, write_refined_cameras
 from .checkpoint import latest_checkpoint, newest_intact_checkpoint, save_checkpoint
 from .run_lock import resume_notes, take_run_folder
 from .config import TrainConfig
@@ -38,6 +40,7 @@ from .distributed import Communicator
 from .events import EventLog, Listener
 from .losses import image_loss, position_hinge, psnr, scaling_hinge
 from .mogaface_part import build_mogaface, finish_mogaface, mogaface_render
+from ..mogaface.avatar import render_world
 from .run_folder import RUN_FORMAT, RUN_VERSION, RunFolder
 
 GAUSSIAN_GROUPS = ("local_position", "local_log_scale", "local_rotation", "opacity_logit", "sh_dc", "sh_rest")
@@ -135,6 +138,7 @@ class Trainer:
         self.comm.barrier()  # the other ranks read the head model rank 0 copied
         self.table = self.data.flame_table()
         self.avatar = Avatar.initial(head, self.config.densify.max_sh_degree, n_vertices=self.table.n_vertices)
+        self.camera_offsets = self._build_camera_offsets()
         self._build_optimizer()
         self.mogaface = build_mogaface(self.config, self.data, self.table, self.avatar)
         self.strategy = DensifyStrategy(densify_schedule(self.config), len(self.avatar.gaussians),
@@ -152,6 +156,12 @@ class Trainer:
         with torch.no_grad():
             for name, value in self.table.trainable().items():
                 value.copy_(state["table"][name])
+        self.camera_offsets = self._build_camera_offsets()
+        if self.camera_offsets is not None:
+            if "cameras" not in state:
+                raise InputError(self.run_folder.checkpoints, "cameras", "the checkpoint holds no camera offsets "
+                                                                        "(the run was started without [cameras] refine)")
+            self.camera_offsets.load(state["cameras"], self.run_folder.checkpoints)
         self._build_optimizer()
         self.optimizer.load_state_dict(state["optimizer"])
         self.mogaface = build_mogaface(self.config, self.data, self.table, self.avatar)
@@ -171,6 +181,15 @@ class Trainer:
         if self.comm.is_writer:
             write_text(self.run_folder.config, config_module.to_toml(self.config))  # e.g. a new --steps
 
+    def _build_camera_offsets(self) -> CameraOffsets | None:
+        """The training cameras' offsets when ``[cameras] refine`` is on (each camera as first met)."""
+        if not self.config.cameras.refine:
+            return None
+        cameras = {}
+        for frame in self.data.frames:
+            cameras.setdefault(frame.camera_id, self.data.capture.camera(frame))
+        return CameraOffsets(cameras, self.config.cameras.gauge)
+
     def _build_optimizer(self) -> None:
         lr = self.config.lr
         rates = {
@@ -188,6 +207,11 @@ class Trainer:
             if flame.finetune:
                 rate = {"expr": flame.expression_lr, "translation": flame.translation_lr}.get(name, flame.joints_lr)
                 groups.append({"params": [value], "lr": rate, "name": f"flame.{name}"})
+        if self.camera_offsets is not None:
+            groups.append({"params": list(self.camera_offsets.rotation), "lr": self.config.cameras.rotation_lr,
+                           "name": "cameras.rotation"})
+            groups.append({"params": list(self.camera_offsets.translation), "lr": self.config.cameras.translation_lr,
+                           "name": "cameras.translation"})
         self.optimizer = torch.optim.Adam(groups, lr=0.0, eps=1e-15, fused=True)  # one kernel per group
 
     # -- state ----------------------------------------------------------------------------------
@@ -205,6 +229,7 @@ class Trainer:
             "rng": {"torch": self.generator.get_state()},
             "sampler": {"order": self._order.clone(), "position": self._position},
             **({"mogaface": self.mogaface.state_dict()} if self.mogaface is not None else {}),
+            **({"cameras": self.camera_offsets.state()} if self.camera_offsets is not None else {}),
         }
 
     def checkpoint(self) -> pathlib.Path | None:
@@ -214,6 +239,7 @@ class Trainer:
         if self.comm.is_writer:
             path = save_checkpoint(self.run_folder.checkpoints, self.step, self.state(),
                                    keep=self.config.train.keep_checkpoints)
+            self._write_refined_cameras()
             self.events.emit("checkpoint", step=self.step, path=str(path.relative_to(self.run_folder.root)))
         self.comm.keep_statistics_once(self.strategy)
         return path
@@ -265,12 +291,17 @@ class Trainer:
         camera = self.data.capture.camera(frame)
         target = self.data.target(frame)
         correction = None
+        offsets = self.camera_offsets
+        move = None if offsets is None else (lambda world: offsets.move_scene(world, frame.camera_id))
         if self.mogaface is None:
             vertices = self._posed_vertices(frame.timestep_index)
-            out = self.avatar.render_posed(vertices, camera, self.background)
+            if move is None:
+                out = self.avatar.render_posed(vertices, camera, self.background)
+            else:
+                out = render_world(move(gaussians.world(vertices, self.avatar.flame.faces)), camera, self.background)
         else:
             _, out, correction = mogaface_render(self.mogaface, self.avatar, self.table, frame, camera,
-                                                 self.background, self.step, self.view_generator(index))
+                                                 self.background, self.step, self.view_generator(index), move)
         losses = image_loss(out.rgb, target, cfg.loss.ssim_weight)
         visible = out.visible
         losses["position"] = position_hinge(gaussians.local_position, cfg.loss.position_threshold, visible)
@@ -346,6 +377,8 @@ class Trainer:
         sums = comm.reduce_step(self._trainable(), sums)
         self.optimizer.step()
         self.optimizer.zero_grad(set_to_none=True)
+        if self.camera_offsets is not None:
+            self.camera_offsets.fix_gauge()
         if self.mogaface is not None:
             self.mogaface.optimizer_step()
             records = torch.zeros(batch, self.mogaface.record_size())
@@ -489,9 +522,10 @@ class Trainer:
         """Write the final avatar, the FLAME parameters used, run.json and the quick val metrics."""
         self.avatar.gaussians.active_sh_degree = self.strategy.schedule.sh_degree(self.step)
         self.avatar.save(self.run_folder.avatar)
-        table, avatar, extra = self.table, self.avatar, None
-        if self.mogaface is not None:  # the corrected expressions, the modules and their features
-            table, avatar, extra = finish_mogaface(self.mogaface, self.avatar, self.table, self.run_folder.root)
+        self._write_refined_cameras()
+        table, avatar = self.table, self.avatar
+        if self.mogaface is not None:  # the corrected expressions and the modules
+            table, avatar = finish_mogaface(self.mogaface, self.avatar, self.table, self.run_folder.root)
         for t in self.table.timesteps:
             save_npz(self.run_folder.root / layout.flame_param_path(t), layout.batched_flame_params(table.numpy(t)))
         metrics = None
@@ -499,13 +533,17 @@ class Trainer:
             from .quick_eval import evaluate_val
 
             start = time.monotonic()
-            metrics = evaluate_val(avatar, self.data, table, self.config.eval, extra)
+            metrics = evaluate_val(avatar, self.data, table, self.config.eval)
             metrics["step"] = self.step
             metrics["seconds"] = round(time.monotonic() - start, 3)
             write_json(self.run_folder.metrics, metrics)
         self._write_run_json(complete=True)
         self.events.emit("done", step=self.step, gaussians=len(self.avatar.gaussians), elapsed_s=self.elapsed,
                          metrics=metrics)
+
+    def _write_refined_cameras(self) -> None:
+        if self.camera_offsets is not None:
+            write_refined_cameras(self.run_folder.root / REFINED_CAMERAS_FILE, self.camera_offsets)
 
     def _write_run_json(self, complete: bool) -> None:
         write_json(self.run_folder.run_json, {
@@ -518,6 +556,7 @@ class Trainer:
             "splits": self.data.split_summary(),
             "train_timesteps": list(self.table.timesteps),
             "flame_finetuned": self.config.flame.finetune,
+            "cameras_refined": self.config.cameras.refine,
             "mogaface": {k: getattr(self.config.mogaface, k) for k in ("mode", "bank", "texture")},
             "steps": self.config.train.steps,
             "final_step": self.step,

@@ -1,12 +1,13 @@
 """The method's own parameter source (a MoGaFace run): parameter-driven and image-assisted inference.
 
 - training timestamps (novel view): the run's ``flame_param/`` already holds the corrected
-  expressions (the bank's mean, built from training views only), and the texture attention reads
-  the feature stored for that timestamp at the end of training (training views only too);
-- other timestamps (self-reenactment), **parameter-driven**: the tracked parameters, no image,
-  the learned default feature;
+  expressions (the bank's mean, built from training views only);
+- other timestamps (self-reenactment), **parameter-driven**: the tracked parameters, no image;
 - other timestamps, **image-assisted**: the encoder looks at the *other* views of that timestamp
-  (:func:`views_at` with the scored view excluded), regresses ``Δψ`` and the feature.
+  (:func:`views_at` with the scored view excluded) and regresses ``Δψ``.
+
+The texture attention reads the parameters given here (as it reads any source's), so nothing else
+passes from this source to the render.
 
 The scored view is never an encoder input: every encoder call is recorded in :attr:`inputs`
 (scored camera, cameras seen), so tests can check it.
@@ -18,7 +19,7 @@ import numpy as np
 import torch
 
 from ...data.capture import Capture, Frame
-from ...mogaface.avatar import FEATURE_KEY, MODULES_FILE, load_run_avatar
+from ...mogaface.avatar import MODULES_FILE, load_run_avatar
 from ...mogaface.model import MoGaFace
 from ...mogaface.views import ViewImages
 from ..run_folder import RunFolder
@@ -27,7 +28,7 @@ from .tracked import TrackedParams
 
 
 class MoGaFaceParams:
-    """FLAME parameters (and the texture feature) of one frame for a MoGaFace run."""
+    """FLAME parameters of one frame for a MoGaFace run."""
 
     def __init__(self, capture: Capture, run: RunFolder, model: MoGaFace, image_assisted: bool = True,
                  max_views: int = 16):
@@ -45,30 +46,21 @@ class MoGaFaceParams:
     def params_for(self, frame: Frame | int, exclude_view: str | None = None) -> dict[str, np.ndarray]:
         timestep = timestep_of(frame)
         params = dict(self.tracked.params_for(timestep))
-        model = self.model
-        feature = None
-        row = model.row.get(timestep)
-        if row is not None and model.default_feature_count > 0:
-            feature = model.timestep_features[row]  # training views only, stored after training
-        elif row is None and self.image_assisted:
+        if self.model.row.get(timestep) is None and self.image_assisted:
             frames = views_at(self.capture, timestep, exclude_view)[: self.max_views]
             if frames:
-                delta, feature = self._regress(frames, params["expr"])
+                delta = self._regress(frames, params["expr"])
                 params["expr"] = (params["expr"] + delta.numpy()).astype(np.float32)
                 self.inputs.append((exclude_view, [f.camera_id for f in frames]))
-        if model.texture is not None:
-            chosen = model.default_feature if feature is None else feature
-            params[FEATURE_KEY] = chosen.detach().numpy().astype(np.float32)
         return params
 
     @torch.no_grad()
-    def _regress(self, frames: list[Frame], expr: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
+    def _regress(self, frames: list[Frame], expr: np.ndarray) -> torch.Tensor:
+        """The mean over the views of their regressed ``Δψ`` (the bank's rule for unseen frames)."""
         tracked = torch.as_tensor(expr, dtype=torch.float32)
         if self.model.mode == "single":
-            outputs = [self.model.correct(self.views.batch([f]), tracked) for f in frames]
-            return torch.cat([o[0] for o in outputs]).mean(0), torch.stack([o[1] for o in outputs]).mean(0)
-        per_view, feature = self.model.correct(self.views.batch(frames), tracked)
-        return per_view.mean(0), feature
+            return torch.cat([self.model.correct(self.views.batch([f]), tracked)[0] for f in frames]).mean(0)
+        return self.model.correct(self.views.batch(frames), tracked)[0].mean(0)
 
 
 def run_inference(run: RunFolder, capture: Capture, image_assisted: bool = True):

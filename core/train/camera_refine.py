@@ -1,0 +1,121 @@
+"""Per-camera extrinsic refinement: a learnable 6-DoF offset per training camera, shared by all
+timesteps, for captures whose calibration is off (the camera-free setting).
+
+Each camera ``i`` gets a rotation ``ω_i`` (axis-angle, world axes, about the camera's own centre)
+and a shift ``τ_i`` of its centre (metres, world axes), both zero at the start. The refined
+camera has camera-to-world rotation ``exp(ω)·R`` and centre ``c + τ``.
+
+The splat engine takes its camera as fixed numbers, so the offset is applied to the scene instead:
+rendering world points ``X`` with the refined camera is rendering ``exp(−ω)(X − c − τ) + c`` with
+the calibrated one (means and rotations of the Gaussians move; sizes do not). Only the view
+direction of the SH colours is off, by the rotation ``ω`` itself (a fraction of a degree).
+
+Gauge: ``mean`` (the default) keeps the mean rotation and the mean shift over the training cameras
+at zero after every optimiser step. A common motion of every camera is otherwise only weakly pinned
+(by the tracked head's pose, which the fine-tuned global rotation and translation can follow), and
+calibration errors are independent per camera, so the rig's mean offset is best left at zero: the
+rig inherits the mean of N calibration errors (about 1/√N of one), where a reference camera held
+fixed would hand its whole error to every other camera. ``none`` leaves the offsets free.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+
+import numpy as np
+import torch
+from torch import nn
+
+from ..avatar.binding import matrix_to_quaternion, quaternion_multiply
+from ..camera import Camera
+from ..flame.lbs import axis_angle_to_matrix
+from ..io.atomic import write_json
+
+GAUGES = ("mean", "none")
+
+
+class CameraOffsets(nn.Module):
+    """Offsets of the cameras ``cameras`` (id → calibrated :class:`Camera`), one parameter each,
+    so Adam steps only the cameras a step rendered (the others get no gradient)."""
+
+    def __init__(self, cameras: dict[str, Camera], gauge: str = "mean"):
+        super().__init__()
+        self.ids = sorted(cameras)
+        self.index = {cid: i for i, cid in enumerate(self.ids)}
+        self.calibrated = {cid: cameras[cid] for cid in self.ids}
+        self.gauge = gauge
+        self.rotation = nn.ParameterList([nn.Parameter(torch.zeros(3)) for _ in self.ids])
+        self.translation = nn.ParameterList([nn.Parameter(torch.zeros(3)) for _ in self.ids])
+        centres = np.stack([_centre(cameras[cid]) for cid in self.ids])
+        self.register_buffer("centres", torch.as_tensor(centres, dtype=torch.float32))
+
+    def __contains__(self, camera_id: str) -> bool:
+        return camera_id in self.index
+
+    def values(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(rotation (C,3), translation (C,3))`` of every camera, detached."""
+        return (torch.stack([p.detach() for p in self.rotation]), torch.stack([p.detach() for p in self.translation]))
+
+    def move_scene(self, world: dict[str, torch.Tensor], camera_id: str) -> dict[str, torch.Tensor]:
+        """World Gaussians as the calibrated camera must see them to show the refined camera's view."""
+        if camera_id not in self.index:
+            return world
+        i = self.index[camera_id]
+        undo = axis_angle_to_matrix(-self.rotation[i])
+        centre = self.centres[i]
+        means = (world["means"] - centre - self.translation[i]) @ undo.T + centre
+        quats = quaternion_multiply(matrix_to_quaternion(undo)[None], world["quats"])
+        return {**world, "means": means, "quats": quats}
+
+    @torch.no_grad()
+    def fix_gauge(self) -> None:
+        """Hold the mean rotation and the mean centre shift at zero (``gauge = "mean"``)."""
+        if self.gauge != "mean" or len(self.ids) < 2:
+            return
+        for group in (self.rotation, self.translation):
+            mean = torch.stack([p for p in group]).mean(0)
+            for p in group:
+                p.sub_(mean)
+
+    def refined_camera(self, camera_id: str) -> Camera:
+        """The calibrated camera moved by its offset (float64 numbers, same intrinsics)."""
+        camera = self.calibrated[camera_id]
+        i = self.index[camera_id]
+        rotation = axis_angle_to_matrix(self.rotation[i].detach().double()).numpy()
+        c2w_rotation = rotation @ camera.w2c[:3, :3].T
+        centre = _centre(camera) + self.translation[i].detach().double().numpy()
+        w2c = np.eye(4)
+        w2c[:3, :3] = c2w_rotation.T
+        w2c[:3, 3] = -c2w_rotation.T @ centre
+        return dataclasses.replace(camera, w2c=w2c)
+
+    def refined_cameras(self) -> dict[str, Camera]:
+        return {cid: self.refined_camera(cid) for cid in self.ids}
+
+    def state(self) -> dict:
+        rotation, translation = self.values()
+        return {"ids": list(self.ids), "gauge": self.gauge, "rotation": rotation.clone(),
+                "translation": translation.clone()}
+
+    @torch.no_grad()
+    def load(self, state: dict, source=None) -> None:
+        from ..errors import InputError
+
+        if list(state.get("ids", [])) != self.ids:
+            raise InputError(source, "cameras.ids", "the checkpoint's refined cameras differ from the capture's "
+                                                    "training cameras")
+        for group, values in ((self.rotation, state["rotation"]), (self.translation, state["translation"])):
+            for p, value in zip(group, values):
+                p.copy_(value)
+
+
+def _centre(camera: Camera) -> np.ndarray:
+    return -camera.w2c[:3, :3].T @ camera.w2c[:3, 3]
+
+
+def write_refined_cameras(path: str | os.PathLike, offsets: CameraOffsets) -> None:
+    """``RUN/cameras_refined.json``: camera id → the capture's camera fields (as ``cameras_gt.json``)."""
+    from ..data.writer import camera_fields
+
+    write_json(path, {cid: camera_fields(camera) for cid, camera in offsets.refined_cameras().items()})
