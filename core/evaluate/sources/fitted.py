@@ -17,8 +17,8 @@ from .base import ParamSource, timestep_of, views_at
 
 # The width of the prior toward the start per parameter (make-capture's default tracker error for
 # the expression, twice it for rotations and translation), and the scale of the Adam step sizes,
-# which start at a fifth of it and decay to zero over the fit (cosine). A constant rate of a tenth kept walking away from a start that was
-# already right (fine-tuned training timesteps: -2 to -3 dB); measured choices in docs/results.md.
+# which start at a fifth of it and decay to zero over the fit (cosine). Constant rates of a tenth
+# kept walking away from a start that was already right; measured choices in docs/results.md.
 PRIOR_SIGMA = {"expr": 0.5, "rotation": 0.02, "neck_pose": 0.02, "jaw_pose": 0.02, "eyes_pose": 0.02,
                "translation": 2e-3}
 RATES = {k: v / 5 for k, v in PRIOR_SIGMA.items()}
