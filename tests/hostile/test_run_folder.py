@@ -157,13 +157,18 @@ def test_interrupt_during_start_up_exits_quietly(copies, tmp_path):
     assert "Traceback" not in err
 
 
+def _wait_for_first_step(process, out):
+    """Until the training child has logged a step (a harness deadline against a hang)."""
+    deadline = time.monotonic() + 180
+    while not ((out / "events.jsonl").exists() and any(e["event"] == "iter" for e in events(out))):
+        assert process.poll() is None and time.monotonic() < deadline, process.communicate()
+        time.sleep(0.2)
+
+
 def test_double_interrupt_exits_with_the_signal_status(copies, tmp_path):
     process, out = _train_process(copies, tmp_path)
     try:
-        deadline = time.monotonic() + 180
-        while not ((out / "events.jsonl").exists() and any(e["event"] == "iter" for e in events(out))):
-            assert process.poll() is None and time.monotonic() < deadline, process.communicate()
-            time.sleep(0.2)
+        _wait_for_first_step(process, out)
         process.send_signal(signal.SIGINT)
         process.send_signal(signal.SIGINT)
         _, err = process.communicate(timeout=120)
@@ -181,10 +186,7 @@ def test_interrupt_while_training_checkpoints_the_step_before_the_cancelled_rend
     step boundary that resumes."""
     process, out = _train_process(copies, tmp_path)
     try:
-        deadline = time.monotonic() + 180
-        while not ((out / "events.jsonl").exists() and any(e["event"] == "iter" for e in events(out))):
-            assert process.poll() is None and time.monotonic() < deadline, process.communicate()
-            time.sleep(0.2)
+        _wait_for_first_step(process, out)
         process.send_signal(signal.SIGINT)
         _, err = process.communicate(timeout=120)
     finally:
