@@ -14,4 +14,13 @@ try:
 except KeyboardInterrupt:  # Ctrl-C while the interpreter is still starting up
     sys.exit(130)
 
-sys.exit(main())
+code = main()
+if code == 130:
+    # Interrupted. A Ctrl-C that landed in Python code an extension ran during start-up leaves the
+    # interpreter marked as killed by SIGINT however it was handled, and it would leave by the
+    # signal (status -2) instead of this status. Everything is written (files are atomic), so exit
+    # directly.
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
+sys.exit(code)
