@@ -12,6 +12,7 @@ import errno
 import importlib
 import signal
 import sys
+import threading
 
 from ..errors import MogafaceError
 
@@ -55,9 +56,32 @@ def _command_module(name: str):
     return importlib.import_module(f"{__name__}.{COMMANDS[name][0]}")
 
 
+def _load_heavy_modules_uninterrupted() -> bool:
+    """Import torch and numba with Ctrl-C held back; True if one came meanwhile.
+
+    A KeyboardInterrupt raised inside torch's C++ start-up aborts the process (``terminate
+    called after throwing ... KeyboardInterrupt``); raised anywhere else in start-up it is an
+    ordinary exception. So the interrupt is only noted there and acted on afterwards.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        import numba  # noqa: F401
+        import torch  # noqa: F401
+        return False
+    noted = []
+    previous = signal.signal(signal.SIGINT, lambda number, frame: noted.append(number))
+    try:
+        import numba  # noqa: F401
+        import torch  # noqa: F401
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    return bool(noted)
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     try:
+        if _load_heavy_modules_uninterrupted():
+            raise KeyboardInterrupt
         args = _build_parser(argv).parse_args(argv)
         return int(_command_module(args.command).run(args) or 0)
     except MogafaceError as error:
