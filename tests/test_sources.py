@@ -204,17 +204,15 @@ def test_true_cameras_follow_the_captures_cy_convention(tmp_path):
 
 @pytest.fixture(scope="module")
 def run_with_refiner(run, tmp_path_factory):
-    """The fake run with an (untrained, small) refiner beside it: the refined sources join in."""
+    """The fake run with a refiner beside it (a few rendered offsets): the refined sources join in."""
     import shutil
 
-    from mogaface.core.refiner.files import REFINER_FILE, save_refiner
-    from mogaface.core.refiner.network import Refiner
+    from mogaface.core.refiner.training import RefinerSettings, train_refiner
 
     root = tmp_path_factory.mktemp("with_refiner") / "run"
     shutil.copytree(run.root, root)
-    n_expr = run.load_avatar().flame.n_expr
-    save_refiner(Refiner({"crop": 32, "width": 8, "feature_dim": 32, "heads": 2, "layers": 1, "n_expr": n_expr}),
-                 root / REFINER_FILE)
+    train_refiner(root, RefinerSettings(starts=2, offsets_per_start=2, gap_timesteps=2, threads=1,
+                                        spec={"grid": 4, "render_limit": 64, "prior": 1.0}))
     return RunFolder(root)
 
 

@@ -10,13 +10,14 @@ import sys
 
 def add_arguments(parser) -> None:
     parser.add_argument("run", type=pathlib.Path, metavar="RUN", help="run folder written by 'train'")
-    parser.add_argument("--steps", type=int, default=800, help="training steps (default %(default)s)")
+    parser.add_argument("--starts", type=int, default=50,
+                        help="jittered training frames rendered in every camera (default %(default)s)")
+    parser.add_argument("--offsets-per-start", type=int, default=4,
+                        help="known offsets rendered per start (default %(default)s)")
+    parser.add_argument("--gap-timesteps", type=int, default=40,
+                        help="training timesteps whose captures measure the capture-render gap (default %(default)s)")
     parser.add_argument("--seed", type=int, default=0, help="random seed (default %(default)s)")
-    parser.add_argument("--views", type=int, default=3, help="training views per sample (default %(default)s)")
-    parser.add_argument("--crop", type=int, default=96, help="head crop size in pixels (default %(default)s)")
     parser.add_argument("--threads", type=int, default=2, help="CPU threads (default %(default)s)")
-    parser.add_argument("--distill", choices=["auto", "on", "off"], default="auto",
-                        help="distil the run's fine-tuned parameters on captured views (auto: when it fine-tuned)")
     parser.add_argument("--out", type=pathlib.Path, help="where to write the refiner (default RUN/refiner.pt)")
     parser.add_argument("--events", choices=["none", "stdout"], default="none",
                         help="'stdout': print every event as a JSON line (for other programs)")
@@ -25,11 +26,10 @@ def add_arguments(parser) -> None:
 
 def run(args) -> int:
     from ..progress import ProgressBar, emit_event
-    from ..refiner.training import DEFAULT_SPEC, RefinerSettings, train_refiner
+    from ..refiner.training import RefinerSettings, train_refiner
 
-    settings = RefinerSettings(steps=args.steps, seed=args.seed, views=args.views, threads=args.threads,
-                               distill={"auto": None, "on": True, "off": False}[args.distill],
-                               spec={**DEFAULT_SPEC, "crop": args.crop})
+    settings = RefinerSettings(starts=args.starts, offsets_per_start=args.offsets_per_start,
+                               gap_timesteps=args.gap_timesteps, seed=args.seed, threads=args.threads)
     listeners = []
     if args.events == "stdout":
         listeners.append(lambda e: emit_event(sys.stdout, e["event"], **{k: v for k, v in e.items() if k != "event"}))
@@ -37,10 +37,10 @@ def run(args) -> int:
         bar = {}
 
         def show(event):
-            if event["event"] == "start":
-                bar["bar"] = ProgressBar(event["steps"], "train-refiner")
-            elif event["event"] == "iter" and "bar" in bar:
-                bar["bar"].update(event["step"] - bar["bar"].done, f"loss {event['loss']:.4f}")
+            if event["event"] == "iter" and bar.get("stage") != event["stage"]:
+                bar.update(stage=event["stage"], bar=ProgressBar(event["steps"], f"train-refiner ({event['stage']})"))
+            if event["event"] == "iter":
+                bar["bar"].update(event["step"] - bar["bar"].done)
 
         listeners.append(show)
     stop = {"signal": None}
@@ -55,5 +55,6 @@ def run(args) -> int:
     finally:
         signal.signal(signal.SIGTERM, previous)
     if not args.quiet:
-        print(f"wrote {result['path']} ({result['steps']} steps, {result['seconds']:.0f} s)", file=sys.stderr)
+        print(f"wrote {result['path']} ({result['samples_per_camera']} offsets per camera, "
+              f"{result['explained']:.0%} of the renders' change explained, {result['seconds']:.0f} s)", file=sys.stderr)
     return 0 if stop["signal"] is None else 128 + int(stop["signal"])

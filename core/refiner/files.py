@@ -1,5 +1,6 @@
-"""``RUN/refiner.pt``: the refiner's spec, weights and how it was trained; written atomically,
-read ``weights_only`` and checked (format, version, spec, weights) before use."""
+"""``RUN/refiner.pt``: the refiner's spec, cameras, matrices and how it was trained; written
+atomically, read ``weights_only`` and checked (format, version, spec, shapes, finite values)
+before use."""
 
 from __future__ import annotations
 
@@ -11,40 +12,44 @@ import torch
 from ..errors import InputError
 from ..io.atomic import atomic_path
 from ..io.torch_file import check_format, load_torch_state, save_torch_state
-from .network import SPEC_KEYS, Refiner
+from .groups import scale_vector
+from .model import SPEC_KEYS, LinearRefiner
 
 REFINER_FILE = "refiner.pt"
 REFINER_FORMAT = "mogaface-refiner"
-REFINER_VERSION = 1
-_LIMITS = {"crop": (16, 512), "width": (8, 256), "feature_dim": (8, 1024), "heads": (1, 16), "layers": (1, 8),
-           "n_expr": (1, 400)}
+REFINER_VERSION = 2  # 1 was a convolutional network: files of it are refused by the version check
+_LIMITS = {"grid": (2, 128), "render_limit": (8, 4096), "n_expr": (1, 400), "prior": (1e-6, 1e6)}
+_MAX_CAMERAS = 1024
 
 
-def save_refiner(refiner: Refiner, path: str | os.PathLike, trained: dict | None = None) -> None:
+def save_refiner(refiner: LinearRefiner, path: str | os.PathLike, trained: dict | None = None) -> None:
     state = {"format": REFINER_FORMAT, "version": REFINER_VERSION, "spec": dict(refiner.spec),
-             "trained": dict(trained or {}), "state": {k: v.detach().clone() for k, v in refiner.state_dict().items()}}
+             "cameras": list(refiner.camera_ids), "trained": dict(trained or {}), "state": refiner.tensors()}
     with atomic_path(pathlib.Path(path)) as tmp:
         save_torch_state(state, tmp)
 
 
 def _checked_spec(spec, source) -> dict:
     if not isinstance(spec, dict):
-        raise InputError(source, "spec", "expected a table of the network's sizes")
-    out = {}
+        raise InputError(source, "spec", "expected a table of the refiner's sizes")
     for key in SPEC_KEYS:
         value = spec.get(key)
         low, high = _LIMITS[key]
-        if not isinstance(value, int) or isinstance(value, bool) or not low <= value <= high:
-            raise InputError(source, f"spec.{key}", f"expected an integer in [{low}, {high}], got {value!r}")
-    out.update({k: spec[k] for k in SPEC_KEYS})
-    if out["width"] % 8:
-        raise InputError(source, "spec.width", f"must be a multiple of 8 (group normalisation), got {out['width']}")
-    if out["feature_dim"] % out["heads"]:
-        raise InputError(source, "spec.heads", f"must divide feature_dim {out['feature_dim']}")
-    return out
+        kinds = (int, float) if key == "prior" else (int,)
+        if not isinstance(value, kinds) or isinstance(value, bool) or not low <= value <= high:
+            raise InputError(source, f"spec.{key}", f"expected {'a number' if key == 'prior' else 'an integer'} "
+                                                    f"in [{low:g}, {high:g}], got {value!r}")
+    return {k: spec[k] for k in SPEC_KEYS}
 
 
-def load_refiner(path: str | os.PathLike, n_expr: int | None = None) -> tuple[Refiner, dict]:
+def _checked_cameras(cameras, source) -> list[str]:
+    if (not isinstance(cameras, list) or not 1 <= len(cameras) <= _MAX_CAMERAS
+            or not all(isinstance(c, str) and c for c in cameras) or len(set(cameras)) != len(cameras)):
+        raise InputError(source, "cameras", f"expected a list of 1 to {_MAX_CAMERAS} distinct camera names")
+    return cameras
+
+
+def load_refiner(path: str | os.PathLike, n_expr: int | None = None) -> tuple[LinearRefiner, dict]:
     """``(refiner, how it was trained)``; ``n_expr``: the avatar's expression count it must match."""
     state = load_torch_state(path, "refiner file")
     check_format(state, path, REFINER_FORMAT, REFINER_VERSION)
@@ -52,22 +57,26 @@ def load_refiner(path: str | os.PathLike, n_expr: int | None = None) -> tuple[Re
     if n_expr is not None and spec["n_expr"] != n_expr:
         raise InputError(path, "spec.n_expr", f"the refiner reads {spec['n_expr']} expression coefficients, "
                                               f"the avatar has {n_expr}")
-    refiner = Refiner(spec)
-    weights = state.get("state")
-    if not isinstance(weights, dict) or not all(isinstance(v, torch.Tensor) for v in weights.values()):
-        raise InputError(path, "state", "expected a table of weight tensors")
-    expected = refiner.state_dict()
-    for key, value in expected.items():
-        if key not in weights:
-            raise InputError(path, f"state.{key}", "missing")
-        if weights[key].shape != value.shape:
-            raise InputError(path, f"state.{key}", f"expected shape {tuple(value.shape)}, got {tuple(weights[key].shape)}")
-        if weights[key].is_floating_point() and not bool(torch.isfinite(weights[key]).all()):
+    cameras = _checked_cameras(state.get("cameras"), path)
+    tensors = state.get("state")
+    if not isinstance(tensors, dict):
+        raise InputError(path, "state", "expected a table of tensors")
+    features, count = 3 * spec["grid"] ** 2, len(scale_vector(spec["n_expr"]))
+    shapes = {"forward": (len(cameras), features, count), "residual": (len(cameras), features),
+              "gap_mean": (len(cameras), features), "gap_var": (len(cameras), features)}
+    for key, shape in shapes.items():
+        value = tensors.get(key)
+        if not isinstance(value, torch.Tensor) or not value.is_floating_point():
+            raise InputError(path, f"state.{key}", "missing or not a floating-point tensor")
+        if tuple(value.shape) != shape:
+            raise InputError(path, f"state.{key}", f"expected shape {shape}, got {tuple(value.shape)}")
+        if not bool(torch.isfinite(value).all()):
             raise InputError(path, f"state.{key}", "holds NaN or infinite values")
-    extra = sorted(set(weights) - set(expected))
+    for key in ("residual", "gap_var"):
+        if bool((tensors[key] < 0).any()) or (key == "residual" and not bool((tensors[key] > 0).all())):
+            raise InputError(path, f"state.{key}", "a variance must be positive")
+    extra = sorted(set(tensors) - set(shapes))
     if extra:
-        raise InputError(path, f"state.{extra[0]}", "not a weight of this network")
-    refiner.load_state_dict(weights)
-    refiner.eval()
+        raise InputError(path, f"state.{extra[0]}", "not a part of this refiner")
     trained = state.get("trained") if isinstance(state.get("trained"), dict) else {}
-    return refiner, trained
+    return LinearRefiner(spec, cameras, *(tensors[k] for k in shapes)), trained

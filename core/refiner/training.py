@@ -1,90 +1,145 @@
-"""Training the refiner on a finished run, the avatar frozen.
+"""Training the refiner on a finished run, the avatar frozen; no gradient descent, two measured
+passes over the run:
 
-Each step takes a training frame's parameters (as the run left them), jitters them (the start),
-draws a new offset (:class:`.sampler.OffsetSampler`), renders the avatar at start + offset from a
-few training views as the observation, renders the start in the same head windows, and regresses
-the offset. The offset is new every step, so no frame can be memorised.
-
-When the run fine-tuned its per-timestep parameters, a share of steps instead distils that
-fine-tuning on the captured views: start at the tracked parameters, observe the captured images,
-regress fine-tuned − tracked. The fine-tuning is the teacher that closes the gap between the
-avatar's renders and real captures.
+1. **Known offsets.** For a training timestep, the run's parameters are jittered (the start) and
+   rendered in every camera's head window; then the avatar is rendered at the start plus a new
+   random offset (:class:`.sampler.OffsetSampler`) in the same windows. Per camera, a ridge
+   regression of the pooled differences on the offsets gives the forward model ``A`` and what it
+   leaves unexplained (its residual variance). The offsets are new every time, so nothing can be
+   memorised.
+2. **The capture gap.** At the run's own parameters (fine-tuned when the run fine-tuned them: the
+   teacher), the captured training views are compared with the avatar's renders; per camera, the
+   mean and variance of that gap tell the solve what in a capture is not a parameter change.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import math
 import pathlib
 import time
 
 import numpy as np
 import torch
-import torch.nn.functional as F
 
 from ..errors import InputError
 from ..evaluate.images import target_image
 from ..evaluate.run_folder import MOTION_KEYS, RunFolder, capture_info
 from ..mogaface.avatar import load_run_avatar
 from .files import REFINER_FILE, save_refiner
-from .groups import add_offset, flatten, scale_vector
-from .network import Refiner
+from .groups import add_offset, scale_vector
+from .model import LinearRefiner
 from .sampler import OffsetSampler
-from .views import camera_tokens, crop_cameras, image_crops, posed, render_crops
+from .views import crop_cameras, image_crop, pooled_difference, posed, render_crop
 
-DEFAULT_SPEC = {"crop": 96, "width": 24, "feature_dim": 128, "heads": 4, "layers": 1}
+DEFAULT_SPEC = {"grid": 32, "render_limit": 512, "prior": 32.0}
 
 
 @dataclasses.dataclass
 class RefinerSettings:
-    steps: int = 800
-    views: int = 3  # training views per sample
-    offsets_per_start: int = 2  # observations per rendered start (the start's renders are shared)
-    lr: float = 2e-3
+    starts: int = 50  # jittered training frames rendered in every camera's window
+    offsets_per_start: int = 4  # observations per start (so ``starts × offsets_per_start`` samples per camera)
+    gap_timesteps: int = 40  # training timesteps whose captures measure the gap
     seed: int = 0
     threads: int = 2
-    distill: bool | None = None  # None: when the run fine-tuned its parameters
-    distill_share: float = 0.3
-    image_noise: float = 0.005  # on rendered observations, so renders are not the only thing it can read
-    offset_width: float = 2.0  # offsets in multiples of each group's expected error (:mod:`.sampler`)
+    offset_width: float = 1.0  # offsets in multiples of each group's expected error (:mod:`.sampler`)
     offset_groups: tuple[str, ...] | None = None  # None: every group of :mod:`.groups`
+    ridge: float = 1e-3
     spec: dict = dataclasses.field(default_factory=lambda: dict(DEFAULT_SPEC))
 
     def check(self) -> None:
-        for name in ("steps", "views", "offsets_per_start", "threads"):
+        for name in ("starts", "offsets_per_start", "threads"):
             if getattr(self, name) < 1:
                 raise InputError(None, name, f"must be at least 1, got {getattr(self, name)}")
-        if not 0.0 <= self.distill_share <= 1.0:
-            raise InputError(None, "distill_share", f"expected a share in [0, 1], got {self.distill_share}")
+        if self.gap_timesteps < 0:
+            raise InputError(None, "gap_timesteps", f"must be at least 0, got {self.gap_timesteps}")
 
 
 def frozen_avatar(run_dir):
     avatar = load_run_avatar(run_dir)
-    modules = [avatar, getattr(avatar, "avatar", None), getattr(avatar, "model", None)]
-    for module in modules:
+    for module in (avatar, getattr(avatar, "avatar", None), getattr(avatar, "model", None)):
         if isinstance(module, torch.nn.Module):
             module.requires_grad_(False)
     return avatar
 
 
-class _Frames:
-    """The run's training timesteps: its parameters, the tracked ones, training cameras per timestep."""
+class _Run:
+    """The run's training timesteps with their parameters, and the capture's cameras and frames."""
 
-    def __init__(self, run: RunFolder, capture, n_expr: int):
-        if not run.trained_timesteps:
+    def __init__(self, run: RunFolder, capture):
+        self.background = run.background
+        self.timesteps = [t for t in run.trained_timesteps if t in capture.timestep_ids]
+        if not self.timesteps:
             raise InputError(run.flame_param_dir, None, "the run holds no FLAME parameters (is training finished?)")
-        self.timesteps = run.trained_timesteps
-        self.params = {t: run.flame_params(t) for t in self.timesteps}
-        self.frames: dict[int, list] = {}
+        tracked = {t: capture.flame_params(t) for t in self.timesteps}
+        self.params = {t: {**tracked[t], **{k: v for k, v in run.flame_params(t).items() if k in MOTION_KEYS}}
+                       for t in self.timesteps}
+        self.camera_ids = sorted(capture.cameras)
+        self.training_frames: dict[int, list] = {}
         for frame in capture.frames("train"):
             if frame.timestep_index in self.params:
-                self.frames.setdefault(frame.timestep_index, []).append(frame)
-        self.timesteps = [t for t in self.timesteps if self.frames.get(t)]
-        self.tracked = {t: {**self.params[t], **{k: v for k, v in capture.flame_params(t).items() if k in MOTION_KEYS}}
-                        for t in self.timesteps}
-        self.teaching = {t: flatten(self.params[t], n_expr) - flatten(self.tracked[t], n_expr) for t in self.timesteps}
-        self.fine_tuned = max(float(np.abs(v).max()) for v in self.teaching.values()) > 1e-6
-        self.expr_spread = np.maximum(np.std([self.params[t]["expr"][:n_expr] for t in self.timesteps], axis=0), 0.1)
+                self.training_frames.setdefault(frame.timestep_index, []).append(frame)
+
+
+def _forward_models(avatar, capture, run: _Run, settings, spec, rng, emit, should_stop):
+    n_expr = spec["n_expr"]
+    scales = scale_vector(n_expr).numpy()
+    sampler = OffsetSampler(n_expr, width=settings.offset_width, seed=settings.seed, groups=settings.offset_groups)
+    background = run.background
+    features = {c: [] for c in run.camera_ids}
+    offsets = []
+    for index in range(settings.starts):
+        if should_stop():
+            break
+        t = int(rng.choice(run.timesteps))
+        start = add_offset(run.params[t], (rng.normal(size=len(scales)) * 0.5 * scales).astype(np.float32), n_expr)
+        cameras = [capture.camera_at(c, t) for c in run.camera_ids]
+        vertices = posed(avatar, start)
+        crops = crop_cameras(cameras, vertices, spec["render_limit"])
+        base = [render_crop(avatar, vertices, crop, background) for crop in crops]
+        for _ in range(settings.offsets_per_start):
+            offset = sampler()
+            moved = posed(avatar, add_offset(start, offset, n_expr))
+            for camera_id, crop, rendered in zip(run.camera_ids, crops, base):
+                observed = render_crop(avatar, moved, crop, background)
+                features[camera_id].append(pooled_difference(observed, rendered, spec["grid"]).double())
+            offsets.append(offset / scales)
+        emit("iter", step=index + 1, steps=settings.starts, stage="offsets")
+    if len(offsets) < 2:
+        raise InputError(None, "starts", "stopped before the refiner saw enough rendered offsets")
+    x = torch.as_tensor(np.stack(offsets), dtype=torch.float64)
+    ridge = settings.ridge * len(offsets) * torch.eye(x.shape[1], dtype=torch.float64)
+    forward, residual, explained = [], [], []
+    for camera_id in run.camera_ids:
+        f = torch.stack(features[camera_id])
+        a = torch.linalg.solve(x.T @ x + ridge, x.T @ f).T  # (D, P)
+        forward.append(a)
+        residual.append((f - x @ a.T).var(0) + 1e-6)
+        explained.append(float(1.0 - residual[-1].sum() / f.var(0).sum().clamp_min(1e-12)))
+    return torch.stack(forward), torch.stack(residual), len(offsets), float(np.mean(explained))
+
+
+def _capture_gap(avatar, capture, run: _Run, settings, spec, rng, emit):
+    """Per camera, mean and variance of (capture − render) at the run's parameters; cameras with no
+    training view (e.g. a held-out one) get zero mean and the average variance."""
+    background = run.background
+    recorded = capture_info(capture.root).get("background")
+    chosen = rng.permutation(run.timesteps)[:settings.gap_timesteps]
+    gaps: dict[str, list] = {}
+    for index, t in enumerate(chosen):
+        frames = run.training_frames.get(int(t), [])
+        cameras = [capture.camera(f) for f in frames]
+        vertices = posed(avatar, run.params[int(t)])
+        for frame, crop in zip(frames, crop_cameras(cameras, vertices, spec["render_limit"])):
+            observed = image_crop(target_image(capture, frame, background, recorded), crop, background)
+            rendered = render_crop(avatar, vertices, crop, background)
+            gaps.setdefault(frame.camera_id, []).append(pooled_difference(observed, rendered, spec["grid"]).double())
+        emit("iter", step=index + 1, steps=len(chosen), stage="gap")
+    size = 3 * spec["grid"] ** 2
+    measured = {c: torch.stack(g) for c, g in gaps.items() if len(g) >= 2}
+    average = torch.stack([g.var(0) for g in measured.values()]).mean(0) if measured else torch.zeros(size)
+    means = [measured[c].mean(0) if c in measured else torch.zeros(size, dtype=torch.float64) for c in run.camera_ids]
+    variances = [measured[c].var(0) if c in measured else average for c in run.camera_ids]
+    return torch.stack(means), torch.stack(variances), sorted(measured)
 
 
 def train_refiner(run_dir, settings: RefinerSettings | None = None, out: str | pathlib.Path | None = None,
@@ -93,84 +148,28 @@ def train_refiner(run_dir, settings: RefinerSettings | None = None, out: str | p
     settings = settings or RefinerSettings()
     settings.check()
     torch.set_num_threads(settings.threads)
-    torch.manual_seed(settings.seed)
     rng = np.random.default_rng(settings.seed)
-    run = RunFolder(run_dir)
-    capture = run.open_capture()
-    avatar = frozen_avatar(run.root)
-    n_expr = avatar.flame.n_expr
-    frames = _Frames(run, capture, n_expr)
-    distill = frames.fine_tuned if settings.distill is None else settings.distill
-    if distill and not frames.fine_tuned:
-        raise InputError(run.flame_param_dir, None, "distillation needs a run that fine-tuned its parameters")
-    refiner = Refiner({**settings.spec, "n_expr": n_expr})
-    scales = scale_vector(n_expr)
-    sampler = OffsetSampler(n_expr, frames.expr_spread, width=settings.offset_width, seed=settings.seed,
-                            groups=settings.offset_groups)
-    optimiser = torch.optim.Adam(refiner.parameters(), lr=settings.lr)
-    background = run.background
-    recorded = capture_info(capture.root).get("background")
+    folder = RunFolder(run_dir)
+    capture = folder.open_capture()
+    avatar = frozen_avatar(folder.root)
+    run = _Run(folder, capture)
+    spec = {**settings.spec, "n_expr": avatar.flame.n_expr}
 
     def emit(event: str, **fields):
         for listener in listeners:
             listener({"event": event, **fields})
 
-    def synthetic():
-        t = int(rng.choice(frames.timesteps))
-        picks = rng.choice(len(frames.frames[t]), min(settings.views, len(frames.frames[t])), replace=False)
-        cameras = [capture.camera(frames.frames[t][i]) for i in picks]
-        start = add_offset(frames.params[t], (rng.normal(size=len(scales)) * 0.5 * scales.numpy()).astype(np.float32),
-                           n_expr)
-        vertices = posed(avatar, start)
-        crops = crop_cameras(cameras, vertices, refiner.crop)
-        rendered = render_crops(avatar, vertices, crops, background)
-        tokens = camera_tokens(cameras, start)
-        samples = []
-        for _ in range(settings.offsets_per_start):
-            offset = sampler(flatten(start, n_expr))
-            observed = render_crops(avatar, posed(avatar, add_offset(start, offset, n_expr)), crops, background)
-            noise = settings.image_noise * torch.as_tensor(rng.normal(size=observed.shape), dtype=torch.float32)
-            samples.append(((observed + noise).clamp(0, 1), rendered, tokens, torch.as_tensor(offset)))
-        return samples
-
-    def distilled():
-        t = int(rng.choice(frames.timesteps))
-        picks = rng.choice(len(frames.frames[t]), min(settings.views, len(frames.frames[t])), replace=False)
-        chosen = [frames.frames[t][i] for i in picks]
-        cameras = [capture.camera(f) for f in chosen]
-        start = frames.tracked[t]
-        vertices = posed(avatar, start)
-        crops = crop_cameras(cameras, vertices, refiner.crop)
-        images = [target_image(capture, f, background, recorded) for f in chosen]
-        observed = image_crops(images, cameras, vertices, refiner.crop, background)
-        return [(observed, render_crops(avatar, vertices, crops, background), camera_tokens(cameras, start),
-                 torch.as_tensor(frames.teaching[t]))]
-
-    emit("start", step=0, steps=settings.steps, distill=bool(distill), timesteps=len(frames.timesteps))
+    emit("start", step=0, steps=settings.starts, timesteps=len(run.timesteps), cameras=len(run.camera_ids))
     began = time.perf_counter()
-    step = 0
-    losses = []
-    for step in range(1, settings.steps + 1):
-        if should_stop():
-            step -= 1
-            emit("stopped", step=step)
-            break
-        for group in optimiser.param_groups:
-            group["lr"] = settings.lr * 0.5 * (1.0 + math.cos(math.pi * (step - 1) / settings.steps))
-        samples = distilled() if distill and rng.uniform() < settings.distill_share else synthetic()
-        observed, rendered, tokens, target = (torch.stack(x) for x in zip(*samples))
-        predicted = refiner(observed, rendered, tokens)
-        loss = F.smooth_l1_loss(predicted / scales, (target / scales)[:, None].expand_as(predicted))
-        optimiser.zero_grad()
-        loss.backward()
-        optimiser.step()
-        losses.append(float(loss.detach()))
-        if step % 10 == 0 or step == settings.steps:
-            emit("iter", step=step, steps=settings.steps, loss=float(np.mean(losses[-10:])),
-                 seconds=time.perf_counter() - began)
-    trained = {"steps": step, "seed": settings.seed, "distilled": bool(distill), "views": settings.views,
-               "seconds": time.perf_counter() - began, "final_loss": float(np.mean(losses[-50:])) if losses else None}
-    path = pathlib.Path(out) if out is not None else run.root / REFINER_FILE
+    forward, residual, samples, explained = _forward_models(avatar, capture, run, settings, spec, rng, emit,
+                                                            should_stop)
+    if should_stop():  # stopped: keep the offsets learnt so far, measure no gap
+        settings = dataclasses.replace(settings, gap_timesteps=0)
+    gap_mean, gap_var, gap_cameras = _capture_gap(avatar, capture, run, settings, spec, rng, emit)
+    refiner = LinearRefiner(spec, run.camera_ids, forward, residual, gap_mean, gap_var)
+    trained = {"samples_per_camera": samples, "seed": settings.seed, "gap_cameras": gap_cameras,
+               "seconds": time.perf_counter() - began, "explained": explained}
+    path = pathlib.Path(out) if out is not None else folder.root / REFINER_FILE
     save_refiner(refiner, path, trained)
-    emit("done", step=step, path=str(path), **{k: v for k, v in trained.items() if k != "steps"})
+    emit("done", path=str(path), **{k: v for k, v in trained.items() if k != "gap_cameras"})
     return {"path": str(path), **trained}

@@ -1,14 +1,22 @@
-"""One frame's views as the refiner sees them: per view the observed head crop, the avatar's
-render in the same window at the current parameters (no gradient), and the camera's token."""
+"""One frame's views as the refiner sees them: per view the head's window, the observed crop and the
+avatar's render in the same window at the current parameters (no gradient), and their difference
+area-pooled to the refiner's grid.
+
+Crops are rendered at the window's own pixel size (up to ``render_limit``) and pooled afterwards:
+a Gaussian avatar rendered directly at a few dozen pixels is not the area average of its
+full-size render, and that difference swamped the sub-pixel signal the refiner reads.
+"""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import torch
+import torch.nn.functional as F
 
 from ..avatar.avatar import flame_params_to_torch
 from .crops import crop_camera, crop_image, head_window
-from .network import camera_in_head_frame
 
 
 @torch.no_grad()
@@ -17,26 +25,28 @@ def posed(avatar, params: dict[str, np.ndarray]) -> torch.Tensor:
 
 
 @torch.no_grad()
-def crop_cameras(cameras, vertices: torch.Tensor, size: int) -> list:
-    """Per camera, the crop camera of the head's window at these vertices."""
+def crop_cameras(cameras, vertices: torch.Tensor, render_limit: int) -> list:
+    """Per camera, the crop camera of the head's window at these vertices, at the window's pixel size."""
     points = vertices.numpy()
-    return [crop_camera(c, head_window(c, points), size) for c in cameras]
+    crops = []
+    for camera in cameras:
+        window = head_window(camera, points)
+        crops.append((window, crop_camera(camera, window, min(render_limit, max(8, math.ceil(window.side))))))
+    return crops
 
 
 @torch.no_grad()
-def render_crops(avatar, vertices: torch.Tensor, crops, background) -> torch.Tensor:
-    """``(V, 3, S, S)`` renders of the posed avatar in each crop camera."""
-    return torch.stack([avatar.render_posed(vertices, c, background).rgb.clamp(0, 1).permute(2, 0, 1) for c in crops])
+def render_crop(avatar, vertices: torch.Tensor, crop, background) -> torch.Tensor:
+    """``(3, S, S)`` render of the posed avatar in one crop camera."""
+    return avatar.render_posed(vertices, crop[1], background).rgb.clamp(0, 1).permute(2, 0, 1)
 
 
 @torch.no_grad()
-def image_crops(images, cameras, vertices: torch.Tensor, size: int, background) -> torch.Tensor:
-    """``(V, 3, S, S)``: each full-view image cut to its head window."""
-    points = vertices.numpy()
-    return torch.stack([crop_image(img, head_window(c, points), size, background) for img, c in zip(images, cameras)])
+def image_crop(image, crop, background) -> torch.Tensor:
+    """``(3, S, S)``: a full-view image cut to the crop's window, at the crop's size."""
+    return crop_image(image, crop[0], crop[1].width, background)
 
 
-def camera_tokens(cameras, params: dict[str, np.ndarray]) -> torch.Tensor:
-    w2c = torch.as_tensor(np.stack([c.w2c for c in cameras]), dtype=torch.float32)
-    return camera_in_head_frame(w2c, torch.as_tensor(params["rotation"], dtype=torch.float32),
-                                torch.as_tensor(params["translation"], dtype=torch.float32))
+def pooled_difference(observed: torch.Tensor, rendered: torch.Tensor, grid: int) -> torch.Tensor:
+    """The refiner's feature of one view: ``(3·grid²,)``."""
+    return F.adaptive_avg_pool2d((observed - rendered)[None], grid).flatten()

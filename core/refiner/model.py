@@ -1,0 +1,65 @@
+"""The refiner's model: per camera, a learned linear forward model of how the head crop changes
+with each regressed parameter, and a noise model of what else differs between captures and the
+avatar's renders. A pass is one generalised least-squares solve over every view it is given.
+
+For view ``v`` the feature ``f_v`` is the difference (observed − rendered at the current
+parameters) of the head crop, area-pooled to ``grid``². The model reads it as
+
+    f_v = A_v · x + g_v + noise_v,    noise_v ~ N(0, diag(r_v + s_v)),    x ~ N(0, I / prior)
+
+where ``x`` is the offset in multiples of each group's expected error (:mod:`.groups`), ``A_v`` and
+its residual variance ``r_v`` come from renders at known offsets, and ``g_v`` / ``s_v`` are the
+mean and variance of the capture-versus-render gap at the run's own (fine-tuned) parameters. The
+solve fuses any subset of the cameras it knows (a scored view is simply left out).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from ..errors import InputError
+from .groups import scale_vector
+
+SPEC_KEYS = ("grid", "render_limit", "n_expr", "prior")
+
+
+class LinearRefiner:
+    """``forward`` (C, D, P), ``residual`` / ``gap_mean`` / ``gap_var`` (C, D) for ``camera_ids``."""
+
+    def __init__(self, spec: dict, camera_ids: list[str], forward: torch.Tensor, residual: torch.Tensor,
+                 gap_mean: torch.Tensor, gap_var: torch.Tensor):
+        self.spec = {k: spec[k] for k in SPEC_KEYS}
+        self.camera_ids = list(camera_ids)
+        self.forward = forward.to(torch.float64)
+        self.residual = residual.to(torch.float64)
+        self.gap_mean = gap_mean.to(torch.float64)
+        self.gap_var = gap_var.to(torch.float64)
+        self.scales = scale_vector(spec["n_expr"]).to(torch.float64)
+
+    @property
+    def grid(self) -> int:
+        return self.spec["grid"]
+
+    def knows(self, camera_id: str) -> bool:
+        return camera_id in self.camera_ids
+
+    def offset(self, features: torch.Tensor, camera_ids: list[str]) -> np.ndarray:
+        """The flat parameter offset (:func:`.groups.flatten` order) that best explains ``features``
+        (V, D), one row per view from the cameras ``camera_ids``."""
+        size = len(self.scales)
+        normal = self.spec["prior"] * torch.eye(size, dtype=torch.float64)
+        projected = torch.zeros(size, dtype=torch.float64)
+        for row, camera_id in zip(features.to(torch.float64), camera_ids):
+            if not self.knows(camera_id):
+                raise InputError(None, "camera", f"the refiner was trained for cameras {self.camera_ids}, "
+                                                 f"not {camera_id!r}")
+            c = self.camera_ids.index(camera_id)
+            weighted = self.forward[c].T / (self.residual[c] + self.gap_var[c])
+            normal += weighted @ self.forward[c]
+            projected += weighted @ (row - self.gap_mean[c])
+        return (torch.linalg.solve(normal, projected) * self.scales).numpy().astype(np.float32)
+
+    def tensors(self) -> dict[str, torch.Tensor]:
+        return {"forward": self.forward.float(), "residual": self.residual.float(),
+                "gap_mean": self.gap_mean.float(), "gap_var": self.gap_var.float()}
