@@ -22,7 +22,7 @@ from mogaface.core.refiner.training import RefinerSettings, frozen_avatar, train
 from mogaface.core.refiner.views import posed
 from test_evaluate_fixtures import fake_run, tiny_capture
 
-SMALL = {"grid": 8, "render_limit": 64, "prior": 1e-3}
+SMALL = {"grid": 8, "render_limit": 64, "prior": 1e-3, "gap_rank": 2}
 
 
 @pytest.fixture(scope="module")
@@ -47,14 +47,16 @@ def test_sampler_offsets_have_the_asked_scale():
     assert np.all(only[:, :-3] == 0) and np.all(only[:, -3:] != 0)
 
 
-def _random_refiner(n_expr: int, cameras=("a", "b", "c"), grid: int = 4, seed: int = 0, gap: float = 0.0):
+def _random_refiner(n_expr: int, cameras=("a", "b", "c"), grid: int = 4, seed: int = 0, gap: float = 0.0,
+                    rank: int = 2):
     gen = torch.Generator().manual_seed(seed)
     count, features = len(scale_vector(n_expr)), 3 * grid * grid
-    return LinearRefiner({"grid": grid, "render_limit": 64, "n_expr": n_expr, "prior": 1e-6}, list(cameras),
-                         torch.randn(len(cameras), features, count, generator=gen),
+    return LinearRefiner({"grid": grid, "render_limit": 64, "n_expr": n_expr, "prior": 1e-6, "gap_rank": rank},
+                         list(cameras), torch.randn(len(cameras), features, count, generator=gen),
                          torch.rand(len(cameras), features, generator=gen) + 0.5,
                          gap * torch.randn(len(cameras), features, generator=gen),
-                         torch.zeros(len(cameras), features))
+                         torch.rand(len(cameras), features, generator=gen),
+                         gap * torch.randn(len(cameras), rank, features, generator=gen))
 
 
 def test_a_pass_is_the_weighted_least_squares_solution_over_the_views_it_is_given():
@@ -69,11 +71,18 @@ def test_a_pass_is_the_weighted_least_squares_solution_over_the_views_it_is_give
     solved = refiner.offset(torch.as_tensor(features), views)
     np.testing.assert_allclose(solved / scales, truth, rtol=1e-4, atol=1e-5)  # noise-free: the exact offset
     noisy = features + np.random.default_rng(2).normal(size=features.shape)
-    weights = np.concatenate([1.0 / refiner.residual.numpy()[i] for i in idx])
-    design = np.concatenate([forward[i] for i in idx])
-    target = np.concatenate([noisy[k] - refiner.gap_mean.numpy()[i] for k, i in enumerate(idx)])
-    reference = np.linalg.lstsq(design * np.sqrt(weights)[:, None], target * np.sqrt(weights), rcond=None)[0]
+    # the reference: whiten each view by the Cholesky factor of its full noise covariance, then lstsq
+    design, target = [], []
+    for k, i in enumerate(idx):
+        basis = refiner.gap_basis.numpy()[i]
+        covariance = np.diag(refiner.residual.numpy()[i] + refiner.gap_var.numpy()[i]) + basis.T @ basis
+        whiten = np.linalg.inv(np.linalg.cholesky(covariance))
+        design.append(whiten @ forward[i])
+        target.append(whiten @ (noisy[k] - refiner.gap_mean.numpy()[i]))
+    reference = np.linalg.lstsq(np.concatenate(design), np.concatenate(target), rcond=None)[0]
     np.testing.assert_allclose(refiner.offset(torch.as_tensor(noisy), views) / scales, reference, rtol=1e-3, atol=1e-4)
+    diagonal_only = _random_refiner(n_expr, gap=0.3, rank=0)  # same draws up to the basis: another answer
+    assert not np.allclose(diagonal_only.offset(torch.as_tensor(noisy), views), refiner.offset(torch.as_tensor(noisy), views))
     with pytest.raises(InputError, match="'z'"):
         refiner.offset(torch.as_tensor(features[:1]), ["z"])
 
@@ -179,6 +188,7 @@ class _Hostile:
     (lambda s: {**s, "state": {**s["state"], "residual": -s["state"]["residual"]}}, "state.residual"),
     (lambda s: {**s, "state": {**s["state"], "gap_mean": s["state"]["gap_mean"][:2]}}, "state.gap_mean"),
     (lambda s: {**s, "state": {k: v for k, v in s["state"].items() if k != "gap_var"}}, "state.gap_var"),
+    (lambda s: {**s, "spec": {**s["spec"], "gap_rank": 3}}, "state.gap_basis"),
     (lambda s: {**s, "state": {**s["state"], "extra": torch.zeros(1)}}, "state.extra"),
     (lambda s: {**s, "payload": _Hostile()}, None),
 ])

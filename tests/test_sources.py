@@ -212,7 +212,7 @@ def run_with_refiner(run, tmp_path_factory):
     root = tmp_path_factory.mktemp("with_refiner") / "run"
     shutil.copytree(run.root, root)
     train_refiner(root, RefinerSettings(starts=2, offsets_per_start=2, gap_timesteps=2, threads=1,
-                                        spec={"grid": 4, "render_limit": 64, "prior": 1.0}))
+                                        spec={"grid": 4, "render_limit": 64, "prior": 1.0, "gap_rank": 1}))
     return RunFolder(root)
 
 

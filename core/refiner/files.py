@@ -18,7 +18,7 @@ from .model import SPEC_KEYS, LinearRefiner
 REFINER_FILE = "refiner.pt"
 REFINER_FORMAT = "mogaface-refiner"
 REFINER_VERSION = 2  # 1 was a convolutional network: files of it are refused by the version check
-_LIMITS = {"grid": (2, 128), "render_limit": (8, 4096), "n_expr": (1, 400), "prior": (1e-6, 1e6)}
+_LIMITS = {"grid": (2, 128), "render_limit": (8, 4096), "n_expr": (1, 400), "prior": (1e-6, 1e6), "gap_rank": (0, 64)}
 _MAX_CAMERAS = 1024
 
 
@@ -63,7 +63,8 @@ def load_refiner(path: str | os.PathLike, n_expr: int | None = None) -> tuple[Li
         raise InputError(path, "state", "expected a table of tensors")
     features, count = 3 * spec["grid"] ** 2, len(scale_vector(spec["n_expr"]))
     shapes = {"forward": (len(cameras), features, count), "residual": (len(cameras), features),
-              "gap_mean": (len(cameras), features), "gap_var": (len(cameras), features)}
+              "gap_mean": (len(cameras), features), "gap_var": (len(cameras), features),
+              "gap_basis": (len(cameras), spec["gap_rank"], features)}
     for key, shape in shapes.items():
         value = tensors.get(key)
         if not isinstance(value, torch.Tensor) or not value.is_floating_point():

@@ -5,12 +5,15 @@ avatar's renders. A pass is one generalised least-squares solve over every view 
 For view ``v`` the feature ``f_v`` is the difference (observed − rendered at the current
 parameters) of the head crop, area-pooled to ``grid``². The model reads it as
 
-    f_v = A_v · x + g_v + noise_v,    noise_v ~ N(0, diag(r_v + s_v)),    x ~ N(0, I / prior)
+    f_v = A_v · x + g_v + noise_v,    noise_v ~ N(0, diag(r_v + s_v) + B_vᵀB_v),    x ~ N(0, I / prior)
 
 where ``x`` is the offset in multiples of each group's expected error (:mod:`.groups`), ``A_v`` and
-its residual variance ``r_v`` come from renders at known offsets, and ``g_v`` / ``s_v`` are the
-mean and variance of the capture-versus-render gap at the run's own (fine-tuned) parameters. The
-solve fuses any subset of the cameras it knows (a scored view is simply left out).
+its residual variance ``r_v`` come from renders at known offsets, and ``g_v`` is the mean of the
+capture-versus-render gap at the run's own (fine-tuned) parameters, ``B_v`` its ``gap_rank``
+leading components and ``s_v`` the variance they leave. The gap is structured (the same parts of
+the face are off together), and telling the solve which patterns are gap rather than motion was
+worth more than any other change (docs/results.md). The solve fuses any subset of the cameras it
+knows (a scored view is simply left out).
 """
 
 from __future__ import annotations
@@ -21,20 +24,22 @@ import torch
 from ..errors import InputError
 from .groups import scale_vector
 
-SPEC_KEYS = ("grid", "render_limit", "n_expr", "prior")
+SPEC_KEYS = ("grid", "render_limit", "n_expr", "prior", "gap_rank")
 
 
 class LinearRefiner:
-    """``forward`` (C, D, P), ``residual`` / ``gap_mean`` / ``gap_var`` (C, D) for ``camera_ids``."""
+    """``forward`` (C, D, P), ``residual`` / ``gap_mean`` / ``gap_var`` (C, D) and ``gap_basis``
+    (C, gap_rank, D) for ``camera_ids``."""
 
     def __init__(self, spec: dict, camera_ids: list[str], forward: torch.Tensor, residual: torch.Tensor,
-                 gap_mean: torch.Tensor, gap_var: torch.Tensor):
+                 gap_mean: torch.Tensor, gap_var: torch.Tensor, gap_basis: torch.Tensor):
         self.spec = {k: spec[k] for k in SPEC_KEYS}
         self.camera_ids = list(camera_ids)
         self.forward = forward.to(torch.float64)
         self.residual = residual.to(torch.float64)
         self.gap_mean = gap_mean.to(torch.float64)
         self.gap_var = gap_var.to(torch.float64)
+        self.gap_basis = gap_basis.to(torch.float64)
         self.scales = scale_vector(spec["n_expr"]).to(torch.float64)
 
     @property
@@ -55,11 +60,19 @@ class LinearRefiner:
                 raise InputError(None, "camera", f"the refiner was trained for cameras {self.camera_ids}, "
                                                  f"not {camera_id!r}")
             c = self.camera_ids.index(camera_id)
-            weighted = self.forward[c].T / (self.residual[c] + self.gap_var[c])
+            weighted = self._whitened(c, self.forward[c]).T
             normal += weighted @ self.forward[c]
             projected += weighted @ (row - self.gap_mean[c])
         return (torch.linalg.solve(normal, projected) * self.scales).numpy().astype(np.float32)
 
+    def _whitened(self, c: int, x: torch.Tensor) -> torch.Tensor:
+        """``Σ_c⁻¹ x`` for the noise covariance ``diag(r + s) + BᵀB`` (Woodbury: one small solve)."""
+        inverse = 1.0 / (self.residual[c] + self.gap_var[c])
+        basis = self.gap_basis[c]
+        scaled = inverse[:, None] * x
+        small = torch.eye(len(basis), dtype=torch.float64) + (basis * inverse) @ basis.T
+        return scaled - (inverse[:, None] * basis.T) @ torch.linalg.solve(small, basis @ scaled)
+
     def tensors(self) -> dict[str, torch.Tensor]:
         return {"forward": self.forward.float(), "residual": self.residual.float(),
-                "gap_mean": self.gap_mean.float(), "gap_var": self.gap_var.float()}
+                "gap_mean": self.gap_mean.float(), "gap_var": self.gap_var.float(), "gap_basis": self.gap_basis.float()}

@@ -9,7 +9,8 @@ passes over the run:
    memorised.
 2. **The capture gap.** At the run's own parameters (fine-tuned when the run fine-tuned them: the
    teacher), the captured training views are compared with the avatar's renders; per camera, the
-   mean and variance of that gap tell the solve what in a capture is not a parameter change.
+   mean of that gap, its leading components and the variance they leave tell the solve what in a
+   capture is not a parameter change.
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ from .model import LinearRefiner
 from .sampler import OffsetSampler
 from .views import crop_cameras, image_crop, pooled_difference, posed, render_crop
 
-DEFAULT_SPEC = {"grid": 32, "render_limit": 512, "prior": 32.0}
+DEFAULT_SPEC = {"grid": 32, "render_limit": 512, "prior": 32.0, "gap_rank": 8}
 
 
 @dataclasses.dataclass
@@ -119,8 +120,9 @@ def _forward_models(avatar, capture, run: _Run, settings, spec, rng, emit, shoul
 
 
 def _capture_gap(avatar, capture, run: _Run, settings, spec, rng, emit):
-    """Per camera, mean and variance of (capture − render) at the run's parameters; cameras with no
-    training view (e.g. a held-out one) get zero mean and the average variance."""
+    """Per camera, the mean of (capture − render) at the run's parameters, its ``gap_rank`` leading
+    components (scaled to their standard deviation) and the variance they leave; cameras with no
+    training view (e.g. a held-out one) get zero mean, no components and the average variance."""
     background = run.background
     recorded = capture_info(capture.root).get("background")
     chosen = rng.permutation(run.timesteps)[:settings.gap_timesteps]
@@ -134,12 +136,27 @@ def _capture_gap(avatar, capture, run: _Run, settings, spec, rng, emit):
             rendered = render_crop(avatar, vertices, crop, background)
             gaps.setdefault(frame.camera_id, []).append(pooled_difference(observed, rendered, spec["grid"]).double())
         emit("iter", step=index + 1, steps=len(chosen), stage="gap")
-    size = 3 * spec["grid"] ** 2
+    size, rank = 3 * spec["grid"] ** 2, spec["gap_rank"]
     measured = {c: torch.stack(g) for c, g in gaps.items() if len(g) >= 2}
-    average = torch.stack([g.var(0) for g in measured.values()]).mean(0) if measured else torch.zeros(size)
-    means = [measured[c].mean(0) if c in measured else torch.zeros(size, dtype=torch.float64) for c in run.camera_ids]
-    variances = [measured[c].var(0) if c in measured else average for c in run.camera_ids]
-    return torch.stack(means), torch.stack(variances), sorted(measured)
+    average = (torch.stack([g.var(0) for g in measured.values()]).mean(0) if measured
+               else torch.zeros(size, dtype=torch.float64))
+    means, variances, bases = [], [], []
+    for camera_id in run.camera_ids:
+        basis = torch.zeros(rank, size, dtype=torch.float64)
+        if camera_id not in measured:
+            means.append(torch.zeros(size, dtype=torch.float64))
+            variances.append(average)
+            bases.append(basis)
+            continue
+        gap = measured[camera_id]
+        centred = gap - gap.mean(0)
+        _, values, vectors = torch.linalg.svd(centred, full_matrices=False)
+        kept = min(rank, len(values))
+        basis[:kept] = vectors[:kept] * (values[:kept, None] / (len(gap) - 1) ** 0.5)
+        means.append(gap.mean(0))
+        variances.append((gap.var(0) - (basis ** 2).sum(0)).clamp_min(0.0))
+        bases.append(basis)
+    return torch.stack(means), torch.stack(variances), torch.stack(bases), sorted(measured)
 
 
 def train_refiner(run_dir, settings: RefinerSettings | None = None, out: str | pathlib.Path | None = None,
@@ -165,8 +182,8 @@ def train_refiner(run_dir, settings: RefinerSettings | None = None, out: str | p
                                                             should_stop)
     if should_stop():  # stopped: keep the offsets learnt so far, measure no gap
         settings = dataclasses.replace(settings, gap_timesteps=0)
-    gap_mean, gap_var, gap_cameras = _capture_gap(avatar, capture, run, settings, spec, rng, emit)
-    refiner = LinearRefiner(spec, run.camera_ids, forward, residual, gap_mean, gap_var)
+    gap_mean, gap_var, gap_basis, gap_cameras = _capture_gap(avatar, capture, run, settings, spec, rng, emit)
+    refiner = LinearRefiner(spec, run.camera_ids, forward, residual, gap_mean, gap_var, gap_basis)
     trained = {"samples_per_camera": samples, "seed": settings.seed, "gap_cameras": gap_cameras,
                "seconds": time.perf_counter() - began, "explained": explained}
     path = pathlib.Path(out) if out is not None else folder.root / REFINER_FILE
