@@ -28,8 +28,8 @@ PARAMETER_METRICS = ("expr_rmse", "expr_vertex_mm", "vertex_mm")
 
 def standard_sources(run: RunFolder, capture, avatar, fit_steps=FIT_STEPS,
                      refiner_passes=REFINER_PASSES) -> dict[str, ParamSource]:
-    """name → source, in table order: tracked, smoothed, fit_N…, refined_K… (runs with a refiner),
-    method (MoGaFace runs), true."""
+    """name → source, in table order: tracked, smoothed, fit_N…, refined_K… and refined_fit_N (the
+    refiner's one pass, then fitting from there; runs with a refiner), method (MoGaFace runs), true."""
     from .sources.fitted import FittedParams
     from .sources.mogaface import MoGaFaceParams
     from .sources.refined import RefinedParams, run_refiner
@@ -54,6 +54,9 @@ def standard_sources(run: RunFolder, capture, avatar, fit_steps=FIT_STEPS,
     if refiner is not None:
         for passes in refiner_passes:
             sources[f"refined_{passes}"] = RefinedParams(avatar, capture, tracked, refiner, run.background, passes)
+        if fit_steps:
+            start = RefinedParams(avatar, capture, tracked, refiner, run.background, 1)
+            sources[f"refined_fit_{fit_steps[0]}"] = FittedParams(avatar, capture, start, fit_steps[0], run.background)
     model = getattr(avatar, "model", None)
     if model is not None and model.mode != "off":
         sources["method"] = MoGaFaceParams(capture, run, model, image_assisted=True)

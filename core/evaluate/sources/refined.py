@@ -41,7 +41,7 @@ class RefinedParams:
 
     def params_for(self, frame: Frame | int, exclude_view: str | None = None) -> dict[str, np.ndarray]:
         timestep = timestep_of(frame)
-        start = self.base.params_for(timestep)
+        start = self.base.params_for(frame, exclude_view)  # a base that reads images leaves it out too
         frames = self._chosen(views_at(self.capture, timestep, exclude_view))
         if not frames or self.passes <= 0:
             return start
