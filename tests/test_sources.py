@@ -2,6 +2,8 @@
 input, the ceiling renders with the truth, frames are scored from the true camera, and no scored
 view ever reaches a source."""
 
+import json
+
 import numpy as np
 import pytest
 
@@ -258,3 +260,44 @@ def test_no_scored_view_reaches_any_source(capture, run_with_refiner, monkeypatc
     free = result["protocols"]["self_reenactment"]
     assert free["true"]["vertex_mm"] == pytest.approx(0.0, abs=1e-6) and free["tracked"]["vertex_mm"] > 0.1
     assert all(scores["frame_s"] > 0 for scores in free.values())
+
+
+def test_image_assisted_sources_see_their_input_views_through_the_runs_refined_cameras(
+        capture, run_with_refiner, tmp_path, monkeypatch):
+    """With ``RUN/cameras_refined.json`` the other views are rendered from the refined poses (the
+    avatar was trained against them); without it, from the calibration."""
+    import shutil
+
+    from mogaface.core.camera import Camera
+    from mogaface.core.data.writer import camera_fields
+    from mogaface.core.evaluate.sources import refined as refined_module
+
+    root = tmp_path / "run"
+    shutil.copytree(run_with_refiner.root, root)
+    frame = next(f for f in capture.frames("val"))
+    calibrated = capture.camera_at("cam00", frame.timestep_index)
+    moved = calibrated.w2c.copy()
+    moved[:3, 3] += (0.01, -0.02, 0.005)
+    (root / "cameras_refined.json").write_text(json.dumps(
+        {"cam00": camera_fields(Camera(calibrated.K, moved, calibrated.width, calibrated.height, "cam00"))}))
+    run = RunFolder(root)
+    avatar = run.load_avatar()
+    seen = {"fit": [], "refined": []}
+    render = avatar.render
+    monkeypatch.setattr(avatar, "render", lambda params, camera, bg: seen["fit"].append(camera) or render(params, camera, bg))
+    refine = refined_module.refine
+    monkeypatch.setattr(refined_module, "refine",
+                        lambda a, r, p, cameras, *rest: seen["refined"].extend(cameras) or refine(a, r, p, cameras, *rest))
+    sources = standard_sources(run, capture, avatar, fit_steps=(2,))
+    for name in ("fit_2", "refined_1"):
+        sources[name].params_for(frame, exclude_view=frame.camera_id)
+    fitted = {c.camera_id: c for c in seen["fit"]}
+    refined = {c.camera_id: c for c in seen["refined"]}
+    np.testing.assert_allclose(fitted["cam00"].w2c, moved, atol=1e-9)  # fitting renders at half size, same pose
+    np.testing.assert_allclose(refined["cam00"].w2c, moved, atol=1e-9)
+    np.testing.assert_allclose(refined["cam02"].w2c, capture.camera_at("cam02", frame.timestep_index).w2c)
+    assert frame.camera_id not in fitted and frame.camera_id not in refined
+    (root / "cameras_refined.json").unlink()
+    seen["fit"].clear()
+    standard_sources(run, capture, avatar, fit_steps=(2,))["fit_2"].params_for(frame, exclude_view=frame.camera_id)
+    np.testing.assert_allclose({c.camera_id: c for c in seen["fit"]}["cam00"].w2c, calibrated.w2c)

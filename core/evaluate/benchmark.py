@@ -30,6 +30,7 @@ def standard_sources(run: RunFolder, capture, avatar, fit_steps=FIT_STEPS,
                      refiner_passes=REFINER_PASSES) -> dict[str, ParamSource]:
     """name → source, in table order: tracked, smoothed, fit_N…, refined_K… and refined_fit_N (the
     refiner's one pass, then fitting from there; runs with a refiner), method (MoGaFace runs), true."""
+    from .sources.base import InputCameras
     from .sources.fitted import FittedParams
     from .sources.mogaface import MoGaFaceParams
     from .sources.refined import RefinedParams, run_refiner
@@ -39,6 +40,7 @@ def standard_sources(run: RunFolder, capture, avatar, fit_steps=FIT_STEPS,
     from .sources.true import TrueParams, truth_dir
 
     tracked = TrackedParams(capture, run)
+    inputs = InputCameras.of_run(capture, run.root)  # the run's refined cameras, where it refined them
     sources: dict[str, ParamSource] = {"tracked": tracked}
     try:
         truth_dir(capture)
@@ -49,14 +51,16 @@ def standard_sources(run: RunFolder, capture, avatar, fit_steps=FIT_STEPS,
         held_out = [capture_info(capture.root).get("test_sequence")]
         sources["smoothed"] = SmoothedParams(capture, tracked, choose_sigmas(capture, held_out))
     for steps in fit_steps:
-        sources[f"fit_{steps}"] = FittedParams(avatar, capture, tracked, steps, run.background)
+        sources[f"fit_{steps}"] = FittedParams(avatar, capture, tracked, steps, run.background, cameras=inputs)
     refiner = run_refiner(run.root, avatar)
     if refiner is not None:
         for passes in refiner_passes:
-            sources[f"refined_{passes}"] = RefinedParams(avatar, capture, tracked, refiner, run.background, passes)
+            sources[f"refined_{passes}"] = RefinedParams(avatar, capture, tracked, refiner, run.background, passes,
+                                                         cameras=inputs)
         if fit_steps:
-            start = RefinedParams(avatar, capture, tracked, refiner, run.background, 1)
-            sources[f"refined_fit_{fit_steps[0]}"] = FittedParams(avatar, capture, start, fit_steps[0], run.background)
+            start = RefinedParams(avatar, capture, tracked, refiner, run.background, 1, cameras=inputs)
+            sources[f"refined_fit_{fit_steps[0]}"] = FittedParams(avatar, capture, start, fit_steps[0], run.background,
+                                                                  cameras=inputs)
     model = getattr(avatar, "model", None)
     if model is not None and model.mode != "off":
         sources["method"] = MoGaFaceParams(capture, run, model, image_assisted=True)

@@ -111,13 +111,15 @@ def evaluate_run(
 
 def _with_refiner(run, capture, avatar, source):
     """A run with a refiner (``RUN/refiner.pt``) is scored with it, starting from the tracked parameters."""
+    from .sources.base import InputCameras
     from .sources.refined import RefinedParams, run_refiner
 
     avatar = run.load_avatar() if avatar is None else avatar
     refiner = run_refiner(run.root, avatar)
     if refiner is None:
         return avatar, source
-    return avatar, RefinedParams(avatar, capture, TrackedParams(capture, run), refiner, run.background, passes=3)
+    return avatar, RefinedParams(avatar, capture, TrackedParams(capture, run), refiner, run.background, passes=3,
+                                 cameras=InputCameras.of_run(capture, run.root))
 
 
 def write_cross_identity(avatar, capture, run, driver, out: pathlib.Path, max_frames, progress, cameras=None) -> dict:

@@ -118,12 +118,16 @@ def score_variant(run_dir: pathlib.Path, max_frames, lpips: bool, fit_steps) -> 
     from ..evaluate.expression_error import expression_errors
     from ..io.atomic import write_json
 
+    from ..evaluate.camera_error import REFINED_CAMERAS_FILE
     from ..evaluate.sources.fitted import fitting_settings
     from ..refiner.files import REFINER_FILE
 
-    refiner = run_dir / REFINER_FILE  # a refiner trained later makes its rows: score again
+    def changed(name):  # a refiner trained later, refined cameras written later: score again
+        path = run_dir / name
+        return path.stat().st_mtime_ns if path.exists() else None
+
     options = {"max_frames": max_frames, "lpips": lpips, "fit_steps": list(fit_steps), "fitting": fitting_settings(),
-               "refiner": refiner.stat().st_mtime_ns if refiner.exists() else None}
+               "refiner": changed(REFINER_FILE), "refined_cameras": changed(REFINED_CAMERAS_FILE)}
     cached = run_dir / SCORES_FILE
     if cached.exists() and cached.stat().st_mtime >= (run_dir / "run.json").stat().st_mtime:
         try:

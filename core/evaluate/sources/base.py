@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import pathlib
 from typing import Protocol
 
 import numpy as np
@@ -30,3 +31,26 @@ def timestep_of(frame: Frame | int) -> int:
 def views_at(capture: Capture, timestep: int, exclude_view: str | None, split: str | None = None) -> list[Frame]:
     """The frames of one timestep other than the excluded view: what an image-assisted source may see."""
     return [f for f in capture.frames(split) if f.timestep_index == timestep and f.camera_id != exclude_view]
+
+
+class InputCameras:
+    """The camera an image-assisted source renders an input view from: the run's refined camera
+    (``RUN/cameras_refined.json``, written by camera refinement in training) where it has one, else
+    the capture's calibration. The avatar was trained against the refined cameras, so fitting to a
+    view through its calibrated pose would fit the calibration error. Scoring does not use this:
+    the scored view keeps its scoring camera (:class:`..images.ScoringCameras`)."""
+
+    def __init__(self, capture: Capture, refined: dict | None = None):
+        self.capture = capture
+        self.refined = dict(refined or {})
+
+    @classmethod
+    def of_run(cls, capture: Capture, run_root) -> "InputCameras":
+        from ..camera_error import REFINED_CAMERAS_FILE
+        from ..images import read_cameras
+
+        path = pathlib.Path(run_root) / REFINED_CAMERAS_FILE
+        return cls(capture, read_cameras(path) if path.exists() else None)
+
+    def __call__(self, frame: Frame):
+        return self.refined.get(frame.camera_id) or self.capture.camera(frame)

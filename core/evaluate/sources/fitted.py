@@ -13,7 +13,7 @@ import torch
 from ...data.capture import Capture, Frame
 from ..images import target_image
 from ..run_folder import capture_info
-from .base import ParamSource, timestep_of, views_at
+from .base import InputCameras, ParamSource, timestep_of, views_at
 
 # The width of the prior toward the start per parameter (make-capture's default tracker error for
 # the expression, twice it for rotations and translation), and the scale of the Adam step sizes,
@@ -62,9 +62,10 @@ class FittedParams:
 
     def __init__(self, avatar, capture: Capture, base: ParamSource, steps: int, background,
                  views_per_step: int = 2, scale: float = 0.5, rates: dict[str, float] | None = None,
-                 prior_weight: float = PRIOR_WEIGHT, decay: bool = True):
+                 prior_weight: float = PRIOR_WEIGHT, decay: bool = True, cameras: InputCameras | None = None):
         self.avatar = avatar
         self.capture = capture
+        self.cameras = cameras or InputCameras(capture)
         self.base = base
         self.steps = steps
         self.background = tuple(float(v) for v in background)
@@ -90,7 +91,7 @@ class FittedParams:
     def _fit(self, start: dict[str, np.ndarray], frames: list[Frame], timestep: int) -> dict[str, np.ndarray]:
         views = []
         for f in frames:
-            camera = self.capture.camera(f).scaled(self.scale)
+            camera = self.cameras(f).scaled(self.scale)
             image = target_image(self.capture, f, self.background, self.recorded)
             views.append((camera, _resized(image, camera.width, camera.height)))
         free = {k: torch.tensor(np.asarray(start[k], np.float32))[None].requires_grad_(True)

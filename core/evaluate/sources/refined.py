@@ -13,16 +13,17 @@ from ...data.capture import Capture, Frame
 from ...refiner.inference import refine
 from ..images import target_image
 from ..run_folder import capture_info
-from .base import ParamSource, timestep_of, views_at
+from .base import InputCameras, ParamSource, timestep_of, views_at
 
 
 class RefinedParams:
     uses_images = True
 
     def __init__(self, avatar, capture: Capture, base: ParamSource, refiner, background, passes: int = 1,
-                 max_views: int = 4):
+                 max_views: int = 4, cameras: InputCameras | None = None):
         self.avatar = avatar
         self.capture = capture
+        self.cameras = cameras or InputCameras(capture)
         self.base = base
         self.refiner = refiner
         self.background = tuple(float(v) for v in background)
@@ -47,7 +48,7 @@ class RefinedParams:
             return start
         self.inputs.append((exclude_view, [f.camera_id for f in frames]))
         images = [target_image(self.capture, f, self.background, self.recorded) for f in frames]
-        cameras = [self.capture.camera(f) for f in frames]
+        cameras = [self.cameras(f) for f in frames]
         return refine(self.avatar, self.refiner, start, cameras, images, self.background, self.passes)[-1]
 
 
