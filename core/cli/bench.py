@@ -9,6 +9,7 @@ import sys
 BENCHMARKS = {
     "cancel_latency": "SIGINT to exit while a raster kernel runs, at the largest allowed frame and in train",
     "distributed": "data-parallel training: ranks against threads, all-reduce volume and time per step",
+    "refiner": "the multi-view refiner against test-time fitting on unseen frames: seconds per frame, PSNR gained",
     "splat": "the CPU Gaussian splat engine against its torch reference",
     "splat_fuzz": "the splat engine on degenerate Gaussians and intrinsics (hangs, non-finite values)",
     "step": "one training step stage by stage (FLAME, binding, render, loss, optimiser, MoGaFace modules)",
@@ -22,7 +23,8 @@ def add_arguments(parser):
     parser.add_argument("--threads", type=int, default=2, help="CPU threads for numba and torch")
     parser.add_argument("--quick", action="store_true", help="fewer sizes and repeats (smoke run)")
     parser.add_argument("--out", help="also write the JSON report to this file")
-    parser.add_argument("--avatar", help="viewport: the avatar (run folder or avatar.pt; default out/demo/run)")
+    parser.add_argument("--avatar", help="viewport: the avatar (run folder or avatar.pt); refiner: the run folder "
+                                         "with refiner.pt (default out/demo/run)")
     parser.add_argument("--scale", choices=["small", "real"],
                         help="train only: 'real' times the full method at 802x550, 16 cameras, 100k Gaussians")
 
@@ -36,8 +38,8 @@ def run(args) -> int:
     if args.scale is not None and args.name != "train":
         print("error: --scale applies to the train benchmark only", file=sys.stderr)
         return 2
-    if args.avatar is not None and args.name != "viewport":
-        print("error: --avatar applies to the viewport benchmark only", file=sys.stderr)
+    if args.avatar is not None and args.name not in ("viewport", "refiner"):
+        print("error: --avatar applies to the viewport and refiner benchmarks only", file=sys.stderr)
         return 2
     options = {"scale": args.scale} if args.scale is not None else {}
     if args.avatar is not None:

@@ -25,6 +25,7 @@ import torch
 from ..errors import InputError
 from ..evaluate.images import target_image
 from ..evaluate.run_folder import MOTION_KEYS, RunFolder, capture_info
+from ..evaluate.sources.base import InputCameras
 from ..mogaface.avatar import load_run_avatar
 from .files import REFINER_FILE, save_refiner
 from .groups import add_offset, scale_vector
@@ -64,10 +65,12 @@ def frozen_avatar(run_dir):
 
 
 class _Run:
-    """The run's training timesteps with their parameters, and the capture's cameras and frames."""
+    """The run's training timesteps with their parameters, and the capture's cameras (the run's
+    refined poses where training refined them) and frames."""
 
     def __init__(self, run: RunFolder, capture):
         self.background = run.background
+        self.cameras = InputCameras.of_run(capture, run.root)
         self.timesteps = [t for t in run.trained_timesteps if t in capture.timestep_ids]
         if not self.timesteps:
             raise InputError(run.flame_param_dir, None, "the run holds no FLAME parameters (is training finished?)")
@@ -93,7 +96,7 @@ def _forward_models(avatar, capture, run: _Run, settings, spec, rng, emit, shoul
             break
         t = int(rng.choice(run.timesteps))
         start = add_offset(run.params[t], (rng.normal(size=len(scales)) * 0.5 * scales).astype(np.float32), n_expr)
-        cameras = [capture.camera_at(c, t) for c in run.camera_ids]
+        cameras = [run.cameras.at(c, t) for c in run.camera_ids]
         vertices = posed(avatar, start)
         crops = crop_cameras(cameras, vertices, spec["render_limit"])
         base = [render_crop(avatar, vertices, crop, background) for crop in crops]
@@ -129,7 +132,7 @@ def _capture_gap(avatar, capture, run: _Run, settings, spec, rng, emit):
     gaps: dict[str, list] = {}
     for index, t in enumerate(chosen):
         frames = run.training_frames.get(int(t), [])
-        cameras = [capture.camera(f) for f in frames]
+        cameras = [run.cameras(f) for f in frames]
         vertices = posed(avatar, run.params[int(t)])
         for frame, crop in zip(frames, crop_cameras(cameras, vertices, spec["render_limit"])):
             observed = image_crop(target_image(capture, frame, background, recorded), crop, background)

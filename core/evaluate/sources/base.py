@@ -54,3 +54,7 @@ class InputCameras:
 
     def __call__(self, frame: Frame):
         return self.refined.get(frame.camera_id) or self.capture.camera(frame)
+
+    def at(self, camera_id: str, timestep: int):
+        """Camera ``camera_id`` as an input at ``timestep`` (also where no frame shows it there)."""
+        return self.refined.get(camera_id) or self.capture.camera_at(camera_id, timestep)
