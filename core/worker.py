@@ -33,6 +33,7 @@ class Progress:
     """What the UI shows: where the run is and how it is doing."""
 
     state: str = "starting"  # starting, running, done, cancelled, failed
+    stage: str | None = None  # a job of several stages names the one running
     step: int = 0
     steps: int = 0
     loss: float | None = None
@@ -51,7 +52,7 @@ class Progress:
 
     def text(self) -> str:
         """One line: step, loss, PSNR, ETA."""
-        parts = [f"step {self.step}/{self.steps}" if self.steps else self.state]
+        parts = [f"{self.stage or 'step'} {self.step}/{self.steps}" if self.steps else self.state]
         if self.loss is not None:
             parts.append(f"loss {self.loss:.4f}")
         if self.psnr is not None:
@@ -173,6 +174,11 @@ class TrainWorker:
     whose ``events.jsonl`` is read. Events written before the start (a resumed run) are skipped.
     """
 
+    EVENTS_FILE = "events.jsonl"
+    JOB = "training"
+    CANCELLED = "checkpoint written"  # what a cancelled job leaves
+    DONE = "finished at step {step}"
+
     def __init__(self, command: list[str], run, env: dict | None = None, stderr_lines: int = 40):
         self.command = list(command)
         self.run = pathlib.Path(run)
@@ -187,7 +193,7 @@ class TrainWorker:
     # -- life cycle --------------------------------------------------------------------------
     def start(self) -> "TrainWorker":
         """Start the child; an interpreter that cannot be started raises ``OSError``."""
-        events = self.run / "events.jsonl"
+        events = self.run / self.EVENTS_FILE
         self._reader = EventReader(events)
         self._reader.offset = events.stat().st_size if events.exists() else 0
         self.run.mkdir(parents=True, exist_ok=True)
@@ -242,6 +248,7 @@ class TrainWorker:
     def _apply(self, event: dict) -> None:
         self.events.append(event)
         p, kind = self.progress, event.get("event")
+        p.stage = event.get("stage", p.stage)
         p.step = int(event.get("step", p.step) or 0)
         p.steps = int(event.get("steps", p.steps) or 0)
         if kind == "iter":
@@ -257,14 +264,14 @@ class TrainWorker:
         p = self.progress
         kinds = {e.get("event") for e in self.events}
         if code == 0 and "done" in kinds:
-            p.state, p.message = "done", f"finished at step {p.step}"
+            p.state, p.message = "done", self.DONE.format(step=p.step)
         elif self._cancelled and ("stopped" in kinds or code in (128 + signal.SIGINT, 128 + signal.SIGTERM)):
-            p.state, p.message = "cancelled", f"cancelled at step {p.step} (checkpoint written)"
+            p.state, p.message = "cancelled", f"cancelled at {p.stage or 'step'} {p.step} ({self.CANCELLED})"
         else:
             p.state = "failed"
             tail = [line for line in self._stderr if line.strip()]
             detail = next((line for line in reversed(tail) if "error" in line.lower()), tail[-1] if tail else "")
-            p.message = f"training failed (exit code {code})" + (f": {detail}" if detail else "")
+            p.message = f"{self.JOB} failed (exit code {code})" + (f": {detail}" if detail else "")
 
     def wait(self, interval: float = 0.5, on_progress=None, timeout: float | None = None) -> Progress:
         """Poll until the child ends (headless use: timers never run there).
@@ -289,3 +296,25 @@ class TrainWorker:
             self.cancel()
             self._process.wait()
             return self.poll()
+
+
+class RefineTrackingWorker(TrainWorker):
+    """``refine-tracking RUN`` in a child process (:func:`refine_tracking_command`); a cancelled
+    one replaces nothing."""
+
+    EVENTS_FILE = "refine_tracking_events.jsonl"
+    JOB = "improving the tracking"
+    CANCELLED = "nothing replaced"
+    DONE = "refined {step} timesteps"
+
+
+def refine_tracking_command(python: str, run, out=None, passes: int | None = None, views: int | None = None,
+                            threads: int | None = None, paths=()) -> list[str]:
+    """The argument list of a ``refine-tracking`` child process (see :func:`worker_command`)."""
+    arguments = ["refine-tracking", os.fspath(run), "--quiet"]
+    if out is not None:
+        arguments += ["--out", os.fspath(out)]
+    for flag, value in (("--passes", passes), ("--views", views), ("--threads", threads)):
+        if value is not None:
+            arguments += [flag, str(int(value))]
+    return worker_command(python, arguments, paths)

@@ -205,3 +205,22 @@ class MOGAFACE_PT_reenactment(_SubPanel, bpy.types.Panel):
         op.directory = settings.tracking_folder
         wrapped_label(layout, context, "Keys the active head's expressions and pose; another subject's tracking "
                       "reenacts this head.")
+        draw_improve_tracking(layout, context)
+
+
+def draw_improve_tracking(layout, context) -> None:
+    """Improve Tracking with the scene's run, or the running improvement's progress and Cancel."""
+    from ..operators.improve_tracking import current_worker, last_progress
+
+    progress = last_progress()
+    if current_worker() is not None:
+        layout.progress(factor=progress.fraction, text=f"Improving: {progress.text()}")
+        layout.operator("mogaface.improve_tracking_cancel", icon="CANCEL")
+        return
+    row = layout.row()
+    row.enabled = is_head(context.active_object) and bool(context.scene.mogaface.run_folder)
+    row.operator("mogaface.improve_tracking", icon="MOD_WAVE")
+    wrapped_label(layout, context, "Refines every timestep from the capture's views with the run's refiner, "
+                  "then keys the head with it.")
+    if progress is not None and progress.state != "done":
+        wrapped_label(layout, context, progress.message, icon="ERROR" if progress.state == "failed" else "INFO")

@@ -14,6 +14,9 @@ from ..operators.head_rig import update_heads_on_edit, update_heads_on_frame_cha
 from ..operators.import_capture import MOGAFACE_OT_import_capture, MOGAFACE_OT_use_capture_camera
 from ..operators.import_head import MOGAFACE_OT_import_head
 from ..operators.import_tracking import MOGAFACE_OT_import_tracking
+from ..operators.improve_tracking import (
+    MOGAFACE_OT_improve_tracking, MOGAFACE_OT_improve_tracking_cancel, cancel_running_job as cancel_improving,
+)
 from ..operators.install_dependencies import (
     MOGAFACE_OT_install_dependencies, MOGAFACE_OT_install_dependencies_cancel, cancel_running_install,
 )
@@ -37,6 +40,8 @@ CLASSES: list = [
     MOGAFACE_OT_use_capture_camera,
     MOGAFACE_OT_import_head,
     MOGAFACE_OT_import_tracking,
+    MOGAFACE_OT_improve_tracking,
+    MOGAFACE_OT_improve_tracking_cancel,
     MOGAFACE_OT_train,
     MOGAFACE_OT_train_cancel,
     MOGAFACE_OT_load_avatar,
@@ -82,6 +87,7 @@ def _same_function(a, b) -> bool:
 
 def unregister():
     cancel_running_job()  # a training child never outlives the extension
+    cancel_improving()
     cancel_render_job()
     cancel_running_install()
     viewport.unregister()

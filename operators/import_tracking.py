@@ -57,33 +57,40 @@ class MOGAFACE_OT_import_tracking(bpy.types.Operator):
             name = self.target or getattr(obj, "name", "nothing")
             self.report({"ERROR"}, f"{name} is not a MoGaFace head: import one with Import Head first")
             return {"CANCELLED"}
-        core = core_or_report(self, context)
-        if core is None:
+        if core_or_report(self, context) is None:
             return {"CANCELLED"}
-        replaced = existing_keys(obj)
-        key = obj.data.shape_keys
-        rig = run_core(self, rig_of, obj)
-        if rig is None:
-            return {"CANCELLED"}
-        n_expr = rig.model.n_expr  # expression keys are key blocks 1…n_expr, after Basis
-        channels = run_core(self, core.tracking_channels, bpy.path.abspath(self.directory), n_expr)
-        if channels is None:
-            return {"CANCELLED"}
-        container = fcurve_container(obj, f"{obj.name} MoGaFace pose")
-        for prop, columns in channels.pose.items():
-            for index, co in enumerate(columns):
-                write_fcurve(container, f'["{prop}"]', index, co, group="MoGaFace pose")
-        container = fcurve_container(key, f"{obj.name} MoGaFace expressions")
-        for block, co in zip(key.key_blocks[1 : 1 + n_expr], channels.expressions):
-            write_fcurve(container, block.path_from_id("value"), 0, co, group="MoGaFace expressions")
-        scene = context.scene
-        scene.frame_start, scene.frame_end = int(channels.frames.min()), int(channels.frames.max())
-        scene.frame_set(scene.frame_current)  # the frame handler re-poses the head
-        run_core(self, update_head, obj)
-        scene.mogaface.tracking_folder = bpy.path.abspath(self.directory)
-        if channels.note:
-            self.report({"WARNING"}, channels.note)
-        if replaced:
-            self.report({"WARNING"}, f"Replaced {replaced} existing keyframes on {obj.name}")
-        self.report({"INFO"}, f"Keyed {len(channels.frames)} timesteps on {obj.name}")
-        return {"FINISHED"}
+        return {"FINISHED"} if key_tracking(self, context, obj, bpy.path.abspath(self.directory)) else {"CANCELLED"}
+
+
+def key_tracking(operator, context, obj, folder: str) -> bool:
+    """Key head ``obj``'s expressions and pose from a ``flame_param`` folder, one key per timestep;
+    what goes wrong is reported through ``operator``. The scene's Tracking field becomes ``folder``."""
+    from ..core import scene_conversion as core
+
+    replaced = existing_keys(obj)
+    key = obj.data.shape_keys
+    rig = run_core(operator, rig_of, obj)
+    if rig is None:
+        return False
+    n_expr = rig.model.n_expr  # expression keys are key blocks 1…n_expr, after Basis
+    channels = run_core(operator, core.tracking_channels, folder, n_expr)
+    if channels is None:
+        return False
+    container = fcurve_container(obj, f"{obj.name} MoGaFace pose")
+    for prop, columns in channels.pose.items():
+        for index, co in enumerate(columns):
+            write_fcurve(container, f'["{prop}"]', index, co, group="MoGaFace pose")
+    container = fcurve_container(key, f"{obj.name} MoGaFace expressions")
+    for block, co in zip(key.key_blocks[1 : 1 + n_expr], channels.expressions):
+        write_fcurve(container, block.path_from_id("value"), 0, co, group="MoGaFace expressions")
+    scene = context.scene
+    scene.frame_start, scene.frame_end = int(channels.frames.min()), int(channels.frames.max())
+    scene.frame_set(scene.frame_current)  # the frame handler re-poses the head
+    run_core(operator, update_head, obj)
+    scene.mogaface.tracking_folder = folder
+    if channels.note:
+        operator.report({"WARNING"}, channels.note)
+    if replaced:
+        operator.report({"WARNING"}, f"Replaced {replaced} existing keyframes on {obj.name}")
+    operator.report({"INFO"}, f"Keyed {len(channels.frames)} timesteps on {obj.name}")
+    return True

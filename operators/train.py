@@ -14,7 +14,8 @@ import os
 import bpy
 from bpy.props import EnumProperty, IntProperty, StringProperty
 
-from .common import clear_status_text, core_or_report, redraw_areas
+from .child_job import FollowsChildJob, cancel_and_wait, end_job, job_progress, new_job
+from .common import core_or_report
 from .dependencies import interpreter, top_package, worker_paths
 
 #: Training presets (core.train.config.PRESETS) offered in the UI, with a one-line description each.
@@ -26,8 +27,8 @@ PRESET_ITEMS = (
     ("mogaface-demo", "MoGaFace Demo", "The full MoGaFace method at the demo's length"),
 )
 
-#: The one running job (the UI trains one run at a time): a TrainWorker, or None.
-_job = {"worker": None, "last": None}
+#: The one running training (the UI trains one run at a time).
+_job = new_job()
 
 
 def current_worker():
@@ -36,9 +37,8 @@ def current_worker():
 
 
 def last_progress():
-    """The :class:`Progress` of the running or last finished job, or None."""
-    worker = _job["worker"]
-    return worker.progress if worker is not None else _job["last"]
+    """The :class:`Progress` of the running or last finished training, or None."""
+    return job_progress(_job)
 
 
 def _preference(context, name: str, default):
@@ -46,17 +46,17 @@ def _preference(context, name: str, default):
     return getattr(getattr(addon, "preferences", None), name, default) if addon else default
 
 
-def _threads(context) -> int | None:
+def preferred_threads(context) -> int | None:
+    """CPU threads for a child process: the preferences' count, None (the command's default) for 0."""
     addon = context.preferences.addons.get(top_package())
     threads = getattr(getattr(addon, "preferences", None), "threads", 0) if addon else 0
     return threads or None
 
 
 def finish_job(operator, progress, settings=None) -> set:
-    """Report how a job ended and forget it; the operator's return value. A finished run's
+    """Report how a training ended and forget it; the operator's return value. A finished run's
     avatar goes into the scene's Avatar field (``settings``: ``scene.mogaface``)."""
-    worker = _job["worker"]
-    _job["last"], _job["worker"] = progress, None
+    worker = end_job(_job, progress)
     if progress.state == "done" and settings is not None and worker is not None:
         avatar = worker.run / "avatar.pt"
         if avatar.exists():
@@ -72,20 +72,11 @@ def finish_job(operator, progress, settings=None) -> set:
 
 
 def cancel_running_job() -> None:
-    """Cancel a running job and wait for its checkpoint (used when the extension is disabled);
-    its progress leaves the status bar."""
-    worker = _job["worker"]
-    if worker is not None:
-        clear_status_text()
-        worker.cancel()
-        try:
-            worker.wait(interval=0.1, timeout=30)
-        finally:
-            worker.kill()
-            _job["worker"] = None
+    """Cancel a running training and wait for its checkpoint (the extension is being disabled)."""
+    cancel_and_wait(_job)
 
 
-class MOGAFACE_OT_train(bpy.types.Operator):
+class MOGAFACE_OT_train(FollowsChildJob, bpy.types.Operator):
     """Train an avatar on a capture in a separate process, showing its progress"""
 
     bl_idname = "mogaface.train"
@@ -105,8 +96,7 @@ class MOGAFACE_OT_train(bpy.types.Operator):
                ("NEW", "New", "Start a new run"), ("RESUME", "Resume", "Continue from the latest checkpoint")),
     )
 
-    _timer = None
-    _worker = None
+    label, tag = "training", "train"
 
     def _start(self, context):
         if _job["worker"] is not None:
@@ -129,7 +119,7 @@ class MOGAFACE_OT_train(bpy.types.Operator):
         python = bpy.path.abspath(self.python) if self.python else interpreter(context)
         command = train_command(
             python, capture, run, preset=self.preset, steps=steps,
-            seed=settings.seed if self.seed < 0 else self.seed, threads=_threads(context), resume=resume,
+            seed=settings.seed if self.seed < 0 else self.seed, threads=preferred_threads(context), resume=resume,
             paths=worker_paths(python),
         )
         from ..core.launcher import with_launcher
@@ -150,33 +140,13 @@ class MOGAFACE_OT_train(bpy.types.Operator):
         worker = self._start(context)
         if worker is None:
             return {"CANCELLED"}
-        if bpy.app.background or context.window is None:
-            # Timers and modal handlers never run headless: poll in a loop instead.
-            def show(progress):
-                print(f"[train] {progress.text()}", flush=True)
-
-            return finish_job(self, worker.wait(interval=0.2, on_progress=show), context.scene.mogaface)
-        self._worker = worker
-        self._timer = context.window_manager.event_timer_add(0.5, window=context.window)
-        context.window_manager.modal_handler_add(self)
-        return {"RUNNING_MODAL"}
+        return self.follow(context, worker)
 
     def invoke(self, context, event):
         return self.execute(context)
 
-    def modal(self, context, event):
-        if event.type != "TIMER":
-            return {"PASS_THROUGH"}
-        progress = self._worker.poll()
-        context.workspace.status_text_set(f"MoGaFace training: {progress.text()}")
-        redraw_areas(context)
-        if not progress.finished:
-            return {"PASS_THROUGH"}
-        context.window_manager.event_timer_remove(self._timer)
-        context.workspace.status_text_set(None)
-        result = finish_job(self, progress, context.scene.mogaface)
-        redraw_areas(context)
-        return result
+    def finished(self, context, progress) -> set:
+        return finish_job(self, progress, context.scene.mogaface)
 
 
 class MOGAFACE_OT_train_cancel(bpy.types.Operator):

@@ -47,7 +47,8 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 MODULE = "bl_ext.user_default.mogaface"
 CLASS_NAMES = (
     "MOGAFACE_OT_import_capture", "MOGAFACE_OT_use_capture_camera", "MOGAFACE_OT_import_head",
-    "MOGAFACE_OT_import_tracking", "MOGAFACE_OT_train", "MOGAFACE_OT_train_cancel", "MOGAFACE_OT_load_avatar",
+    "MOGAFACE_OT_import_tracking", "MOGAFACE_OT_improve_tracking", "MOGAFACE_OT_improve_tracking_cancel",
+    "MOGAFACE_OT_train", "MOGAFACE_OT_train_cancel", "MOGAFACE_OT_load_avatar",
     "MOGAFACE_OT_render_frame", "MOGAFACE_OT_render_animation", "MOGAFACE_OT_export_ply",
     "MOGAFACE_OT_render_cancel", "MOGAFACE_OT_setup_render_layer", "MOGAFACE_OT_gaussians_to_mesh",
     "MOGAFACE_OT_install_dependencies", "MOGAFACE_OT_install_dependencies_cancel", "MOGAFACE_PT_main",
@@ -396,6 +397,8 @@ def test_panels_draw_every_section_and_name_missing_packages(scenario, monkeypat
     assert ("prop", '["mogaface_jaw_pose"]') in log and ("prop", "run_folder") in log
     for idname in ("mogaface.train", "mogaface.load_avatar", "mogaface.render_frame", "mogaface.export_ply"):
         assert ("operator", idname, True) in log
+    run_set = bool(bpy.context.scene.mogaface.run_folder)  # improving needs a head and a trained run
+    assert ("operator", "mogaface.improve_tracking", run_set) in log
     preferences = importlib.import_module(MODULE + ".mogaface_addon.preferences")
     monkeypatch.setattr(preferences, "missing_modules", lambda: ["numba", "torch"])
     labels = [entry[1] for entry in draw_panels(["MOGAFACE_PT_main"]) if entry[0] == "label"]

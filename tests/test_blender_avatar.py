@@ -282,6 +282,46 @@ def test_avatar_errors_are_reported(scene, tmp_path):
     bpy.context.view_layer.objects.active = scene["head"]
 
 
+def test_improve_tracking_keys_the_head_with_the_refined_tracking(scene, tmp_path):
+    """The operator runs ``refine-tracking`` in a child process and keys what it wrote, on the
+    tracker's frames; a failed job keeps the keys."""
+    import shutil
+
+    from mogaface.core.refiner.training import RefinerSettings, train_refiner
+
+    run = tmp_path / "run"
+    shutil.copytree(scene["run"], run)
+    train_refiner(run, RefinerSettings(starts=2, offsets_per_start=2, gap_timesteps=2, threads=1,
+                                       spec={"grid": 4, "render_limit": 64, "prior": 1.0, "gap_rank": 1}))
+    head = scene["head"]
+    bpy.context.view_layer.objects.active = head
+    with pytest.raises(RuntimeError, match="not a finished run"):
+        bpy.ops.mogaface.improve_tracking(run=str(tmp_path / "nothing"))
+    original = sc.read_tracking(scene["run"] / "flame_param")
+    try:
+        assert bpy.ops.mogaface.improve_tracking(run=str(run), passes=1, views=2) == {"FINISHED"}
+        folder = run / "refined_tracking" / "flame_param"
+        assert bpy.context.scene.mogaface.tracking_folder == str(folder)
+        refined = sc.read_tracking(folder)
+        assert len(refined.frames) == len(Capture.open(scene["capture"]).timesteps)
+        keys = head.data.shape_keys.key_blocks
+        n_expr = refined.params["expr"].shape[1]  # the head's expression keys follow Basis
+        for index, frame in enumerate(refined.frames):
+            bpy.context.scene.frame_set(int(frame))
+            shown = np.array([keys[i + 1].value for i in range(n_expr)])
+            np.testing.assert_allclose(shown, refined.params["expr"][index, :n_expr], atol=1e-5)
+            for name, (prop, _) in sc.POSE_PROPERTIES.items():
+                np.testing.assert_allclose(np.array(head[prop]), refined.params[name][index], atol=1e-5)
+        improving = importlib.import_module(MODULE + ".operators.improve_tracking")
+        assert improving.last_progress().state == "done" and improving.current_worker() is None
+        fcurves = head.data.shape_keys.animation_data.action.layers[0].strips[0].channelbags[0].fcurves
+        expression_curves = [c for c in fcurves if "key_blocks" in c.data_path]
+        assert {len(c.keyframe_points) for c in expression_curves} == {len(refined.frames)}  # old keys replaced
+        assert len(original.frames) < len(refined.frames)  # the run tracked its training timesteps only
+    finally:
+        assert bpy.ops.mogaface.import_tracking(directory=str(scene["run"] / "flame_param")) == {"FINISHED"}
+
+
 def test_headless_script_help():
     result = subprocess.run([sys.executable, str(SCRIPT), "--help"], capture_output=True, text=True, timeout=60)
     assert result.returncode == 0 and "--blend" in result.stdout and "--train" in result.stdout

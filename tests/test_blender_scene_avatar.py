@@ -489,7 +489,7 @@ def test_disabling_mid_training_clears_the_status_bar(scene, monkeypatch):
     train = ops("train")
     cleared, calls = [], []
     workspace_type = type(bpy.context.window.workspace)
-    monkeypatch.setattr(train, "clear_status_text", lambda: cleared.append(True))
+    monkeypatch.setattr(ops("child_job"), "clear_status_text", lambda: cleared.append(True))
     worker = types.SimpleNamespace(cancel=lambda: calls.append("cancel"), kill=lambda: calls.append("kill"),
                                    wait=lambda **kwargs: calls.append("wait"))
     train._job["worker"] = worker

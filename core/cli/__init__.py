@@ -34,6 +34,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "bench": ("bench", "run a benchmark and print JSON"),
     "environment": ("environment", "print where this process finds its code and packages (JSON)"),
     "train-refiner": ("train_refiner", "train the multi-view refiner of per-frame parameters on a finished run"),
+    "refine-tracking": ("refine_tracking", "improve a capture's tracking with a run's refiner; write flame_param files"),
     "ablate": ("ablate", "train and score the MoGaFace ablation ladder on one capture (results.json, results.md)"),
 }
 

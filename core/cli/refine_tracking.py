@@ -1,0 +1,69 @@
+"""``refine-tracking RUN``: improve the tracking of every timestep of the run's capture with the
+run's multi-view refiner (trained first when the run has none) and write it as ``flame_param``
+files (default ``RUN/refined_tracking``); Blender's Improve Tracking runs this command."""
+
+from __future__ import annotations
+
+import pathlib
+import signal
+import sys
+
+def add_arguments(parser) -> None:
+    parser.add_argument("run", type=pathlib.Path, metavar="RUN", help="run folder written by 'train'")
+    parser.add_argument("--capture", type=pathlib.Path, help="capture whose tracking to improve (default: the run's)")
+    parser.add_argument("--out", type=pathlib.Path, help="output folder (default RUN/refined_tracking; replaced only "
+                                                         "if this command wrote it)")
+    parser.add_argument("--passes", type=int, default=3, help="refiner passes per timestep (default %(default)s)")
+    parser.add_argument("--views", type=int, default=4, help="views per timestep, spread over the rig "
+                                                             "(default %(default)s)")
+    parser.add_argument("--threads", type=int, default=2, help="CPU threads (default %(default)s)")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def _show():
+    from ..progress import ProgressBar
+
+    bar = {}
+
+    def show(event):
+        if event["event"] == "iter":
+            if bar.get("stage") != event["stage"]:
+                bar.update(stage=event["stage"], bar=ProgressBar(event["steps"], f"refine-tracking ({event['stage']})"))
+            bar["bar"].update(event["step"] - bar["bar"].done)
+        elif event["event"] == "stopped":
+            print(f"\nstopped at {event['stage']} {event['step']}/{event['steps']}; nothing was replaced",
+                  file=sys.stderr)
+
+    return show
+
+
+def run(args) -> int:
+    from ..refiner.tracking import refine_tracking
+    from ..train.events import EventLog
+    from ..worker import RefineTrackingWorker
+
+    log = EventLog(args.run / RefineTrackingWorker.EVENTS_FILE) if args.run.is_dir() else None
+    listeners = [] if log is None else [lambda e: log.emit(e["event"], **{k: v for k, v in e.items() if k != "event"})]
+    if not args.quiet:
+        listeners.append(_show())
+    stop = {"signal": None}
+
+    def request_stop(signum, _frame):
+        stop["signal"] = signum
+
+    previous = {s: signal.signal(s, request_stop) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        result = refine_tracking(args.run, out=args.out, capture=args.capture, passes=args.passes, views=args.views,
+                                 threads=args.threads, listeners=listeners,
+                                 should_stop=lambda: stop["signal"] is not None)
+    finally:
+        for number, handler in previous.items():
+            signal.signal(number, handler)
+        if log is not None:
+            log.close()
+    if result["state"] != "done":
+        return 128 + int(stop["signal"] or signal.SIGINT)
+    if not args.quiet:
+        print(f"wrote {result['timesteps']} timesteps to {', '.join(result['folders'])} "
+              f"({result['seconds']:.0f} s)", file=sys.stderr)
+    return 0

@@ -1,0 +1,134 @@
+"""A capture's tracking improved by a run's refiner: every timestep refined from its views and
+written as ``flame_param`` files in the capture's own layout, so Blender's Import Tracking,
+``render`` and ``train`` read them like the tracker's.
+
+The output folder (default ``RUN/refined_tracking``) holds the capture's ``flame_param`` paths
+(``flame_param/00042.npz``; each sequence's own folder in a union capture) and
+``refined_tracking.json`` (what was done, from what). It is written under a temporary name and
+renamed when complete: a cancelled or failed job leaves the previous result as it was. A run
+without a refiner gets one first (:func:`.training.train_refiner`, its stages reported as usual).
+"""
+
+from __future__ import annotations
+
+import os
+import pathlib
+import shutil
+import time
+
+from ..data import layout
+from ..errors import InputError
+from ..evaluate.run_folder import RunFolder
+from ..evaluate.sources.base import InputCameras
+from ..evaluate.sources.refined import RefinedParams, run_refiner
+from ..evaluate.sources.tracked import TrackedParams
+from ..io.atomic import write_json
+from ..io.npz import save_npz
+from .files import REFINER_FILE
+from .training import RefinerSettings, frozen_avatar, train_refiner
+
+REFINED_TRACKING_DIR = "refined_tracking"
+RECORD_FILE = "refined_tracking.json"
+
+
+def _staging(out: pathlib.Path, suffix: str) -> pathlib.Path:
+    """A hidden sibling of ``out``, emptied of what a killed job may have left there."""
+    path = out.with_name(f".{out.name}.{suffix}")
+    if path.is_dir():
+        shutil.rmtree(path)
+    else:
+        path.unlink(missing_ok=True)
+    return path
+
+
+def _check_replaceable(out: pathlib.Path) -> None:
+    """Only a folder this command wrote (or none) is replaced: never a user's own folder."""
+    if out.exists() and not (out / RECORD_FILE).is_file():
+        raise InputError(out, None, f"exists and is not a refined tracking folder (no {RECORD_FILE}): "
+                                    "choose another output folder")
+
+
+def _replace(staging: pathlib.Path, out: pathlib.Path) -> None:
+    previous = _staging(out, "previous")
+    if out.exists():
+        os.replace(out, previous)
+    os.replace(staging, out)
+    shutil.rmtree(previous, ignore_errors=True)
+
+
+def _train_first(run_root: pathlib.Path, settings: RefinerSettings, listeners, should_stop) -> None:
+    """Train the run's refiner; one stopped half-way is dropped (it would lack the capture gap)."""
+    partial = _staging(run_root / REFINER_FILE, "partial")
+    try:
+        train_refiner(run_root, settings, out=partial, listeners=listeners, should_stop=should_stop)
+        if not should_stop():
+            os.replace(partial, run_root / REFINER_FILE)
+    finally:
+        partial.unlink(missing_ok=True)
+
+
+def refine_tracking(run_dir, out=None, capture=None, passes: int = 3, views: int = 4, threads: int = 2,
+                    refiner_settings: RefinerSettings | None = None, listeners=(), should_stop=lambda: False) -> dict:
+    """Refine every timestep of the run's capture (or ``capture``); returns what was written.
+
+    ``passes`` and ``views`` are those of :class:`..evaluate.sources.refined.RefinedParams` (the
+    views spread over the rig). Events: the refiner's own when it is trained first, then ``iter``
+    with ``stage="frames"`` per timestep, then ``done`` (or ``stopped`` when ``should_stop`` said so).
+    """
+    import torch
+
+    if passes < 1 or views < 1:
+        raise InputError(None, "passes" if passes < 1 else "views", "must be at least 1")
+
+    def emit(event: str, **fields):
+        for listener in listeners:
+            listener({"event": event, **fields})
+
+    run = RunFolder(run_dir, capture)
+    out = pathlib.Path(out) if out is not None else run.root / REFINED_TRACKING_DIR
+    _check_replaceable(out)
+    cap = run.open_capture()
+    if not (run.root / REFINER_FILE).exists():
+        def stage_progress(event):  # its stages' steps; its start and done are not this job's
+            if event["event"] == "iter":
+                emit(**event)
+
+        _train_first(run.root, refiner_settings or RefinerSettings(threads=threads), [stage_progress], should_stop)
+    torch.set_num_threads(threads)
+    if should_stop():
+        emit("stopped", step=0, steps=len(cap.timesteps), stage="frames")
+        return {"state": "stopped", "path": str(out)}
+    avatar = frozen_avatar(run.root)
+    refiner = run_refiner(run.root, avatar)
+    source = RefinedParams(avatar, cap, TrackedParams(cap, run), refiner, run.background, passes=passes,
+                           max_views=views, cameras=InputCameras.of_run(cap, run.root))
+    first_frame = {}
+    for frame in cap.frames():
+        first_frame.setdefault(frame.timestep_index, frame)
+    staging = _staging(out, "partial")
+    began, folders = time.perf_counter(), set()
+    steps = len(cap.timesteps)
+    emit("start", step=0, steps=steps, stage="frames", timesteps=steps)
+    try:
+        for index, timestep in enumerate(cap.timesteps):
+            if should_stop():
+                emit("stopped", step=index, steps=steps, stage="frames")
+                return {"state": "stopped", "path": str(out)}
+            relative = cap.path(first_frame[timestep], "flame_param_path").relative_to(cap.root)
+            params = source.params_for(timestep)
+            save_npz(staging / relative, layout.batched_flame_params(params))
+            folders.add(relative.parent.as_posix())
+            elapsed = time.perf_counter() - began
+            emit("iter", step=index + 1, steps=steps, stage="frames",
+                 eta_s=elapsed / (index + 1) * (steps - index - 1))
+        record = {"run": str(run.root.resolve()), "capture": str(cap.root.resolve()), "passes": passes,
+                  "views": views, "timesteps": steps, "folders": sorted(folders),
+                  "seconds": time.perf_counter() - began}
+        write_json(staging / RECORD_FILE, record)
+        _replace(staging, out)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    result = {"state": "done", "path": str(out), **record, "folders": [str(out / f) for f in record["folders"]]}
+    emit("done", step=steps, steps=steps, stage="frames", path=str(out), folders=result["folders"],
+         seconds=record["seconds"])
+    return result

@@ -1,0 +1,135 @@
+"""Improving a capture's tracking with a run's refiner (``refine-tracking``): every timestep is
+written in the capture's own flame_param layout, as plain numpy and the Blender reader see it,
+with the values the evaluation's refined source computes; a run without a refiner gets one; a
+stopped job and a folder it did not write are left as they were."""
+
+import json
+import shutil
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from mogaface.core.data.capture import Capture
+from mogaface.core.errors import InputError
+from mogaface.core.evaluate.run_folder import RunFolder
+from mogaface.core.evaluate.sources.base import InputCameras
+from mogaface.core.evaluate.sources.refined import RefinedParams, run_refiner
+from mogaface.core.evaluate.sources.tracked import TrackedParams
+from mogaface.core.refiner.tracking import RECORD_FILE, refine_tracking
+from mogaface.core.refiner.training import RefinerSettings, frozen_avatar, train_refiner
+from mogaface.core.scene_conversion import read_tracking
+from mogaface.core.worker import RefineTrackingWorker
+from test_evaluate_fixtures import fake_run, tiny_capture
+
+TINY = dict(starts=2, offsets_per_start=2, gap_timesteps=2, threads=1,
+            spec={"grid": 4, "render_limit": 64, "prior": 1.0, "gap_rank": 1})
+
+
+@pytest.fixture(scope="module")
+def run_root(tmp_path_factory):
+    """The fake run with a tiny refiner."""
+    tiny_capture(tmp_path_factory)
+    root = tmp_path_factory.mktemp("tracking") / "run"
+    shutil.copytree(fake_run(tmp_path_factory), root)
+    train_refiner(root, RefinerSettings(**TINY))
+    return root
+
+
+def test_every_timestep_is_written_in_the_captures_layout_with_the_refined_values(run_root, tmp_path):
+    out = tmp_path / "refined"
+    events = []
+    result = refine_tracking(run_root, out=out, passes=2, views=2, threads=1, listeners=[events.append])
+    run = RunFolder(run_root)
+    capture = Capture.open(run.capture_root)
+    assert result["state"] == "done" and result["folders"] == [str(out / "flame_param")]
+    files = sorted((out / "flame_param").glob("*.npz"))
+    assert [f.name for f in files] == sorted(capture.path(f, "flame_param_path").name
+                                             for f in {f.timestep_index: f for f in capture.frames()}.values())
+    avatar = frozen_avatar(run_root)
+    source = RefinedParams(avatar, capture, TrackedParams(capture, run), run_refiner(run_root, avatar), run.background,
+                           passes=2, max_views=2, cameras=InputCameras.of_run(capture, run_root))
+    moved = 0
+    for timestep in capture.timesteps:
+        with np.load(out / "flame_param" / f"{timestep:05d}.npz") as written:  # plain numpy, VHAP's shapes
+            assert written["expr"].shape == (1, capture.flame_params(timestep)["expr"].shape[0])
+            assert written["shape"].ndim == 1 and written["translation"].shape == (1, 3)
+            expected = source.params_for(timestep)
+            for key in ("expr", "rotation", "jaw_pose", "translation"):
+                np.testing.assert_allclose(written[key][0], expected[key], rtol=1e-6, atol=1e-7)
+            start = TrackedParams(capture, run).params_for(timestep)
+            moved += not np.allclose(written["expr"][0], start["expr"])
+    assert moved > 0  # not a copy of the start (the guard keeps only steps the views support)
+    tracking = read_tracking(out / "flame_param")  # Blender's Import Tracking reads it, on the tracker's frames
+    np.testing.assert_array_equal(tracking.frames, read_tracking(capture.root / "flame_param").frames)
+    record = json.loads((out / RECORD_FILE).read_text())
+    assert record["passes"] == 2 and record["views"] == 2 and record["timesteps"] == len(capture.timesteps)
+    frames = [e for e in events if e["event"] == "iter"]
+    assert [e["step"] for e in frames] == list(range(1, len(capture.timesteps) + 1))
+    assert events[-1]["event"] == "done" and not list(tmp_path.glob(".refined.*"))
+
+
+def test_a_run_without_a_refiner_gets_one_and_a_stop_keeps_none(run_root, tmp_path):
+    bare = tmp_path / "run"
+    shutil.copytree(run_root, bare)
+    (bare / "refiner.pt").unlink()
+    calls = {"n": 0}
+
+    def stop_in_training():
+        calls["n"] += 1
+        return calls["n"] > 1
+
+    stopped = refine_tracking(bare, refiner_settings=RefinerSettings(**TINY), threads=1, should_stop=stop_in_training)
+    assert stopped["state"] == "stopped"
+    assert not (bare / "refiner.pt").exists() and not (bare / "refined_tracking").exists()
+    assert not list(bare.glob(".refine*"))
+    events = []
+    result = refine_tracking(bare, refiner_settings=RefinerSettings(**TINY), passes=1, threads=1,
+                             listeners=[events.append])
+    assert result["state"] == "done" and (bare / "refiner.pt").exists()
+    stages = [e.get("stage") for e in events if e["event"] == "iter"]
+    assert stages[0] == "offsets" and "gap" in stages and stages[-1] == "frames"
+    assert [e["event"] for e in events].count("done") == 1  # the refiner's own start/done stay inside
+
+
+def test_a_stopped_job_leaves_the_previous_result_and_a_foreign_folder_is_refused(run_root, tmp_path):
+    out = tmp_path / "refined"
+    refine_tracking(run_root, out=out, passes=1, views=2, threads=1)
+    before = {p.name: p.read_bytes() for p in (out / "flame_param").iterdir()}
+    calls = {"n": 0}
+
+    def stop_after_three():
+        calls["n"] += 1
+        return calls["n"] > 3
+
+    result = refine_tracking(run_root, out=out, passes=3, views=3, threads=1, should_stop=stop_after_three)
+    assert result["state"] == "stopped"
+    assert {p.name: p.read_bytes() for p in (out / "flame_param").iterdir()} == before
+    assert json.loads((out / RECORD_FILE).read_text())["passes"] == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["refined"]  # no staging left behind
+    foreign = tmp_path / "mine"
+    (foreign / "flame_param").mkdir(parents=True)
+    (foreign / "flame_param" / "00000.npz").write_bytes(b"my own")
+    with pytest.raises(InputError, match="not a refined tracking folder"):
+        refine_tracking(run_root, out=foreign, threads=1)
+    assert (foreign / "flame_param" / "00000.npz").read_bytes() == b"my own"
+    with pytest.raises(InputError, match="passes"):
+        refine_tracking(run_root, out=out, passes=0)
+
+
+def test_the_command_and_its_worker(run_root, tmp_path):
+    from mogaface.core.worker import refine_tracking_command
+
+    out = tmp_path / "refined"
+    worker = RefineTrackingWorker(refine_tracking_command(sys.executable, run_root, out=out, passes=1, views=2,
+                                                          threads=1), run_root).start()
+    progress = worker.wait(interval=0.1, timeout=120)
+    assert progress.state == "done", (progress.message, worker.stderr_tail())
+    assert progress.stage == "frames" and progress.step == progress.steps == 16
+    assert progress.message == "refined 16 timesteps"
+    done = [e for e in worker.events if e["event"] == "done"]
+    assert done[0]["folders"] == [str(out / "flame_param")]
+    failed = subprocess.run([sys.executable, "-m", "mogaface", "refine-tracking", str(tmp_path / "nothing")],
+                            capture_output=True, text=True, timeout=120)
+    assert failed.returncode == 2 and "not a run folder" in failed.stderr
