@@ -1,7 +1,8 @@
 """Improving a capture's tracking with a run's refiner (``refine-tracking``): every timestep is
 written in the capture's own flame_param layout, as plain numpy and the Blender reader see it,
 with the values the evaluation's refined source computes; a run without a refiner gets one; a
-stopped job and a folder it did not write are left as they were."""
+stopped job and a folder it did not write are left as they were; on a synthetic capture the
+record says how far the start and the result are from the truth."""
 
 import json
 import shutil
@@ -133,3 +134,31 @@ def test_the_command_and_its_worker(run_root, tmp_path):
     failed = subprocess.run([sys.executable, "-m", "mogaface", "refine-tracking", str(tmp_path / "nothing")],
                             capture_output=True, text=True, timeout=120)
     assert failed.returncode == 2 and "not a run folder" in failed.stderr
+
+
+def test_errors_against_the_truth_are_zero_for_the_truth_and_its_gauge(run_root, tmp_path):
+    from mogaface.core.evaluate.expression_error import frame_errors, tracking_errors, truth_folder
+    from mogaface.core.evaluate.run_folder import MOTION_KEYS, load_flame_file
+    from mogaface.core.flame.model import FlameModel
+
+    run = RunFolder(run_root)
+    capture = Capture.open(run.capture_root)
+    truth = {t: load_flame_file(truth_folder(capture) / f"{t:05d}.npz") for t in capture.timesteps}
+    trained = run.trained_timesteps
+    offset = {k: np.mean([run.flame_params(t)[k] - truth[t][k] for t in trained], axis=0) for k in MOTION_KEYS}
+    start = TrackedParams(capture, run).params_for
+    errors = tracking_errors(run, capture, {"truth": truth.__getitem__, "start": start,
+                                            "gauge": lambda t: {**truth[t], **{k: truth[t][k] + v
+                                                                               for k, v in offset.items()}}})
+    assert errors["truth"]["unseen"]["vertex_mm"] == 0 and errors["truth"]["training"]["expr_vertex_mm"] == 0
+    assert errors["gauge"]["unseen"]["vertex_mm_gauge"] == pytest.approx(0, abs=1e-3)
+    assert errors["gauge"]["unseen"]["vertex_mm"] > 0.1  # the offset is real, and the gauge removes it
+    unseen = [t for t in capture.timesteps if t not in trained]
+    model = FlameModel.load(run_root / "head.pkl")
+    direct = np.mean([frame_errors(model, start(t), truth[t])["vertex_mm"] for t in unseen])
+    assert errors["start"]["unseen"]["timesteps"] == len(unseen) and errors["start"]["training"]["timesteps"] == len(trained)
+    assert errors["start"]["unseen"]["vertex_mm"] == pytest.approx(direct, rel=1e-6)
+    refine_tracking(run_root, out=tmp_path / "r", passes=1, views=2, threads=1)
+    record = json.loads((tmp_path / "r" / RECORD_FILE).read_text())
+    assert set(record["truth_errors"]) == {"start", "refined"}
+    assert record["truth_errors"]["start"]["unseen"]["vertex_mm"] == pytest.approx(direct, rel=1e-5)

@@ -66,4 +66,19 @@ def run(args) -> int:
     if not args.quiet:
         print(f"wrote {result['timesteps']} timesteps to {', '.join(result['folders'])} "
               f"({result['seconds']:.0f} s)", file=sys.stderr)
+        for line in _truth_lines(result.get("truth_errors")):
+            print(line, file=sys.stderr)
     return 0
+
+
+def _truth_lines(errors) -> list[str]:
+    """A synthetic capture's errors against the truth, start and refined, per group of timesteps."""
+    if not errors:
+        return []
+    lines = ["against the truth (mm; in the avatar's gauge): whole mesh, expression alone"]
+    for group in errors["start"]:
+        for name in ("start", "refined"):
+            e = errors[name][group]
+            lines.append(f"  {group:8s} {name:7s} ({e['timesteps']} timesteps): {e['vertex_mm']:.2f} "
+                         f"({e['vertex_mm_gauge']:.2f}), {e['expr_vertex_mm']:.2f} ({e['expr_vertex_mm_gauge']:.2f})")
+    return lines

@@ -45,22 +45,63 @@ def frame_errors(model: FlameModel, params: dict[str, np.ndarray], truth: dict[s
     }
 
 
+def truth_folder(capture) -> pathlib.Path | None:
+    """A synthetic capture's folder of true parameters (``flame_param_gt/``), or None (real captures)."""
+    truth_dir = capture_info(capture.root).get("ground_truth", {}).get("flame_param")
+    if not truth_dir:
+        return None
+    folder = file_inside(capture.root, truth_dir, capture.root / "capture_info.json", "ground_truth.flame_param")
+    return folder if folder.is_dir() else None
+
+
+def _run_model(run: RunFolder) -> FlameModel:
+    folder = pathlib.Path(run.avatar_path).parent
+    return FlameModel.load(file_inside(folder, run.info.get("head_file", "head.pkl"), folder / "run.json", "head_file"))
+
+
+def tracking_errors(run: RunFolder, capture, sources: dict) -> dict | None:
+    """How far each source's parameters (``name -> params_for(timestep)``) are from the truth over
+    every timestep of a synthetic capture, grouped into the run's training timesteps and the
+    others; None without a truth. ``vertex_mm`` (whole mesh) and ``expr_vertex_mm`` (expression
+    alone) are given raw and ``*_gauge``: against the truth plus the mean offset of the run's
+    fine-tuned parameters from it, the constant tracker bias an avatar absorbs in training and that
+    no image can show (docs/results.md, "The multi-view refiner")."""
+    folder = truth_folder(capture)
+    if folder is None:
+        return None
+    model = _run_model(run)
+    truth = {t: load_flame_file(folder / f"{t:05d}.npz") for t in capture.timesteps}
+    trained = [t for t in run.trained_timesteps if t in truth]
+    gauge = {k: np.mean([run.flame_params(t)[k] - truth[t][k] for t in trained], axis=0)
+             for k in MOTION_KEYS if trained and k in truth[trained[0]]}
+    out = {}
+    for name, params_for in sources.items():
+        rows = {"training": [], "unseen": []}
+        for timestep, true in truth.items():
+            params = params_for(timestep)
+            shifted = {**true, **{k: true[k] + v for k, v in gauge.items()}}
+            raw, in_gauge = frame_errors(model, params, true), frame_errors(model, params, shifted)
+            rows["training" if timestep in trained else "unseen"].append(
+                [raw["vertex_mm"], raw["expr_vertex_mm"], in_gauge["vertex_mm"], in_gauge["expr_vertex_mm"]])
+        out[name] = {group: {"timesteps": len(values), **dict(zip(
+            ("vertex_mm", "expr_vertex_mm", "vertex_mm_gauge", "expr_vertex_mm_gauge"),
+            np.mean(values, axis=0).tolist()))} for group, values in rows.items() if values}
+    return out
+
+
 def expression_errors(run_dir: str | os.PathLike, capture: str | os.PathLike | None = None) -> dict:
     """``{"timesteps", "expr_rmse_*", "expr_vertex_mm_*", "vertex_mm_*"}`` with ``*`` tracked and corrected."""
     run = RunFolder(run_dir, capture)
     cap = run.open_capture()
-    truth_dir = capture_info(cap.root).get("ground_truth", {}).get("flame_param")
-    if not truth_dir or not file_inside(cap.root, truth_dir, cap.root / "capture_info.json",
-                                        "ground_truth.flame_param").is_dir():
+    folder = truth_folder(cap)
+    if folder is None:
         raise InputError(cap.root, "ground_truth.flame_param", "the capture carries no true parameters")
-    folder = pathlib.Path(run.avatar_path).parent
-    head = file_inside(folder, run.info.get("head_file", "head.pkl"), folder / "run.json", "head_file")
-    model = FlameModel.load(head)
+    model = _run_model(run)
     expr = {"tracked": [], "corrected": []}
     vertex = {"tracked": [], "corrected": []}
     expr_vertex = {"tracked": [], "corrected": []}
     for timestep in run.trained_timesteps:
-        truth = load_flame_file(cap.root / truth_dir / f"{timestep:05d}.npz")
+        truth = load_flame_file(folder / f"{timestep:05d}.npz")
         true_mesh = _mesh(model, truth)
         for name, params in (("tracked", cap.flame_params(timestep)), ("corrected", run.flame_params(timestep))):
             expr[name].append(params["expr"] - truth["expr"])

@@ -1,6 +1,6 @@
 """A capture's tracking improved by a run's refiner: every timestep refined from its views and
-written as ``flame_param`` files in the capture's own layout, so Blender's Import Tracking,
-``render`` and ``train`` read them like the tracker's.
+written as ``flame_param`` files in the capture's own layout, so Blender's Import Tracking and
+``render --params`` read them like the tracker's.
 
 The output folder (default ``RUN/refined_tracking``) holds the capture's ``flame_param`` paths
 (``flame_param/00042.npz``; each sequence's own folder in a union capture) and
@@ -18,6 +18,7 @@ import time
 
 from ..data import layout
 from ..errors import InputError
+from ..evaluate.expression_error import tracking_errors
 from ..evaluate.run_folder import RunFolder
 from ..evaluate.sources.base import InputCameras
 from ..evaluate.sources.refined import RefinedParams, run_refiner
@@ -106,7 +107,7 @@ def refine_tracking(run_dir, out=None, capture=None, passes: int = 3, views: int
     for frame in cap.frames():
         first_frame.setdefault(frame.timestep_index, frame)
     staging = _staging(out, "partial")
-    began, folders = time.perf_counter(), set()
+    began, folders, refined = time.perf_counter(), set(), {}
     steps = len(cap.timesteps)
     emit("start", step=0, steps=steps, stage="frames", timesteps=steps)
     try:
@@ -115,7 +116,7 @@ def refine_tracking(run_dir, out=None, capture=None, passes: int = 3, views: int
                 emit("stopped", step=index, steps=steps, stage="frames")
                 return {"state": "stopped", "path": str(out)}
             relative = cap.path(first_frame[timestep], "flame_param_path").relative_to(cap.root)
-            params = source.params_for(timestep)
+            params = refined[timestep] = source.params_for(timestep)
             save_npz(staging / relative, layout.batched_flame_params(params))
             folders.add(relative.parent.as_posix())
             elapsed = time.perf_counter() - began
@@ -124,11 +125,14 @@ def refine_tracking(run_dir, out=None, capture=None, passes: int = 3, views: int
         record = {"run": str(run.root.resolve()), "capture": str(cap.root.resolve()), "passes": passes,
                   "views": views, "timesteps": steps, "folders": sorted(folders),
                   "seconds": time.perf_counter() - began}
+        errors = tracking_errors(run, cap, {"start": source.base.params_for, "refined": refined.__getitem__})
+        if errors is not None:  # a synthetic capture: how far from the truth, before and after
+            record["truth_errors"] = errors
         write_json(staging / RECORD_FILE, record)
         _replace(staging, out)
     finally:
         shutil.rmtree(staging, ignore_errors=True)
     result = {"state": "done", "path": str(out), **record, "folders": [str(out / f) for f in record["folders"]]}
     emit("done", step=steps, steps=steps, stage="frames", path=str(out), folders=result["folders"],
-         seconds=record["seconds"])
+         seconds=record["seconds"], truth_errors=record.get("truth_errors"))
     return result

@@ -218,7 +218,28 @@ def scene_stages():
     shot("5-avatar")
     stage("load avatar, render frame and animation, export")
     yield from avatar_in_scene_stages(head)
+    yield from improve_tracking_stages(head, run)
     bpy.ops.wm.save_userpref()
+
+
+def improve_tracking_stages(head, run):
+    """Improve Tracking from the window: the refiner trained in a child process, the head keyed."""
+    improving = module("operators.improve_tracking")
+    with override():
+        result = bpy.ops.mogaface.improve_tracking(run=run, target=head.name, passes=1)
+        check(result == {"RUNNING_MODAL"}, f"improve tracking gave {result}: {improving.last_progress()}")
+    yield from wait_until(lambda: improving.current_worker() is None or improving.current_worker().progress.step >= 1,
+                          600, "improve tracking progress")
+    yield from show_panel()
+    shot("7-improving-tracking")
+    yield from wait_until(lambda: improving.current_worker() is None, 900, "improve tracking")
+    check(improving.last_progress().state == "done", f"improve tracking gave {improving.last_progress()}")
+    folder = bpy.context.scene.mogaface.tracking_folder
+    check(folder == os.path.join(run, "refined_tracking", "flame_param"), f"the head was keyed from {folder}")
+    curves = module("operators.animation").id_fcurves(head.data.shape_keys)
+    keyed = {len(c.keyframe_points) for c in curves if "key_blocks" in c.data_path}
+    check(keyed == {len(list(pathlib.Path(folder).glob("*.npz")))}, f"keys per expression: {keyed}")
+    stage("improve tracking (the refiner trained first), the head keyed")
 
 
 def avatar_in_scene_stages(head):
