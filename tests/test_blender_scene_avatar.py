@@ -565,3 +565,39 @@ def test_import_tracking_asks_before_replacing_keys(scene):
     fake._target = lambda ctx: plain
     assert import_tracking.MOGAFACE_OT_import_tracking.invoke(fake, context, None) == {"FINISHED"} and executed
     bpy.data.objects.remove(plain)
+
+
+def test_improve_tracking_asks_before_replacing_keys_and_shows_its_progress(scene, monkeypatch):
+    improving = ops("improve_tracking")
+    head = scene["head"]
+    count = ops("import_tracking").existing_keys(head)
+    asked, executed = [], []
+    wm = types.SimpleNamespace(invoke_confirm=lambda op, event, **kw: asked.append(kw) or {"RUNNING_MODAL"})
+    fake = types.SimpleNamespace(target=head.name, _head=lambda ctx: head,
+                                 execute=lambda ctx: executed.append(True) or {"FINISHED"})
+    context = types.SimpleNamespace(window_manager=wm)
+    assert improving.MOGAFACE_OT_improve_tracking.invoke(fake, context, None) == {"RUNNING_MODAL"}
+    assert count and str(count) in asked[0]["message"] and not executed
+
+    from mogaface.core.worker import Progress
+
+    panels = importlib.import_module(MODULE + ".mogaface_addon.panels")
+    running = types.SimpleNamespace(progress=Progress(state="running", stage="offsets", step=3, steps=50))
+    monkeypatch.setitem(improving._job, "worker", running)
+    log = []
+    panels.draw_improve_tracking(Recorder(log), bpy.context)
+    assert ("progress", "Improving: offsets 3/50") in log and ("operator", "mogaface.improve_tracking_cancel") in log
+    assert bpy.ops.mogaface.improve_tracking_cancel.poll()
+    monkeypatch.setitem(improving._job, "worker", None)
+    monkeypatch.setitem(improving._job, "last", Progress(state="failed", message="improving the tracking failed"))
+    log = []
+    panels.draw_improve_tracking(Recorder(log), bpy.context)
+    assert ("operator", "mogaface.improve_tracking") in log and ("label", "improving the tracking failed") in log
+
+
+def test_the_refined_folder_keyed_is_the_one_in_the_place_of_the_scenes_tracking():
+    improving = ops("improve_tracking")
+    folders = ["/r/out/seqA/flame_param", "/r/out/seqB/flame_param"]
+    assert improving.folder_to_key(folders, "/r/out", "/c/cap", "/c/cap/seqB/flame_param") == folders[1]
+    assert improving.folder_to_key(folders, "/r/out", "/c/cap", "/elsewhere/flame_param") == folders[0]
+    assert improving.folder_to_key(folders[:1], "/r/out", "", "") == folders[0]

@@ -90,7 +90,7 @@ def test_a_run_without_a_refiner_gets_one_and_a_stop_keeps_none(run_root, tmp_pa
                              listeners=[events.append])
     assert result["state"] == "done" and (bare / "refiner.pt").exists()
     stages = [e.get("stage") for e in events if e["event"] == "iter"]
-    assert stages[0] == "offsets" and "gap" in stages and stages[-1] == "frames"
+    assert stages[0] == "refiner offsets" and "refiner gap" in stages and stages[-1] == "frames"
     assert [e["event"] for e in events].count("done") == 1  # the refiner's own start/done stay inside
 
 

@@ -92,7 +92,7 @@ def refine_tracking(run_dir, out=None, capture=None, passes: int = 3, views: int
     if not (run.root / REFINER_FILE).exists():
         def stage_progress(event):  # its stages' steps; its start and done are not this job's
             if event["event"] == "iter":
-                emit(**event)
+                emit(**{**event, "stage": f"refiner {event['stage']}"})
 
         _train_first(run.root, refiner_settings or RefinerSettings(threads=threads), [stage_progress], should_stop)
     torch.set_num_threads(threads)
