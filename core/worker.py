@@ -6,7 +6,9 @@ Blender's. :class:`TrainWorker` starts ``python -m mogaface train …`` as a chi
 reads new lines of ``RUN/events.jsonl`` incrementally (:meth:`TrainWorker.poll`), knows when the
 child ended and why (exit code, the tail of its stderr), and cancels it with SIGINT (the trainer
 then writes a checkpoint). The UI calls :meth:`~TrainWorker.poll` from a timer; headless code
-calls :meth:`~TrainWorker.wait`, which is the same poll in a loop. No Blender here.
+calls :meth:`~TrainWorker.wait`, which is the same poll in a loop. :class:`RefineTrackingWorker`
+is the same for ``python -m mogaface refine-tracking RUN`` (its own events file and messages).
+No Blender here.
 """
 
 from __future__ import annotations

@@ -53,13 +53,18 @@ class MOGAFACE_OT_import_tracking(bpy.types.Operator):
 
     def execute(self, context):
         obj = self._target(context)
-        if not is_head(obj):
-            name = self.target or getattr(obj, "name", "nothing")
-            self.report({"ERROR"}, f"{name} is not a MoGaFace head: import one with Import Head first")
-            return {"CANCELLED"}
-        if core_or_report(self, context) is None:
+        if not head_or_report(self, obj) or core_or_report(self, context) is None:
             return {"CANCELLED"}
         return {"FINISHED"} if key_tracking(self, context, obj, bpy.path.abspath(self.directory)) else {"CANCELLED"}
+
+
+def head_or_report(operator, obj) -> bool:
+    """Whether ``obj`` (the operator's ``target``, or the active object) is a head; else reported."""
+    if is_head(obj):
+        return True
+    name = operator.target or getattr(obj, "name", "nothing")
+    operator.report({"ERROR"}, f"{name} is not a MoGaFace head: import one with Import Head first")
+    return False
 
 
 def key_tracking(operator, context, obj, folder: str) -> bool:

@@ -16,7 +16,7 @@ from .child_job import FollowsChildJob, cancel_and_wait, end_job, job_progress, 
 from .common import core_or_report
 from .dependencies import interpreter, worker_paths
 from .head_rig import is_head
-from .import_tracking import existing_keys, key_tracking
+from .import_tracking import existing_keys, head_or_report, key_tracking
 from .train import preferred_threads
 
 #: The one running tracking improvement, and the head its result will be keyed on.
@@ -65,11 +65,11 @@ class MOGAFACE_OT_improve_tracking(FollowsChildJob, bpy.types.Operator):
 
     label, tag = "improving the tracking", "improve-tracking"
 
-    def _head(self, context):
+    def _target(self, context):
         return bpy.data.objects.get(self.target) if self.target else context.active_object
 
     def invoke(self, context, event):
-        obj = self._head(context)
+        obj = self._target(context)
         count = existing_keys(obj) if is_head(obj) else 0
         if count:
             return context.window_manager.invoke_confirm(
@@ -82,12 +82,8 @@ class MOGAFACE_OT_improve_tracking(FollowsChildJob, bpy.types.Operator):
         if _job["worker"] is not None:
             self.report({"ERROR"}, "The tracking is already being improved: cancel that first")
             return {"CANCELLED"}
-        obj = self._head(context)
-        if not is_head(obj):
-            name = self.target or getattr(obj, "name", "nothing")
-            self.report({"ERROR"}, f"{name} is not a MoGaFace head: import one with Import Head first")
-            return {"CANCELLED"}
-        if core_or_report(self, context) is None:
+        obj = self._target(context)
+        if not head_or_report(self, obj) or core_or_report(self, context) is None:
             return {"CANCELLED"}
         run = bpy.path.abspath(self.run or context.scene.mogaface.run_folder)
         if not run or not os.path.isfile(os.path.join(run, "avatar.pt")):

@@ -573,7 +573,7 @@ def test_improve_tracking_asks_before_replacing_keys_and_shows_its_progress(scen
     count = ops("import_tracking").existing_keys(head)
     asked, executed = [], []
     wm = types.SimpleNamespace(invoke_confirm=lambda op, event, **kw: asked.append(kw) or {"RUNNING_MODAL"})
-    fake = types.SimpleNamespace(target=head.name, _head=lambda ctx: head,
+    fake = types.SimpleNamespace(target=head.name, _target=lambda ctx: head,
                                  execute=lambda ctx: executed.append(True) or {"FINISHED"})
     context = types.SimpleNamespace(window_manager=wm)
     assert improving.MOGAFACE_OT_improve_tracking.invoke(fake, context, None) == {"RUNNING_MODAL"}

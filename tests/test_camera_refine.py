@@ -178,3 +178,34 @@ def test_camera_settings_are_checked():
         C.resolve(overrides={"cameras": {"gauge": "first"}})
     with pytest.raises(Exception, match="cameras.rotation_lr"):
         C.resolve(overrides={"cameras": {"rotation_lr": 5.0}})
+    with pytest.raises(Exception, match="cameras.settle_steps"):
+        C.resolve(overrides={"cameras": {"refine": True, "settle_steps": 5}})  # no first avatar to align to
+    with pytest.raises(Exception, match="cameras.settle_at"):
+        C.resolve(overrides={"cameras": {"settle_at": -1}})
+
+
+def test_in_the_cameras_only_phase_only_the_cameras_move(capture, tmp_path):
+    config = refine_config(steps=8)
+    config.cameras.settle_at, config.cameras.settle_steps = 3, 3
+    config.flame.finetune = True  # the per-timestep parameters hold still too
+    trainer = Trainer(capture, tmp_path / "run", config)
+
+    def state():
+        tensors = {k: v.detach().clone() for k, v in trainer.avatar.gaussians.tensors().items()}
+        tensors.update({f"table.{i}": p.detach().clone() for i, p in enumerate(trainer.table.parameters())})
+        return tensors, torch.cat(trainer.camera_offsets.values()).clone()
+
+    def moved(before, after):
+        return [k for k in before[0] if before[0][k].shape != after[0][k].shape
+                or not torch.equal(before[0][k], after[0][k])]
+
+    history = [state()]
+    for _ in range(7):
+        trainer.train_step()
+        history.append(state())
+    for step in (3, 4, 5):  # steps 3..5 settle
+        assert moved(history[step], history[step + 1]) == [], step
+        assert not torch.equal(history[step][1], history[step + 1][1]), step
+    for step in (1, 6):
+        assert "local_position" in moved(history[step], history[step + 1]), step
+    assert any(k.startswith("table.") for k in moved(history[1], history[2]))

@@ -88,6 +88,9 @@ class CamerasSection:
     translation_lr: float = _setting(2e-4, "learning rate of the camera centre offsets (metres)")
     gauge: str = _setting("mean", "'mean': the offsets' mean over the training cameras stays zero (the rig as a "
                                   "whole keeps its calibrated pose); 'none': free")
+    settle_at: int = _setting(0, "step at which a cameras-only phase starts: the avatar and the FLAME parameters "
+                                 "hold still while the cameras align to it (0: no such phase)")
+    settle_steps: int = _setting(0, "steps of the cameras-only phase")
 
 
 @dataclasses.dataclass
@@ -163,6 +166,12 @@ class TrainConfig:
         if not 0 <= self.loss.ssim_weight <= 1:
             raise InputError(source, "loss.ssim_weight", "must lie in [0, 1]")
         _check_mogaface(self.mogaface, source)
+        for key in ("cameras.settle_at", "cameras.settle_steps"):
+            if _get(self, key) < 0:
+                raise InputError(source, key, f"must be >= 0 (got {_get(self, key)})")
+        if self.cameras.settle_steps and not (self.cameras.refine and self.cameras.settle_at):
+            raise InputError(source, "cameras.settle_steps", "a cameras-only phase needs cameras.refine = true and "
+                                                             "cameras.settle_at > 0 (a first avatar to align to)")
         if self.cameras.gauge not in ("mean", "none"):
             raise InputError(source, "cameras.gauge", f"expected 'mean' or 'none', got {self.cameras.gauge!r}")
         from .config_ranges import check_ranges

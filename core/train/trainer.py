@@ -327,6 +327,11 @@ class Trainer:
             params += [p for group in self.mogaface.optimizer.param_groups for p in group["params"]]
         return params
 
+    def _settling(self) -> bool:
+        """Whether this step is in the cameras-only phase (``[cameras] settle_at``, ``settle_steps``)."""
+        cams = self.config.cameras
+        return self.camera_offsets is not None and cams.settle_at <= self.step < cams.settle_at + cams.settle_steps
+
     def train_step(self) -> dict:
         """Run step ``self.step`` (0-based) and advance; returns its losses and what densification did.
 
@@ -360,6 +365,7 @@ class Trainer:
         frames = [self._next_frame() for _ in range(batch)]
         names = self._loss_names()
         views = {j: self._render_view(frames[j], j) for j in comm.share(batch)}
+        settling = self._settling()
         sums = torch.zeros(len(names), dtype=torch.float64)
         if views:
             total = sum(view["losses"]["loss"] for view in views.values()) / batch
@@ -371,16 +377,26 @@ class Trainer:
                 sums += torch.tensor([values[name] for name in names], dtype=torch.float64)
                 grad = view["out"].means2d.grad
                 camera = view["camera"]
+                if settling:
+                    continue  # the Gaussians hold still: their densification statistics too
                 # Each view's own screen gradient (the batch mean divides it by ``batch``), as gsplat.
                 self.strategy.observe(self.step + 1, None if grad is None else grad * batch, view["out"].radii,
                                       camera.width, camera.height)
         sums = comm.reduce_step(self._trainable(), sums)
+        if settling:  # only the cameras step: Adam skips a parameter without a gradient
+            for group in self.optimizer.param_groups:
+                if not group["name"].startswith("cameras."):
+                    for param in group["params"]:
+                        param.grad = None
         self.optimizer.step()
         self.optimizer.zero_grad(set_to_none=True)
         if self.camera_offsets is not None:
             self.camera_offsets.fix_gauge()
         if self.mogaface is not None:
-            self.mogaface.optimizer_step()
+            if settling:
+                self.mogaface.optimizer.zero_grad(set_to_none=True)
+            else:
+                self.mogaface.optimizer_step()
             records = torch.zeros(batch, self.mogaface.record_size())
             for j, view in views.items():
                 records[j] = self.mogaface.record(view["correction"])
@@ -388,7 +404,8 @@ class Trainer:
                 self.mogaface.commit(record)
         self.step += 1
         report = {}
-        if self.strategy.schedule.densifies_at(self.step) or self.strategy.schedule.resets_opacity_at(self.step):
+        schedule = self.strategy.schedule
+        if not settling and (schedule.densifies_at(self.step) or schedule.resets_opacity_at(self.step)):
             if self.strategy.schedule.densifies_at(self.step):
                 comm.reduce_statistics(self.strategy)
             with torch.no_grad():
