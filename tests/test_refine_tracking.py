@@ -162,3 +162,27 @@ def test_errors_against_the_truth_are_zero_for_the_truth_and_its_gauge(run_root,
     record = json.loads((tmp_path / "r" / RECORD_FILE).read_text())
     assert set(record["truth_errors"]) == {"start", "refined"}
     assert record["truth_errors"]["start"]["unseen"]["vertex_mm"] == pytest.approx(direct, rel=1e-5)
+
+
+def test_cancelling_the_worker_stops_the_child_and_keeps_nothing_half_done(run_root, tmp_path):
+    import time
+
+    from mogaface.core.worker import refine_tracking_command
+
+    bare = tmp_path / "run"
+    shutil.copytree(run_root, bare)
+    (bare / "refiner.pt").unlink()  # the child trains one with the defaults first: long enough to cancel
+    worker = RefineTrackingWorker(refine_tracking_command(sys.executable, bare, threads=1), bare).start()
+    try:
+        deadline = time.monotonic() + 120
+        while worker.poll().step < 1 and not worker.progress.finished and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert worker.progress.stage == "refiner offsets", (worker.progress, worker.stderr_tail())
+        worker.cancel()
+        progress = worker.wait(interval=0.1, timeout=60)
+    finally:
+        worker.kill()
+    assert progress.state == "cancelled", (progress.message, worker.stderr_tail())
+    assert "nothing replaced" in progress.message and progress.stage.startswith("refiner")
+    assert not (bare / "refiner.pt").exists() and not (bare / "refined_tracking").exists()
+    assert not list(bare.glob(".refine*"))

@@ -81,7 +81,11 @@ def refine_tracking(run_dir, out=None, capture=None, passes: int = 3, views: int
     if passes < 1 or views < 1:
         raise InputError(None, "passes" if passes < 1 else "views", "must be at least 1")
 
+    where = {"stage": "frames", "step": 0, "steps": 0}  # the last progress, for a stop
+
     def emit(event: str, **fields):
+        if event == "iter":
+            where.update({k: fields[k] for k in where})
         for listener in listeners:
             listener({"event": event, **fields})
 
@@ -96,8 +100,8 @@ def refine_tracking(run_dir, out=None, capture=None, passes: int = 3, views: int
 
         _train_first(run.root, refiner_settings or RefinerSettings(threads=threads), [stage_progress], should_stop)
     torch.set_num_threads(threads)
-    if should_stop():
-        emit("stopped", step=0, steps=len(cap.timesteps), stage="frames")
+    if should_stop():  # while the refiner trained
+        emit("stopped", **where)
         return {"state": "stopped", "path": str(out)}
     avatar = frozen_avatar(run.root)
     refiner = run_refiner(run.root, avatar)
