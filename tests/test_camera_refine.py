@@ -1,6 +1,7 @@
 """Per-camera extrinsic refinement: the scene motion equals the refined camera, a known calibration
 error is recovered, the gauge holds, and the offsets survive checkpoints and reach the run folder."""
 
+import dataclasses
 import json
 
 import numpy as np
@@ -209,3 +210,27 @@ def test_in_the_cameras_only_phase_only_the_cameras_move(capture, tmp_path):
     for step in (1, 6):
         assert "local_position" in moved(history[step], history[step + 1]), step
     assert any(k.startswith("table.") for k in moved(history[1], history[2]))
+
+
+def test_a_new_round_starts_from_the_refined_cameras_of_the_last(capture, tmp_path):
+    first = tmp_path / "first"
+    Trainer(capture, first, refine_config(steps=6)).run()
+    written = read_cameras(first / "cameras_refined.json")
+    config = refine_config(steps=2)
+    config.cameras.start = str(first / "cameras_refined.json")
+    second = Trainer(capture, tmp_path / "second", config)
+    for cid, camera in second.camera_offsets.refined_cameras().items():
+        np.testing.assert_allclose(camera.w2c, written[cid].w2c, atol=1e-6)  # offsets in float32
+    assert second.camera_offsets.values()[0].abs().max() > 0
+    calibrated = Capture.open(capture).cameras
+    rng = np.random.default_rng(0)
+    turned = {cid: perturb_camera(c, 40.0, rng) for cid, c in calibrated.items()}  # far beyond small angles
+    offsets = CameraOffsets(calibrated)
+    offsets.start_from(turned)
+    for cid, camera in offsets.refined_cameras().items():
+        np.testing.assert_allclose(camera.w2c, turned[cid].w2c, atol=1e-6)
+    resized = {cid: dataclasses.replace(c, width=c.width + 1) for cid, c in written.items()}
+    with pytest.raises(Exception, match="intrinsics or image size"):
+        CameraOffsets(calibrated).start_from(resized)
+    with pytest.raises(Exception, match="cameras.start"):
+        C.resolve(overrides={"cameras": {"start": "x.json"}})

@@ -78,6 +78,25 @@ class CameraOffsets(nn.Module):
             for p in group:
                 p.sub_(mean)
 
+    @torch.no_grad()
+    def start_from(self, cameras: dict[str, Camera], source=None) -> None:
+        """Set each offset so that its camera is ``cameras[id]`` (e.g. an earlier run's refined
+        cameras: a new round with a fresh avatar); cameras the file lacks keep a zero offset."""
+        from ..errors import InputError
+
+        for camera_id, i in self.index.items():
+            start = cameras.get(camera_id)
+            if start is None:
+                continue
+            calibrated = self.calibrated[camera_id]
+            if not np.allclose(start.K, calibrated.K, rtol=1e-4) or (start.width, start.height) != (
+                    calibrated.width, calibrated.height):
+                raise InputError(source, camera_id, "intrinsics or image size differ from the capture's camera "
+                                                    "(cameras of another capture?)")
+            turn = start.w2c[:3, :3].T @ calibrated.w2c[:3, :3]  # exp(ω) = R_start · R_calibrated⁻¹ (camera-to-world)
+            self.rotation[i].copy_(_axis_angle(turn))
+            self.translation[i].copy_(torch.as_tensor(_centre(start) - _centre(calibrated)))
+
     def refined_camera(self, camera_id: str) -> Camera:
         """The calibrated camera moved by its offset (float64 numbers, same intrinsics)."""
         camera = self.calibrated[camera_id]
@@ -108,6 +127,14 @@ class CameraOffsets(nn.Module):
         for group, values in ((self.rotation, state["rotation"]), (self.translation, state["translation"])):
             for p, value in zip(group, values):
                 p.copy_(value)
+
+
+def _axis_angle(matrix: np.ndarray) -> torch.Tensor:
+    """A rotation matrix as its axis-angle vector (through the quaternion: exact for every angle)."""
+    w, *xyz = matrix_to_quaternion(torch.as_tensor(matrix, dtype=torch.float64)).tolist()
+    vector = torch.tensor(xyz, dtype=torch.float64)
+    norm = float(vector.norm())
+    return (vector * (2.0 * np.arctan2(norm, w) / norm) if norm > 1e-12 else 2.0 * vector).float()
 
 
 def _centre(camera: Camera) -> np.ndarray:

@@ -88,6 +88,8 @@ class CamerasSection:
     translation_lr: float = _setting(2e-4, "learning rate of the camera centre offsets (metres)")
     gauge: str = _setting("mean", "'mean': the offsets' mean over the training cameras stays zero (the rig as a "
                                   "whole keeps its calibrated pose); 'none': free")
+    start: str = _setting("", "a cameras file in the layout of RUN/cameras_refined.json the offsets start from "
+                              "(an earlier run's refined cameras: a new round with a fresh avatar); '': calibrated")
     settle_at: int = _setting(0, "step at which a cameras-only phase starts: the avatar and the FLAME parameters "
                                  "hold still while the cameras align to it (0: no such phase)")
     settle_steps: int = _setting(0, "steps of the cameras-only phase")
@@ -169,6 +171,8 @@ class TrainConfig:
         for key in ("cameras.settle_at", "cameras.settle_steps"):
             if _get(self, key) < 0:
                 raise InputError(source, key, f"must be >= 0 (got {_get(self, key)})")
+        if self.cameras.start and not self.cameras.refine:
+            raise InputError(source, "cameras.start", "starting cameras need cameras.refine = true")
         if self.cameras.settle_steps and not (self.cameras.refine and self.cameras.settle_at):
             raise InputError(source, "cameras.settle_steps", "a cameras-only phase needs cameras.refine = true and "
                                                              "cameras.settle_at > 0 (a first avatar to align to)")

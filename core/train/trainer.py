@@ -188,7 +188,14 @@ class Trainer:
         cameras = {}
         for frame in self.data.frames:
             cameras.setdefault(frame.camera_id, self.data.capture.camera(frame))
-        return CameraOffsets(cameras, self.config.cameras.gauge)
+        offsets = CameraOffsets(cameras, self.config.cameras.gauge)
+        start = self.config.cameras.start
+        if start:  # a resumed run reloads its offsets from the checkpoint after this
+            from ..evaluate.images import read_cameras
+
+            offsets.start_from(read_cameras(pathlib.Path(start)), start)
+            offsets.fix_gauge()
+        return offsets
 
     def _build_optimizer(self) -> None:
         lr = self.config.lr
