@@ -250,7 +250,8 @@ class TrainWorker:
     def _apply(self, event: dict) -> None:
         self.events.append(event)
         p, kind = self.progress, event.get("event")
-        p.stage = event.get("stage", p.stage)
+        if "step" in event:  # a job of stages names each one; training's own events name none
+            p.stage = event.get("stage")
         p.step = int(event.get("step", p.step) or 0)
         p.steps = int(event.get("steps", p.steps) or 0)
         if kind == "iter":

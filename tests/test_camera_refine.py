@@ -234,3 +234,29 @@ def test_a_new_round_starts_from_the_refined_cameras_of_the_last(capture, tmp_pa
         CameraOffsets(calibrated).start_from(resized)
     with pytest.raises(Exception, match="cameras.start"):
         C.resolve(overrides={"cameras": {"start": "x.json"}})
+
+
+def test_rounds_train_fresh_avatars_from_the_last_rounds_cameras_and_resume(capture, tmp_path):
+    from mogaface.core.cli import main
+    from mogaface.core.train.rounds import round_config, round_folder
+
+    run = tmp_path / "run"
+    config = refine_config(steps=4)
+    config.cameras.rounds = 3
+    settings = tmp_path / "rounds.toml"
+    settings.write_text(C.to_toml(config))
+    # round 1 was stopped half-way: it resumes, round 2 starts from its cameras, the last is RUN itself
+    Trainer(capture, round_folder(run, 1), round_config(config, "")).run(until=2)
+    assert main(["train", str(capture), "--out", str(run), "--config", str(settings), "--quiet"]) == 0
+    for k in (1, 2):
+        assert (round_folder(run, k) / "avatar.pt").exists() and not (round_folder(run, k) / "metrics.json").exists()
+    first = [json.loads(line) for line in (round_folder(run, 1) / "events.jsonl").read_text().splitlines()]
+    assert "resume" in [e["event"] for e in first]
+    second = C.load(round_folder(run, 2) / "config.toml")
+    assert second.cameras.start == str((round_folder(run, 1) / "cameras_refined.json").resolve())
+    assert C.load(run / "config.toml").cameras.start == str((round_folder(run, 2) / "cameras_refined.json").resolve())
+    final = read_cameras(run / "cameras_refined.json")
+    assert any(not np.allclose(final[c].w2c, Capture.open(capture).cameras[c].w2c, atol=1e-6) for c in final)
+    events = [json.loads(line) for line in (run / "events.jsonl").read_text().splitlines()]
+    stages = [e.get("stage") for e in events if e["event"] == "iter"]
+    assert stages[0] == "camera round 1/3" and "camera round 2/3" in stages and stages[-1] is None

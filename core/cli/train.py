@@ -60,6 +60,30 @@ def _listeners(args):
     return listeners
 
 
+def _round_trainer(args, comm, rounds: int):
+    """Builds an earlier round's trainer; its events also go to ``RUN/events.jsonl``, marked with
+    the round (``stage``), so a reader of the run (Blender) follows every round."""
+    from ..train.events import EventLog
+    from ..train.trainer import Trainer
+
+    log = EventLog(args.out / "events.jsonl") if comm.is_writer else None
+
+    def trainer_for(folder, config, resume: bool, k: int):
+        listeners = list(_listeners(args)) if comm.is_writer else None
+        if comm.is_writer:
+            def forward(event, stage=f"camera round {k}/{rounds}"):
+                fields = {n: v for n, v in event.items() if n not in ("event", "time")}
+                log.emit(event["event"], **fields, stage=stage)
+
+            listeners.append(forward)
+        trainer = Trainer(args.capture, folder, config, resume=resume, head_file=args.head, listeners=listeners,
+                          comm=comm)
+        trainer.install_signal_handlers()
+        return trainer
+
+    return trainer_for
+
+
 def run(args) -> int:
     from ..train.distributed import communicator_from_environment
 
@@ -71,20 +95,33 @@ def run(args) -> int:
 
 
 def _train(args, comm) -> int:
+    from ..io.atomic import write_text
     from ..train import config as config_module
+    from ..train.checkpoint import latest_checkpoint
+    from ..train.rounds import ROUNDS_DIR, train_earlier_rounds
     from ..train.trainer import Trainer
 
     overrides = _overrides(args)
+    rounds_config = args.out / ROUNDS_DIR / "config.toml"  # the whole run's, while earlier rounds train
     if args.resume:
         if args.config is not None or args.preset is not None:
             print("error: --resume continues with the run's own config.toml; drop --config/--preset",
                   file=sys.stderr)
             return 2
-        config = config_module.resolve(path=args.out / "config.toml", overrides=overrides) \
-            if (args.out / "config.toml").exists() else None
+        saved = next((p for p in (args.out / "config.toml", rounds_config) if p.exists()), None)
+        config = config_module.resolve(path=saved, overrides=overrides) if saved is not None else None
     else:
         config = config_module.resolve(args.preset, args.config, overrides)
-    trainer = Trainer(args.capture, args.out, config, resume=args.resume, head_file=args.head,
+    resume = args.resume
+    if config is not None and config.cameras.rounds > 1 and latest_checkpoint(args.out / "checkpoints") is None:
+        if comm.is_writer:
+            rounds_config.parent.mkdir(parents=True, exist_ok=True)
+            write_text(rounds_config, config_module.to_toml(config))
+        stopped, config = train_earlier_rounds(args.out, config, _round_trainer(args, comm, config.cameras.rounds))
+        if stopped is not None:
+            return 128 + int(stopped)
+        resume = False  # the last round is RUN itself, started now
+    trainer = Trainer(args.capture, args.out, config, resume=resume, head_file=args.head,
                       listeners=_listeners(args) if comm.is_writer else None, comm=comm)
     trainer.install_signal_handlers()
     result = trainer.run()

@@ -88,6 +88,8 @@ class CamerasSection:
     translation_lr: float = _setting(2e-4, "learning rate of the camera centre offsets (metres)")
     gauge: str = _setting("mean", "'mean': the offsets' mean over the training cameras stays zero (the rig as a "
                                   "whole keeps its calibrated pose); 'none': free")
+    rounds: int = _setting(1, "train this many times, each round a fresh avatar from the cameras the last one "
+                              "refined (RUN/camera_rounds/<k>; train.steps each)")
     start: str = _setting("", "a cameras file in the layout of RUN/cameras_refined.json the offsets start from "
                               "(an earlier run's refined cameras: a new round with a fresh avatar); '': calibrated")
     settle_at: int = _setting(0, "step at which a cameras-only phase starts: the avatar and the FLAME parameters "
@@ -171,6 +173,8 @@ class TrainConfig:
         for key in ("cameras.settle_at", "cameras.settle_steps"):
             if _get(self, key) < 0:
                 raise InputError(source, key, f"must be >= 0 (got {_get(self, key)})")
+        if self.cameras.rounds > 1 and not self.cameras.refine:
+            raise InputError(source, "cameras.rounds", "rounds of camera refinement need cameras.refine = true")
         if self.cameras.start and not self.cameras.refine:
             raise InputError(source, "cameras.start", "starting cameras need cameras.refine = true")
         if self.cameras.settle_steps and not (self.cameras.refine and self.cameras.settle_at):
