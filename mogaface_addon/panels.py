@@ -138,6 +138,7 @@ class MOGAFACE_PT_training(_SubPanel, bpy.types.Panel):
         wrapped_label(layout, context, preset_description(settings), icon="INFO")
         layout.prop(settings, "iterations")
         layout.prop(settings, "seed")
+        layout.prop(settings, "camera_rounds")
         from ..operators.train import current_worker, last_progress
 
         progress = last_progress()

@@ -29,6 +29,10 @@ class MoGaFaceSceneSettings(bpy.types.PropertyGroup):
     preset: EnumProperty(name="Preset", default="demo", description="Training settings preset (docs/training.md)",
                          items=PRESET_ITEMS)
     seed: IntProperty(name="Seed", default=0, min=0, description="Random seed of training")
+    camera_rounds: IntProperty(
+        name="Camera Rounds", default=0, min=0, max=16,
+        description="For captures whose calibration is off: 0 trusts the cameras; 1 refines them with the avatar; "
+                    "N refines them in N rounds, each a fresh avatar (N times the training time; 3 recommended)")
     viewport_resolution: IntProperty(
         name="Viewport Resolution", default=512, min=64, max=4096,
         description="Longest side in pixels of the avatar drawn in a still 3D view")

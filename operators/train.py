@@ -88,6 +88,8 @@ class MOGAFACE_OT_train(FollowsChildJob, bpy.types.Operator):
     preset: EnumProperty(name="Preset", default="demo", items=PRESET_ITEMS)
     steps: IntProperty(name="Steps", default=0, min=0, description="Total steps (0: the preset's)")
     seed: IntProperty(name="Seed", default=-1, min=-1, description="Random seed (-1: the scene's)")
+    camera_rounds: IntProperty(name="Camera Rounds", default=-1, min=-1, max=16,
+                               description="Rounds of camera refinement (-1: the scene's; 0: none)")
     python: StringProperty(name="Python", subtype="FILE_PATH", options={"HIDDEN", "SKIP_SAVE"},
                            description="Interpreter for the training process (empty: the preferences')")
     resume: EnumProperty(
@@ -120,6 +122,7 @@ class MOGAFACE_OT_train(FollowsChildJob, bpy.types.Operator):
         command = train_command(
             python, capture, run, preset=self.preset, steps=steps,
             seed=settings.seed if self.seed < 0 else self.seed, threads=preferred_threads(context), resume=resume,
+            camera_rounds=settings.camera_rounds if self.camera_rounds < 0 else self.camera_rounds,
             paths=worker_paths(python),
         )
         from ..core.launcher import with_launcher

@@ -55,6 +55,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--preset", default="demo", choices=[name for name, _ in PRESETS],
                         help="training preset: " + "; ".join(f"{name}: {text}" for name, text in PRESETS))
     parser.add_argument("--steps", type=int, default=0, help="training steps (0: the preset's)")
+    parser.add_argument("--camera-rounds", type=int, default=0,
+                        help="refine the cameras in this many rounds while training (0: trust the calibration)")
     parser.add_argument("--python", help="interpreter for the training process (default: this one)")
     parser.add_argument("--launcher", help="start training through this command line, e.g. "
                         "'torchrun --nproc_per_node 2' (data-parallel; see docs/training.md)")
@@ -132,7 +134,7 @@ def build_scene(args, log=print) -> dict:
         if addon is not None and args.launcher:
             addon.preferences.launcher = args.launcher
         _call(ops.train, capture=str(args.capture.resolve()), run=str(run), preset=args.preset, steps=args.steps,
-              resume="NEW", python=args.python or "")
+              resume="NEW", python=args.python or "", camera_rounds=args.camera_rounds)
         log(f"[blend] trained into {run}")
     head = run / "head.pkl"
     if not head.exists():

@@ -553,6 +553,28 @@ def test_the_train_operator_takes_its_interpreter_from_its_python_property(scena
         bpy.ops.mogaface.train(capture=str(scenario["capture"]), run=str(tmp_path / "run"), python=str(missing))
 
 
+def test_the_train_operator_asks_for_the_scenes_camera_rounds(scenario, tmp_path, monkeypatch):
+    worker = importlib.import_module(MODULE + ".core.worker")
+    started = []
+
+    def refuse(self):
+        started.append(self.command)
+        raise OSError("not started in this test")
+
+    monkeypatch.setattr(worker.TrainWorker, "start", refuse)
+    settings = bpy.context.scene.mogaface
+    settings.camera_rounds = 3
+    try:
+        for rounds in (-1, 0):
+            with pytest.raises(RuntimeError, match="Cannot start"):
+                bpy.ops.mogaface.train(capture=str(scenario["capture"]), run=str(tmp_path / "run"), resume="NEW",
+                                       camera_rounds=rounds)
+    finally:
+        settings.camera_rounds = 0
+    scene_rounds, none = started
+    assert scene_rounds[scene_rounds.index("--refine-cameras") + 1] == "3" and "--refine-cameras" not in none
+
+
 FACTORY_STARTUP_SCRIPT = """
 import importlib.util, os, sys, tempfile
 folder = tempfile.mkdtemp()

@@ -59,6 +59,23 @@ def test_train_command_is_an_isolated_worker(tmp_path):
     assert spec["path"] == ["/site"] and spec["name"] == "mogaface" and spec["root"] == str(package_root())
     assert command[6:] == ["train", str(tmp_path / "cap"), "--out", str(tmp_path / "run"), "--quiet",
                            "--preset", "quick", "--steps", "5"]
+    rounds = train_command("/py", "cap", "run", preset="quick", camera_rounds=3)
+    assert rounds[-4:] == ["--preset", "quick", "--refine-cameras", "3"]
+    assert "--refine-cameras" not in train_command("/py", "cap", "run", resume=True, camera_rounds=3)
+
+
+def test_refine_cameras_on_the_command_line_sets_the_rounds():
+    import argparse
+
+    from mogaface.core.cli import train as train_cli
+    from mogaface.core.train import config as C
+
+    parser = argparse.ArgumentParser()
+    train_cli.add_arguments(parser)
+    for flags, rounds in ((["--refine-cameras"], 1), (["--refine-cameras", "3"], 3)):
+        config = C.resolve("quick", overrides=train_cli._overrides(parser.parse_args(["cap", "--out", "r", *flags])))
+        assert config.cameras.refine and config.cameras.rounds == rounds
+    assert not C.resolve(overrides=train_cli._overrides(parser.parse_args(["cap", "--out", "r"]))).cameras.refine
 
 
 def test_python_dash_m_drops_the_working_directory(tmp_path):

@@ -19,6 +19,9 @@ def add_arguments(parser):
     parser.add_argument("--threads", type=int, help="CPU threads (overrides the config)")
     parser.add_argument("--batch", type=int, help="training images per step over all ranks (overrides the config)")
     parser.add_argument("--head", type=pathlib.Path, help="head model file (default: the capture's)")
+    parser.add_argument("--refine-cameras", type=int, nargs="?", const=1, metavar="ROUNDS",
+                        help="refine the cameras for a capture whose calibration is off; with ROUNDS > 1, in that "
+                             "many rounds, each a fresh avatar (docs/training.md; overrides the config)")
     parser.add_argument("--events", choices=["file", "stdout"], default="file",
                         help="'stdout': also print every event as a JSON line on stdout (for other programs)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -26,7 +29,10 @@ def add_arguments(parser):
 
 def _overrides(args) -> dict:
     train = {k: getattr(args, k) for k in ("steps", "seed", "threads", "batch") if getattr(args, k) is not None}
-    return {"train": train} if train else {}
+    overrides = {"train": train} if train else {}
+    if args.refine_cameras is not None:
+        overrides["cameras"] = {"refine": True, "rounds": args.refine_cameras}
+    return overrides
 
 
 def _listeners(args):
