@@ -94,6 +94,17 @@ def test_train_operator_starts_a_data_parallel_run_through_the_launcher(trained,
     assert [e["event"] for e in events].count("start") == 1 and events[-1]["event"] == "done"
 
 
+def test_camera_rounds_train_in_one_operator_call_and_show_their_stage(trained, tmp_path):
+    run = tmp_path / "run"
+    assert bpy.ops.mogaface.train(capture=str(trained["capture"]), run=str(run), preset="quick", steps=3,
+                                  camera_rounds=2) == {"FINISHED"}
+    progress = trained["train"].last_progress()
+    assert progress.state == "done" and progress.stage is None  # the last round is the run itself
+    assert (run / "camera_rounds" / "1" / "avatar.pt").exists() and (run / "cameras_refined.json").exists()
+    events = [json.loads(line) for line in (run / "events.jsonl").read_text().splitlines()]
+    assert {e.get("stage") for e in events} == {"camera round 1/2", None}
+
+
 def test_a_crashing_training_is_reported_with_its_message(trained, tmp_path):
     with pytest.raises(RuntimeError, match=r"exit code 2.*not-a-capture"):
         bpy.ops.mogaface.train(capture=str(tmp_path / "not-a-capture"), run=str(tmp_path / "run"), steps=2)
