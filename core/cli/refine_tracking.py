@@ -10,7 +10,7 @@ import sys
 
 def add_arguments(parser) -> None:
     parser.add_argument("run", type=pathlib.Path, metavar="RUN", help="run folder written by 'train'")
-    parser.add_argument("--capture", type=pathlib.Path, help="capture whose tracking to improve (default: the run's)")
+    parser.add_argument("--capture", type=pathlib.Path, help="the run's capture folder, when it has moved")
     parser.add_argument("--out", type=pathlib.Path, help="output folder (default RUN/refined_tracking; replaced only "
                                                          "if this command wrote it)")
     parser.add_argument("--passes", type=int, default=3, help="refiner passes per timestep (default %(default)s)")

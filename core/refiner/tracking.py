@@ -70,7 +70,8 @@ def _train_first(run_root: pathlib.Path, settings: RefinerSettings, listeners, s
 
 def refine_tracking(run_dir, out=None, capture=None, passes: int = 3, views: int = 4, threads: int = 2,
                     refiner_settings: RefinerSettings | None = None, listeners=(), should_stop=lambda: False) -> dict:
-    """Refine every timestep of the run's capture (or ``capture``); returns what was written.
+    """Refine every timestep of the run's capture (``capture``: that capture, moved); returns what
+    was written.
 
     ``passes`` and ``views`` are those of :class:`..evaluate.sources.refined.RefinedParams` (the
     views spread over the rig). Events: the refiner's own when it is trained first, then ``iter``
