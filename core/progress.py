@@ -41,6 +41,21 @@ class ProgressBar:
         self.stream.flush()
 
 
+def stage_bars(command: str):
+    """A listener that draws one :class:`ProgressBar` per stage of ``iter`` events
+    (``{"stage", "step", "steps"}``), labelled ``command (stage)``."""
+    bar = {}
+
+    def show(event: dict) -> None:
+        if event["event"] != "iter":
+            return
+        if bar.get("stage") != event["stage"]:
+            bar.update(stage=event["stage"], bar=ProgressBar(event["steps"], f"{command} ({event['stage']})"))
+        bar["bar"].update(event["step"] - bar["bar"].done)
+
+    return show
+
+
 def emit_event(stream, event: str, **fields) -> None:
     """Write one JSON-lines progress event (``{"event": …, …}``) and flush it."""
     stream.write(json.dumps({"event": event, **fields}) + "\n")

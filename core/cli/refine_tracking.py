@@ -20,24 +20,13 @@ def add_arguments(parser) -> None:
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
-def _show():
-    from ..progress import ProgressBar
-
-    bar = {}
-
-    def show(event):
-        if event["event"] == "iter":
-            if bar.get("stage") != event["stage"]:
-                bar.update(stage=event["stage"], bar=ProgressBar(event["steps"], f"refine-tracking ({event['stage']})"))
-            bar["bar"].update(event["step"] - bar["bar"].done)
-        elif event["event"] == "stopped":
-            print(f"\nstopped at {event['stage']} {event['step']}/{event['steps']}; nothing was replaced",
-                  file=sys.stderr)
-
-    return show
+def _say_stopped(event) -> None:
+    if event["event"] == "stopped":
+        print(f"\nstopped at {event['stage']} {event['step']}/{event['steps']}; nothing was replaced", file=sys.stderr)
 
 
 def run(args) -> int:
+    from ..progress import stage_bars
     from ..refiner.tracking import refine_tracking
     from ..train.events import EventLog
     from ..worker import RefineTrackingWorker
@@ -45,7 +34,7 @@ def run(args) -> int:
     log = EventLog(args.run / RefineTrackingWorker.EVENTS_FILE) if args.run.is_dir() else None
     listeners = [] if log is None else [lambda e: log.emit(e["event"], **{k: v for k, v in e.items() if k != "event"})]
     if not args.quiet:
-        listeners.append(_show())
+        listeners += [stage_bars("refine-tracking"), _say_stopped]
     stop = {"signal": None}
 
     def request_stop(signum, _frame):

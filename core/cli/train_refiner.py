@@ -25,7 +25,7 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
-    from ..progress import ProgressBar, emit_event
+    from ..progress import emit_event, stage_bars
     from ..refiner.training import RefinerSettings, train_refiner
 
     settings = RefinerSettings(starts=args.starts, offsets_per_start=args.offsets_per_start,
@@ -34,15 +34,7 @@ def run(args) -> int:
     if args.events == "stdout":
         listeners.append(lambda e: emit_event(sys.stdout, e["event"], **{k: v for k, v in e.items() if k != "event"}))
     if not args.quiet:
-        bar = {}
-
-        def show(event):
-            if event["event"] == "iter" and bar.get("stage") != event["stage"]:
-                bar.update(stage=event["stage"], bar=ProgressBar(event["steps"], f"train-refiner ({event['stage']})"))
-            if event["event"] == "iter":
-                bar["bar"].update(event["step"] - bar["bar"].done)
-
-        listeners.append(show)
+        listeners.append(stage_bars("train-refiner"))
     stop = {"signal": None}
 
     def request_stop(signum, _frame):

@@ -466,11 +466,16 @@ class Capture:
             raise CaptureError(path, f"{frame.source} {frame.field(name)}", error.problem) from None
 
     # -- FLAME parameters ----------------------------------------------------------------------
-    def flame_params(self, timestep: int) -> dict[str, np.ndarray]:
-        """The tracked FLAME parameters of one timestep: float32 ``(n,)`` vectors (``static_offset (V,3)``)."""
+    def timestep_frame(self, timestep: int) -> Frame:
+        """The first frame listed for a timestep (the one its FLAME parameters are read through)."""
         frame = self._timestep_frame.get(timestep)
         if frame is None:
             raise CaptureError(self.root, "timestep_index", f"no frame has timestep {timestep}")
+        return frame
+
+    def flame_params(self, timestep: int) -> dict[str, np.ndarray]:
+        """The tracked FLAME parameters of one timestep: float32 ``(n,)`` vectors (``static_offset (V,3)``)."""
+        frame = self.timestep_frame(timestep)
         field = f"{frame.source} {frame.field('flame_param_path')}"
         return self._load_flame(self.path(frame, "flame_param_path"), field)
 

@@ -108,9 +108,6 @@ def refine_tracking(run_dir, out=None, capture=None, passes: int = 3, views: int
     refiner = run_refiner(run.root, avatar)
     source = RefinedParams(avatar, cap, TrackedParams(cap, run), refiner, run.background, passes=passes,
                            max_views=views, cameras=InputCameras.of_run(cap, run.root))
-    first_frame = {}
-    for frame in cap.frames():
-        first_frame.setdefault(frame.timestep_index, frame)
     staging = _staging(out, "partial")
     began, folders, refined = time.perf_counter(), set(), {}
     steps = len(cap.timesteps)
@@ -120,7 +117,7 @@ def refine_tracking(run_dir, out=None, capture=None, passes: int = 3, views: int
             if should_stop():
                 emit("stopped", step=index, steps=steps, stage="frames")
                 return {"state": "stopped", "path": str(out)}
-            relative = cap.path(first_frame[timestep], "flame_param_path").relative_to(cap.root)
+            relative = cap.path(cap.timestep_frame(timestep), "flame_param_path").relative_to(cap.root)
             params = refined[timestep] = source.params_for(timestep)
             save_npz(staging / relative, layout.batched_flame_params(params))
             folders.add(relative.parent.as_posix())
