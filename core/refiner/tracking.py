@@ -85,7 +85,7 @@ def refine_tracking(run_dir, out=None, capture=None, passes: int = 3, views: int
     where = {"stage": "frames", "step": 0, "steps": 0}  # the last progress, for a stop
 
     def emit(event: str, **fields):
-        if event == "iter":
+        if event in ("start", "iter"):
             where.update({k: fields[k] for k in where})
         for listener in listeners:
             listener({"event": event, **fields})
@@ -115,7 +115,7 @@ def refine_tracking(run_dir, out=None, capture=None, passes: int = 3, views: int
     try:
         for index, timestep in enumerate(cap.timesteps):
             if should_stop():
-                emit("stopped", step=index, steps=steps, stage="frames")
+                emit("stopped", **where)
                 return {"state": "stopped", "path": str(out)}
             relative = cap.path(cap.timestep_frame(timestep), "flame_param_path").relative_to(cap.root)
             params = refined[timestep] = source.params_for(timestep)
