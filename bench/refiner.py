@@ -40,6 +40,7 @@ def run(threads: int = 2, quick: bool = False, avatar: str | None = None) -> dic
     return {
         "run": str(folder.root), "frames": len(frames), "threads": threads,
         "seconds_per_frame": {name: round(s["source_s"], 4) for name, s in scores.items()},
+        "psnr_db": {name: round(s["psnr"], 3) for name, s in scores.items()},
         "psnr_gain_over_tracked_db": {name: round(s["psnr"] - tracked, 3) for name, s in scores.items()},
         "fitting_time_over_refiner": {
             f"{passes}": round(scores["fit_10"]["source_s"] / max(scores[f"refined_{passes}"]["source_s"], 1e-9), 2)

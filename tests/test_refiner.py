@@ -103,7 +103,7 @@ def _known_offsets(avatar, capture, refiner, width, count=6, seed=11, groups=Non
         offset = sampler()
         truth = add_offset(start, offset, n_expr)
         with torch.no_grad():
-            images = [avatar.render_posed(posed(avatar, truth), c, (1.0, 1.0, 1.0)).rgb.numpy() for c in cameras]
+            images = [avatar.render_posed(posed(avatar, truth).vertices, c, (1.0, 1.0, 1.0)).rgb.numpy() for c in cameras]
         refined = refine(avatar, refiner, start, cameras, images, (1.0, 1.0, 1.0), passes=1)[0]
         errors.append((flatten(refined, n_expr) - flatten(truth, n_expr)) / scales)
         zeros.append(offset / scales)
@@ -153,12 +153,73 @@ def test_a_pass_the_views_do_not_support_is_not_taken(run_root):
     cameras = [capture.camera_at(c, t) for c in sorted(capture.cameras)]
     start = capture.flame_params(t)
     with torch.no_grad():
-        images = [avatar.render_posed(posed(avatar, start), c, (1.0, 1.0, 1.0)).rgb.numpy() for c in cameras]
+        images = [avatar.render_posed(posed(avatar, start).vertices, c, (1.0, 1.0, 1.0)).rgb.numpy() for c in cameras]
     history = refine(avatar, refiner, start, cameras, images, (1.0, 1.0, 1.0), passes=2)
     assert len(history) == 2 and len(answers) == 1  # refused once: the second pass would ask the same
     assert np.abs(answers[0] / refiner.scales.numpy()).max() > 3.0  # it did answer nonsense
     for params in history:
         np.testing.assert_array_equal(flatten(params, n_expr), flatten(start, n_expr))
+
+
+def test_a_single_pass_renders_each_view_once_and_takes_the_solve(run_root, monkeypatch):
+    """One pass is not checked (its check would double its time): every view is rendered once, at
+    the start, and the solve comes back as it is, even a refiner's nonsense; a second pass checks
+    the first (the test above)."""
+    import mogaface.core.refiner.views as views
+
+    avatar = frozen_avatar(run_root)
+    capture = Capture.open(RunFolder(run_root).capture_root)
+    n_expr = avatar.flame.n_expr
+    refiner = _random_refiner(n_expr, cameras=sorted(capture.cameras), seed=5, gap=0.3)
+    refiner.forward = refiner.forward * 1e-2
+    t = capture.timesteps[0]
+    cameras = [capture.camera_at(c, t) for c in sorted(capture.cameras)]
+    start = capture.flame_params(t)
+    with torch.no_grad():
+        images = [avatar.render_posed(posed(avatar, start).vertices, c, (1.0, 1.0, 1.0)).rgb.numpy() for c in cameras]
+    renders = []
+    render_world = views.render_world
+    monkeypatch.setattr(views, "render_world", lambda *args: renders.append(args[1]) or render_world(*args))
+    answers = []
+    solve = refiner.offset
+    refiner.offset = lambda *args: answers.append(solve(*args)) or answers[-1]
+    (single,) = refine(avatar, refiner, start, cameras, images, (1.0, 1.0, 1.0), passes=1)
+    assert len(renders) == len(cameras) and len(answers) == 1
+    np.testing.assert_allclose(flatten(single, n_expr), flatten(start, n_expr) + answers[0], rtol=1e-5, atol=1e-6)
+
+
+def test_the_refiner_renders_a_modulated_avatar_with_its_texture_attention(run_root):
+    """A MoGaFace run's avatar changes its Gaussians with the parameters (texture attention): the
+    refiner's renders are the avatar's own ``render`` at those parameters, not the bare Gaussians'."""
+    from mogaface.core.avatar.avatar import flame_params_to_torch
+    from mogaface.core.mogaface.avatar import ModulatedAvatar
+    from mogaface.core.mogaface.model import MoGaFace
+    from mogaface.core.refiner.crops import crop_camera, head_window
+    from mogaface.core.refiner.views import render_crop
+
+    avatar = frozen_avatar(run_root)
+    capture = Capture.open(RunFolder(run_root).capture_root)
+    spec = {"mode": "multi", "bank": False, "texture": True, "input_size": 32, "feature_dim": 16,
+            "encoder_width": 4, "heads": 2, "hidden": 16, "plane_size": 8, "plane_dim": 4, "texture_hidden": 8,
+            "n_expr": avatar.flame.n_expr}
+    torch.manual_seed(0)
+    model = MoGaFace(spec, capture.timesteps, sorted(capture.cameras), avatar.posed_vertices(
+        flame_params_to_torch(capture.flame_params(capture.timesteps[0]))))
+    with torch.no_grad():
+        for head in model.texture.heads.values():
+            head.weight.normal_(0.0, 0.5)
+    modulated = ModulatedAvatar(avatar, model)
+    t = capture.timesteps[0]
+    params = capture.flame_params(t)
+    camera = capture.camera_at(sorted(capture.cameras)[0], t)
+    head = posed(modulated, params)
+    window = head_window(camera, head.vertices.numpy())
+    crop = (window, crop_camera(camera, window, 40))
+    with torch.no_grad():
+        own = modulated.render(flame_params_to_torch(params), crop[1], (1.0, 1.0, 1.0)).rgb.clamp(0, 1).permute(2, 0, 1)
+        bare = render_crop(posed(avatar, params), crop, (1.0, 1.0, 1.0))
+    torch.testing.assert_close(render_crop(head, crop, (1.0, 1.0, 1.0)), own)
+    assert (own - bare).abs().max() > 0.05  # the texture attention does change this render
 
 
 def test_refiner_file_round_trip(tmp_path):

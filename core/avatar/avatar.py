@@ -64,7 +64,12 @@ class Avatar(torch.nn.Module):
         return self.flame(**flame_params)[0]
 
     def world_gaussians(self, flame_params: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
-        return self.gaussians.world(self.posed_vertices(flame_params), self.flame.faces)
+        return self.world_posed(self.posed_vertices(flame_params), flame_params)
+
+    def world_posed(self, vertices: torch.Tensor, flame_params: dict | None = None) -> dict[str, torch.Tensor]:
+        """World Gaussians on the already posed mesh ``vertices (V,3)``; ``flame_params`` are read
+        only by an avatar whose appearance follows them (:class:`~..mogaface.avatar.ModulatedAvatar`)."""
+        return self.gaussians.world(vertices, self.flame.faces)
 
     def render(
         self, flame_params: dict[str, torch.Tensor], camera: Camera, background=(1.0, 1.0, 1.0)
@@ -75,7 +80,7 @@ class Avatar(torch.nn.Module):
     def render_posed(self, vertices: torch.Tensor, camera: Camera, background=(1.0, 1.0, 1.0)) -> SplatOutput:
         """Render the Gaussians bound to an already posed mesh ``vertices (V,3)``."""
         viewmat, K = camera_tensors(camera)
-        world = self.gaussians.world(vertices, self.flame.faces)
+        world = self.world_posed(vertices)
         return rasterize(
             world["means"], world["quats"], world["scales"], world["opacities"], world["colors"],
             viewmat, K, camera.width, camera.height, background=torch.as_tensor(background, dtype=torch.float32),

@@ -1,8 +1,12 @@
 """Refining one frame: K passes of (render at the current parameters, compare with the views,
 solve for the offset), in the head windows of the start. Every pass re-renders, so each corrects
-what the last one left; a pass is kept only when it lowers the photometric error on the views it
-was given (else half of it is tried), so extra passes cannot walk away from what the images
-support."""
+what the last one left; in a run of several passes a pass is kept only when it lowers the
+photometric error on the views it was given (else half of it is tried), so extra passes cannot
+walk away from what the images support.
+
+A single pass is taken as solved, unchecked: its check would render every view again and double
+its time, and on unseen frames the check kept every first pass in full (docs/results.md). Two or
+more passes check every pass, the first included."""
 
 from __future__ import annotations
 
@@ -31,23 +35,25 @@ def refine(avatar, refiner, params: dict[str, np.ndarray], cameras, images, back
            ) -> list[dict[str, np.ndarray]]:
     """The parameters after each of ``passes`` passes, given full-view ``images`` (H, W, 3) from
     ``cameras``; ``params`` is the start (e.g. the tracked parameters). Views from cameras the
-    refiner was not trained for are not used."""
+    refiner was not trained for are not used. A single pass is not checked (module docstring)."""
     n_expr = refiner.spec["n_expr"]
     cameras, images = _known_views(refiner, cameras, images)
     ids = [c.camera_id for c in cameras]
     history = []
-    vertices = posed(avatar, params)
-    crops = crop_cameras(cameras, vertices, refiner.spec["render_limit"])
+    head = posed(avatar, params)
+    crops = crop_cameras(cameras, head.vertices, refiner.spec["render_limit"])
     observed = [image_crop(image, crop, background) for image, crop in zip(images, crops)]
-    rendered = [render_crop(avatar, vertices, crop, background) for crop in crops]
+    rendered = [render_crop(head, crop, background) for crop in crops]
     error = _error(observed, rendered)
     for done in range(passes):
         features = torch.stack([pooled_difference(o, r, refiner.grid) for o, r in zip(observed, rendered)])
         offset = refiner.offset(features, ids)
+        if passes == 1:
+            return [add_offset(params, offset, n_expr)]
         for share in (1.0, 0.5):  # keep the step only where the views agree it helps (same windows)
             candidate = add_offset(params, offset * share, n_expr)
             moved = posed(avatar, candidate)
-            candidate_renders = [render_crop(avatar, moved, crop, background) for crop in crops]
+            candidate_renders = [render_crop(moved, crop, background) for crop in crops]
             candidate_error = _error(observed, candidate_renders)
             if candidate_error < error:
                 params, rendered, error = candidate, candidate_renders, candidate_error

@@ -97,14 +97,14 @@ def _forward_models(avatar, capture, run: _Run, settings, spec, rng, emit, shoul
         t = int(rng.choice(run.timesteps))
         start = add_offset(run.params[t], (rng.normal(size=len(scales)) * 0.5 * scales).astype(np.float32), n_expr)
         cameras = [run.cameras.at(c, t) for c in run.camera_ids]
-        vertices = posed(avatar, start)
-        crops = crop_cameras(cameras, vertices, spec["render_limit"])
-        base = [render_crop(avatar, vertices, crop, background) for crop in crops]
+        head = posed(avatar, start)
+        crops = crop_cameras(cameras, head.vertices, spec["render_limit"])
+        base = [render_crop(head, crop, background) for crop in crops]
         for _ in range(settings.offsets_per_start):
             offset = sampler()
             moved = posed(avatar, add_offset(start, offset, n_expr))
             for camera_id, crop, rendered in zip(run.camera_ids, crops, base):
-                observed = render_crop(avatar, moved, crop, background)
+                observed = render_crop(moved, crop, background)
                 features[camera_id].append(pooled_difference(observed, rendered, spec["grid"]).double())
             offsets.append(offset / scales)
         emit("iter", step=index + 1, steps=settings.starts, stage="offsets")
@@ -133,10 +133,10 @@ def _capture_gap(avatar, capture, run: _Run, settings, spec, rng, emit):
     for index, t in enumerate(chosen):
         frames = run.training_frames.get(int(t), [])
         cameras = [run.cameras(f) for f in frames]
-        vertices = posed(avatar, run.params[int(t)])
-        for frame, crop in zip(frames, crop_cameras(cameras, vertices, spec["render_limit"])):
+        head = posed(avatar, run.params[int(t)])
+        for frame, crop in zip(frames, crop_cameras(cameras, head.vertices, spec["render_limit"])):
             observed = image_crop(target_image(capture, frame, background, recorded), crop, background)
-            rendered = render_crop(avatar, vertices, crop, background)
+            rendered = render_crop(head, crop, background)
             gaps.setdefault(frame.camera_id, []).append(pooled_difference(observed, rendered, spec["grid"]).double())
         emit("iter", step=index + 1, steps=len(chosen), stage="gap")
     size, rank = 3 * spec["grid"] ** 2, spec["gap_rank"]

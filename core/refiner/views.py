@@ -9,6 +9,7 @@ full-size render, and that difference swamped the sub-pixel signal the refiner r
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -16,12 +17,24 @@ import torch
 import torch.nn.functional as F
 
 from ..avatar.avatar import flame_params_to_torch
+from ..mogaface.avatar import render_world
 from .crops import crop_camera, crop_image, head_window
 
 
+@dataclasses.dataclass(frozen=True)
+class PosedHead:
+    """The mesh and the world Gaussians at one set of parameters: posed once, rendered in every crop."""
+
+    vertices: torch.Tensor
+    world: dict[str, torch.Tensor]
+
+
 @torch.no_grad()
-def posed(avatar, params: dict[str, np.ndarray]) -> torch.Tensor:
-    return avatar.posed_vertices(flame_params_to_torch(params))
+def posed(avatar, params: dict[str, np.ndarray]) -> PosedHead:
+    """The avatar at ``params``, with whatever of its appearance follows them (texture attention)."""
+    flame_params = flame_params_to_torch(params)
+    vertices = avatar.posed_vertices(flame_params)
+    return PosedHead(vertices, avatar.world_posed(vertices, flame_params))
 
 
 @torch.no_grad()
@@ -36,9 +49,9 @@ def crop_cameras(cameras, vertices: torch.Tensor, render_limit: int) -> list:
 
 
 @torch.no_grad()
-def render_crop(avatar, vertices: torch.Tensor, crop, background) -> torch.Tensor:
+def render_crop(head: PosedHead, crop, background) -> torch.Tensor:
     """``(3, S, S)`` render of the posed avatar in one crop camera."""
-    return avatar.render_posed(vertices, crop[1], background).rgb.clamp(0, 1).permute(2, 0, 1)
+    return render_world(head.world, crop[1], background).rgb.clamp(0, 1).permute(2, 0, 1)
 
 
 @torch.no_grad()
