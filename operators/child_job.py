@@ -1,7 +1,8 @@
 """A job in a child process (training, improving the tracking), followed from Blender.
 
 A job is a dict ``{"worker": running worker or None, "last": Progress of the last finished one}``;
-each kind has one, so the UI runs one job of a kind at a time. :class:`FollowsChildJob` follows a
+each kind has one, and the UI runs one such job at a time, of any kind: each takes every core it is
+given, and improving the tracking reads the run that a training may be rewriting. :class:`FollowsChildJob` follows a
 started worker: from a timer in the UI (Blender never blocks), in a blocking loop in background
 mode, where timers and modal handlers never run.
 """
@@ -13,8 +14,23 @@ import bpy
 from .common import clear_status_text, redraw_areas
 
 
-def new_job() -> dict:
-    return {"worker": None, "last": None}
+#: Every kind's job, by the label that names it in messages.
+_jobs: dict[str, dict] = {}
+
+
+def new_job(label: str) -> dict:
+    job = {"worker": None, "last": None}
+    _jobs[label] = job
+    return job
+
+
+def refuse_if_busy(operator) -> bool:
+    """Report the running job, if any (True: the caller must not start another)."""
+    for label, job in _jobs.items():
+        if job["worker"] is not None:
+            operator.report({"ERROR"}, f"{label[0].upper()}{label[1:]} is running: wait for it or cancel it first")
+            return True
+    return False
 
 
 def job_progress(job: dict):

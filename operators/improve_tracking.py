@@ -12,7 +12,7 @@ import os
 import bpy
 from bpy.props import IntProperty, StringProperty
 
-from .child_job import FollowsChildJob, cancel_and_wait, end_job, job_progress, new_job
+from .child_job import FollowsChildJob, cancel_and_wait, end_job, job_progress, new_job, refuse_if_busy
 from .common import core_or_report
 from .dependencies import interpreter, worker_paths
 from .head_rig import is_head
@@ -20,7 +20,7 @@ from .import_tracking import existing_keys, head_or_report, key_tracking
 from .train import preferred_threads
 
 #: The one running tracking improvement, and the head its result will be keyed on.
-_job = new_job()
+_job = new_job("improving the tracking")
 
 
 def current_worker():
@@ -79,8 +79,7 @@ class MOGAFACE_OT_improve_tracking(FollowsChildJob, bpy.types.Operator):
         return self.execute(context)
 
     def execute(self, context):
-        if _job["worker"] is not None:
-            self.report({"ERROR"}, "The tracking is already being improved: cancel that first")
+        if refuse_if_busy(self):
             return {"CANCELLED"}
         obj = self._target(context)
         if not head_or_report(self, obj) or core_or_report(self, context) is None:

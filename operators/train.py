@@ -14,7 +14,7 @@ import os
 import bpy
 from bpy.props import EnumProperty, IntProperty, StringProperty
 
-from .child_job import FollowsChildJob, cancel_and_wait, end_job, job_progress, new_job
+from .child_job import FollowsChildJob, cancel_and_wait, end_job, job_progress, new_job, refuse_if_busy
 from .common import core_or_report
 from .dependencies import interpreter, top_package, worker_paths
 
@@ -28,7 +28,7 @@ PRESET_ITEMS = (
 )
 
 #: The one running training (the UI trains one run at a time).
-_job = new_job()
+_job = new_job("training")
 
 
 def current_worker():
@@ -101,8 +101,7 @@ class MOGAFACE_OT_train(FollowsChildJob, bpy.types.Operator):
     label, tag = "training", "train"
 
     def _start(self, context):
-        if _job["worker"] is not None:
-            self.report({"ERROR"}, "A training run is already in progress: cancel it first")
+        if refuse_if_busy(self):
             return None
         if core_or_report(self, context) is None:
             return None

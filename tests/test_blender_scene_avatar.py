@@ -595,6 +595,23 @@ def test_improve_tracking_asks_before_replacing_keys_and_shows_its_progress(scen
     assert ("operator", "mogaface.improve_tracking") in log and ("label", "improving the tracking failed") in log
 
 
+def test_one_heavy_job_at_a_time_training_or_improving(scene, monkeypatch):
+    """Training and Improve Tracking each take every core, and improving reads the run a training
+    may be rewriting: while one runs, neither starts, with the running one named."""
+    improving, train = ops("improve_tracking"), ops("train")
+    reports = []
+    fake = types.SimpleNamespace(report=lambda kind, text: reports.append((kind, text)))
+    monkeypatch.setitem(train._job, "worker", types.SimpleNamespace())
+    assert improving.MOGAFACE_OT_improve_tracking.execute(fake, bpy.context) == {"CANCELLED"}
+    assert train.MOGAFACE_OT_train._start(fake, bpy.context) is None
+    assert reports == [({"ERROR"}, "Training is running: wait for it or cancel it first")] * 2
+    monkeypatch.setitem(train._job, "worker", None)
+    monkeypatch.setitem(improving._job, "worker", types.SimpleNamespace())
+    reports.clear()
+    assert train.MOGAFACE_OT_train._start(fake, bpy.context) is None
+    assert reports == [({"ERROR"}, "Improving the tracking is running: wait for it or cancel it first")]
+
+
 def test_the_refined_folder_keyed_is_the_one_in_the_place_of_the_scenes_tracking():
     improving = ops("improve_tracking")
     folders = ["/r/out/seqA/flame_param", "/r/out/seqB/flame_param"]
