@@ -120,6 +120,50 @@ def test_mean_gauge_keeps_the_offsets_centred(capture):
     assert torch.equal(free.values()[0], before[0])
 
 
+def _rig_moved(cameras, rotation, shift):
+    """Every camera moved by one rigid motion of the whole rig: turned by ``rotation`` (axis-angle)
+    about the world origin, then shifted."""
+    from mogaface.core.flame.lbs import axis_angle_to_matrix
+
+    turn = axis_angle_to_matrix(torch.as_tensor(rotation, dtype=torch.float64)).numpy()
+    moved = {}
+    for cid, camera in cameras.items():
+        c2w = np.linalg.inv(camera.w2c)
+        c2w[:3, :3] = turn @ c2w[:3, :3]
+        c2w[:3, 3] = turn @ c2w[:3, 3] + np.asarray(shift)
+        moved[cid] = dataclasses.replace(camera, w2c=np.linalg.inv(c2w))
+    return moved
+
+
+def test_rigid_gauge_removes_a_motion_of_the_whole_rig_and_keeps_the_rest(capture):
+    cameras = Capture.open(capture).cameras
+    offsets = CameraOffsets(cameras, "rigid")
+    offsets.start_from(_rig_moved(cameras, [0.006, -0.01, 0.004], [0.004, -0.003, 0.006]))  # ~0.7°, 8 mm
+    assert max(pose_error(offsets.refined_camera(c), cameras[c])[0] for c in cameras) > 0.5
+    offsets.fix_gauge()
+    for cid in cameras:  # back to the calibration, to second order in the angle
+        angle, centre = pose_error(offsets.refined_camera(cid), cameras[cid])
+        assert angle < 0.01 and centre < 0.1, (cid, angle, centre)
+    rng = np.random.default_rng(4)
+    kept = offsets_for(cameras, "rigid", rng.normal(size=(len(cameras), 3)) * 0.01,
+                       rng.normal(size=(len(cameras), 3)) * 0.005)
+    kept.fix_gauge()
+    rotation, translation = kept.values()
+    again = offsets_for(cameras, "rigid", rotation.numpy(), translation.numpy())
+    again.fix_gauge()
+    assert torch.allclose(torch.cat(again.values()), torch.cat(kept.values()), atol=1e-7)  # nothing rigid left
+    # a rigid motion added (to first order) is removed exactly: the same offsets come back
+    omega, shift = np.array([0.01, 0.02, -0.01]), np.array([0.003, 0.0, -0.002])
+    centres = offsets.centres.double().numpy()
+    both = offsets_for(cameras, "rigid", rotation.numpy() + omega, translation.numpy() + np.cross(omega, centres) + shift)
+    both.fix_gauge()
+    assert torch.allclose(torch.cat(both.values()), torch.cat(kept.values()), atol=1e-6)
+    assert rotation.abs().max() > 0.005  # what is not a rigid motion stays (the mean gauge would centre it)
+    turn = offsets_for(cameras, "rigid", np.tile([0.0, 0.01, 0.0], (len(cameras), 1)))  # every camera turned alike
+    turn.fix_gauge()
+    assert turn.values()[0][:, 1].mean() > 0.002  # ... about its own centre: partly kept, the images pin it
+
+
 def refine_config(**train):
     return C.resolve(overrides={
         "train": {"steps": 10, "threads": 1, "log_every": 5, "checkpoint_every": 0, **train},
@@ -142,7 +186,10 @@ def test_training_refines_checkpoints_resumes_and_writes_the_cameras(capture, tm
     for key in ("rotation", "translation"):
         assert a[key].abs().max() > 0, key
         assert torch.equal(a[key], b[key]), key
-        assert a[key].mean(0).abs().max() < 1e-6, key  # the mean gauge held through training
+    trained = {cid: Capture.open(capture).cameras[cid] for cid in a["ids"]}
+    rigid = offsets_for(trained, "rigid", a["rotation"].numpy(), a["translation"].numpy())
+    rigid.fix_gauge()  # the default gauge held through training: nothing rigid left to remove
+    assert torch.allclose(torch.cat(rigid.values()), torch.cat([a["rotation"], a["translation"]]), atol=1e-6)
     written = read_cameras(straight / "cameras_refined.json")
     offsets = CameraOffsets({cid: written[cid] for cid in a["ids"]})
     calibrated = Capture.open(capture).cameras

@@ -10,12 +10,14 @@ rendering world points ``X`` with the refined camera is rendering ``exp(−ω)(X
 the calibrated one (means and rotations of the Gaussians move; sizes do not). Only the view
 direction of the SH colours is off, by the rotation ``ω`` itself (a fraction of a degree).
 
-Gauge: ``mean`` (the default) keeps the mean rotation and the mean shift over the training cameras
-at zero after every optimiser step. A common motion of every camera is otherwise only weakly pinned
-(by the tracked head's pose, which the fine-tuned global rotation and translation can follow), and
-calibration errors are independent per camera, so the rig's mean offset is best left at zero: the
-rig inherits the mean of N calibration errors (about 1/√N of one), where a reference camera held
-fixed would hand its whole error to every other camera. ``none`` leaves the offsets free.
+Gauge: ``rigid`` (the default) removes after every optimiser step the part of the offsets that is
+one rigid motion of the whole rig (a rotation about the world origin and a shift, fitted by least
+squares, centre shifts weighed by the rig's radius). That motion is what the images pin only
+weakly: with FLAME fine-tuning every timestep's pose can follow it, in Freeze the Gaussians can
+slide within their triangles. Everything else stays free, a common turn of every camera about its
+own centre included: that one moves the head in every view, so the images pin it. ``mean`` keeps the
+mean rotation and the mean centre shift at zero separately: it also holds that common turn at the
+calibration's mean error (about 1/√N of one camera's). ``none`` leaves the offsets free.
 """
 
 from __future__ import annotations
@@ -32,14 +34,14 @@ from ..camera import Camera
 from ..flame.lbs import axis_angle_to_matrix
 from ..io.atomic import write_json
 
-GAUGES = ("mean", "none")
+GAUGES = ("rigid", "mean", "none")
 
 
 class CameraOffsets(nn.Module):
     """Offsets of the cameras ``cameras`` (id → calibrated :class:`Camera`), one parameter each,
     so Adam steps only the cameras a step rendered (the others get no gradient)."""
 
-    def __init__(self, cameras: dict[str, Camera], gauge: str = "mean"):
+    def __init__(self, cameras: dict[str, Camera], gauge: str = "rigid"):
         super().__init__()
         self.ids = sorted(cameras)
         self.index = {cid: i for i, cid in enumerate(self.ids)}
@@ -49,6 +51,7 @@ class CameraOffsets(nn.Module):
         self.translation = nn.ParameterList([nn.Parameter(torch.zeros(3)) for _ in self.ids])
         centres = np.stack([_centre(cameras[cid]) for cid in self.ids])
         self.register_buffer("centres", torch.as_tensor(centres, dtype=torch.float32))
+        self._rigid_basis = _rigid_motions(centres)
 
     def __contains__(self, camera_id: str) -> bool:
         return camera_id in self.index
@@ -70,13 +73,24 @@ class CameraOffsets(nn.Module):
 
     @torch.no_grad()
     def fix_gauge(self) -> None:
-        """Hold the mean rotation and the mean centre shift at zero (``gauge = "mean"``)."""
-        if self.gauge != "mean" or len(self.ids) < 2:
+        """Remove the rig's rigid motion (``gauge = "rigid"``) or the mean rotation and the mean
+        centre shift (``"mean"``) from the offsets."""
+        if self.gauge == "none" or len(self.ids) < 2:
             return
-        for group in (self.rotation, self.translation):
-            mean = torch.stack([p for p in group]).mean(0)
-            for p in group:
-                p.sub_(mean)
+        if self.gauge == "mean":
+            for group in (self.rotation, self.translation):
+                mean = torch.stack([p for p in group]).mean(0)
+                for p in group:
+                    p.sub_(mean)
+            return
+        rotation, translation = self.values()
+        flat = torch.cat([rotation, translation], 1).double().flatten().numpy()
+        basis, weights = self._rigid_basis
+        coefficients = np.linalg.lstsq(basis * weights[:, None], flat * weights, rcond=None)[0]
+        moved = torch.as_tensor(basis @ coefficients, dtype=torch.float32).reshape(len(self.ids), 6)
+        for i in range(len(self.ids)):
+            self.rotation[i].sub_(moved[i, :3])
+            self.translation[i].sub_(moved[i, 3:])
 
     @torch.no_grad()
     def start_from(self, cameras: dict[str, Camera], source=None) -> None:
@@ -127,6 +141,22 @@ class CameraOffsets(nn.Module):
         for group, values in ((self.rotation, state["rotation"]), (self.translation, state["translation"])):
             for p, value in zip(group, values):
                 p.copy_(value)
+
+
+def _rigid_motions(centres: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The offsets ``(ω_i, τ_i)`` of every camera, flattened ``(6C,)``, that a small rigid motion of
+    the whole rig makes, as a basis ``(6C, 6)`` over (rotation ω₀ about the origin, shift t₀):
+    ``ω_i = ω₀``, ``τ_i = ω₀ × c_i + t₀``; and the least-squares weights that make a centre shift
+    of one rig radius count as one radian."""
+    count = len(centres)
+    basis = np.zeros((count, 6, 6))
+    for i, c in enumerate(np.asarray(centres, np.float64)):
+        basis[i, :3, :3] = np.eye(3)
+        basis[i, 3:, :3] = -np.array([[0.0, -c[2], c[1]], [c[2], 0.0, -c[0]], [-c[1], c[0], 0.0]])  # ω₀ × c = −[c]× ω₀
+        basis[i, 3:, 3:] = np.eye(3)
+    radius = max(float(np.sqrt(np.mean(np.sum((centres - centres.mean(0)) ** 2, 1)))), 1e-6)
+    weights = np.tile(np.r_[np.ones(3), np.full(3, 1.0 / radius)], count)
+    return basis.reshape(6 * count, 6), weights
 
 
 def _axis_angle(matrix: np.ndarray) -> torch.Tensor:

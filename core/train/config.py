@@ -86,8 +86,9 @@ class CamerasSection:
                                    "whose calibration is off; writes RUN/cameras_refined.json")
     rotation_lr: float = _setting(2e-3, "learning rate of the camera rotation offsets (radians)")
     translation_lr: float = _setting(2e-4, "learning rate of the camera centre offsets (metres)")
-    gauge: str = _setting("mean", "'mean': the offsets' mean over the training cameras stays zero (the rig as a "
-                                  "whole keeps its calibrated pose); 'none': free")
+    gauge: str = _setting("rigid", "'rigid': the offsets hold no rigid motion of the whole rig (the rig as a whole "
+                                   "keeps its calibrated pose); 'mean': their mean rotation and mean centre shift stay "
+                                   "zero; 'none': free")
     rounds: int = _setting(1, "train this many times, each round a fresh avatar from the cameras the last one "
                               "refined (RUN/camera_rounds/<k>; train.steps each)")
     start: str = _setting("", "a cameras file in the layout of RUN/cameras_refined.json the offsets start from "
@@ -180,8 +181,8 @@ class TrainConfig:
         if self.cameras.settle_steps and not (self.cameras.refine and self.cameras.settle_at):
             raise InputError(source, "cameras.settle_steps", "a cameras-only phase needs cameras.refine = true and "
                                                              "cameras.settle_at > 0 (a first avatar to align to)")
-        if self.cameras.gauge not in ("mean", "none"):
-            raise InputError(source, "cameras.gauge", f"expected 'mean' or 'none', got {self.cameras.gauge!r}")
+        if self.cameras.gauge not in ("rigid", "mean", "none"):
+            raise InputError(source, "cameras.gauge", f"expected 'rigid', 'mean' or 'none', got {self.cameras.gauge!r}")
         from .config_ranges import check_ranges
 
         check_ranges(self, source)
