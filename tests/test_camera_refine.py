@@ -208,6 +208,20 @@ def test_training_refines_checkpoints_resumes_and_writes_the_cameras(capture, tm
     assert offsets.ids == a["ids"]
 
 
+def test_camera_rates_decay_to_their_final_ratio(capture, tmp_path):
+    from mogaface.core.train.trainer import camera_lrs
+
+    config = refine_config(steps=6)
+    config.cameras.final_ratio = 0.01
+    assert camera_lrs(config, 0) == {"cameras.rotation": 1e-3, "cameras.translation": 1e-4}
+    assert camera_lrs(config, 3)["cameras.rotation"] == pytest.approx(1e-4)  # halfway: the geometric mean
+    assert camera_lrs(config, 6)["cameras.translation"] == pytest.approx(1e-6)
+    trainer = Trainer(capture, tmp_path / "run", config)
+    trainer.run(until=4)
+    used = {g["name"]: g["lr"] for g in trainer.optimizer.param_groups if g["name"].startswith("cameras.")}
+    assert used == pytest.approx(camera_lrs(config, 3))  # the last step taken (step 3) ran at its rate
+
+
 def test_resuming_a_refining_run_without_offsets_is_refused(capture, tmp_path):
     run = tmp_path / "run"
     Trainer(capture, run, refine_config(steps=3)).run(until=2)

@@ -86,6 +86,8 @@ class CamerasSection:
                                    "whose calibration is off; writes RUN/cameras_refined.json")
     rotation_lr: float = _setting(2e-3, "learning rate of the camera rotation offsets (radians)")
     translation_lr: float = _setting(2e-4, "learning rate of the camera centre offsets (metres)")
+    final_ratio: float = _setting(1.0, "the camera rates at the last step, as a fraction of the first (exponential "
+                                       "decay; 1: constant)")
     gauge: str = _setting("rigid", "'rigid': the offsets hold no rigid motion of the whole rig (the rig as a whole "
                                    "keeps its calibrated pose); 'mean': their mean rotation and mean centre shift stay "
                                    "zero; 'none': free")
@@ -168,6 +170,8 @@ class TrainConfig:
             raise InputError(source, "densify.max_sh_degree", f"must lie in [0, 3] (got {self.densify.max_sh_degree})")
         if not 0 < self.lr.position_final_ratio <= 1:
             raise InputError(source, "lr.position_final_ratio", "must lie in (0, 1]")
+        if not 0 < self.cameras.final_ratio <= 1:
+            raise InputError(source, "cameras.final_ratio", "must lie in (0, 1]")
         if not 0 <= self.loss.ssim_weight <= 1:
             raise InputError(source, "loss.ssim_weight", "must lie in [0, 1]")
         _check_mogaface(self.mogaface, source)

@@ -59,10 +59,21 @@ def densify_schedule(config: TrainConfig) -> DensifySchedule:
     return DensifySchedule(**{name: getattr(d, name) for name in DensifySchedule.__dataclass_fields__})
 
 
+def decayed(rate: float, final_ratio: float, step: int, steps: int) -> float:
+    """Exponential decay from ``rate`` at the first step to ``final_ratio × rate`` at the last."""
+    t = min(max(step / max(steps, 1), 0.0), 1.0)
+    return rate * math.exp(t * math.log(final_ratio))
+
+
 def position_lr(config: TrainConfig, extent: float, step: int) -> float:
-    """Exponential decay from ``lr.position × extent`` to ``position_final_ratio`` of it at the last step."""
-    t = min(max(step / max(config.train.steps, 1), 0.0), 1.0)
-    return config.lr.position * extent * math.exp(t * math.log(config.lr.position_final_ratio))
+    return decayed(config.lr.position * extent, config.lr.position_final_ratio, step, config.train.steps)
+
+
+def camera_lrs(config: TrainConfig, step: int) -> dict[str, float]:
+    """The camera offsets' rates at ``step``: they settle as the avatar sharpens (``final_ratio``)."""
+    cams = config.cameras
+    return {f"cameras.{name}": decayed(rate, cams.final_ratio, step, config.train.steps)
+            for name, rate in (("rotation", cams.rotation_lr), ("translation", cams.translation_lr))}
 
 
 def principal_point_notes(capture, head) -> list[str]:
@@ -364,9 +375,10 @@ class Trainer:
         cfg = self.config
         comm = self.comm
         gaussians = self.avatar.gaussians
+        rates = {"local_position": position_lr(cfg, self.extent, self.step), **camera_lrs(cfg, self.step)}
         for group in self.optimizer.param_groups:
-            if group["name"] == "local_position":
-                group["lr"] = position_lr(cfg, self.extent, self.step)
+            if group["name"] in rates:
+                group["lr"] = rates[group["name"]]
         gaussians.active_sh_degree = self.strategy.schedule.sh_degree(self.step)
         batch = cfg.train.batch
         frames = [self._next_frame() for _ in range(batch)]
