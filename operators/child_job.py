@@ -1,10 +1,10 @@
 """A job in a child process (training, improving the tracking), followed from Blender.
 
 A job is a dict ``{"worker": running worker or None, "last": Progress of the last finished one}``;
-each kind has one, and the UI runs one such job at a time, of any kind: each takes every core it is
-given, and improving the tracking reads the run that a training may be rewriting. :class:`FollowsChildJob` follows a
-started worker: from a timer in the UI (Blender never blocks), in a blocking loop in background
-mode, where timers and modal handlers never run.
+each kind has one, and the UI runs one such job at a time, of any kind: each takes every core it
+is given, and improving the tracking reads the run that a training may be rewriting.
+:class:`FollowsChildJob` follows a started worker: from a timer in the UI (Blender never blocks),
+in a blocking loop in background mode, where timers and modal handlers never run.
 """
 
 from __future__ import annotations

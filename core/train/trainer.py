@@ -70,7 +70,7 @@ def position_lr(config: TrainConfig, extent: float, step: int) -> float:
 
 
 def camera_lrs(config: TrainConfig, step: int) -> dict[str, float]:
-    """The camera offsets' rates at ``step``: they settle as the avatar sharpens (``final_ratio``)."""
+    """The camera offsets' rates at ``step``: constant unless ``cameras.final_ratio`` < 1."""
     cams = config.cameras
     return {f"cameras.{name}": decayed(rate, cams.final_ratio, step, config.train.steps)
             for name, rate in (("rotation", cams.rotation_lr), ("translation", cams.translation_lr))}
