@@ -118,6 +118,8 @@ def test_mean_gauge_keeps_the_offsets_centred(capture):
     free = offsets_for(cameras, "none", before[0].numpy(), before[1].numpy())
     free.fix_gauge()
     assert torch.equal(free.values()[0], before[0])
+    with pytest.raises(ValueError, match="'first'"):
+        CameraOffsets(cameras, "first")
 
 
 def _rig_moved(cameras, rotation, shift):

@@ -33,16 +33,16 @@ from ..avatar.binding import matrix_to_quaternion, quaternion_multiply
 from ..camera import Camera
 from ..flame.lbs import axis_angle_to_matrix
 from ..io.atomic import write_json
-
-GAUGES = ("rigid", "mean", "none")
-
+from .config import CAMERA_GAUGES
 
 class CameraOffsets(nn.Module):
     """Offsets of the cameras ``cameras`` (id → calibrated :class:`Camera`), one parameter each,
     so Adam steps only the cameras a step rendered (the others get no gradient)."""
 
-    def __init__(self, cameras: dict[str, Camera], gauge: str = "rigid"):
+    def __init__(self, cameras: dict[str, Camera], gauge: str = CAMERA_GAUGES[0]):
         super().__init__()
+        if gauge not in CAMERA_GAUGES:
+            raise ValueError(f"gauge must be one of {CAMERA_GAUGES}, got {gauge!r}")
         self.ids = sorted(cameras)
         self.index = {cid: i for i, cid in enumerate(self.ids)}
         self.calibrated = {cid: cameras[cid] for cid in self.ids}

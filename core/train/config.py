@@ -80,6 +80,10 @@ class FlameSection:
     translation_lr: float = _setting(1e-6, "learning rate of the translation")
 
 
+#: The camera offsets' gauges (:mod:`.camera_refine`), the default first.
+CAMERA_GAUGES = ("rigid", "mean", "none")
+
+
 @dataclasses.dataclass
 class CamerasSection:
     refine: bool = _setting(False, "learn a 6-DoF offset per training camera (shared by all timesteps) for captures "
@@ -185,8 +189,9 @@ class TrainConfig:
         if self.cameras.settle_steps and not (self.cameras.refine and self.cameras.settle_at):
             raise InputError(source, "cameras.settle_steps", "a cameras-only phase needs cameras.refine = true and "
                                                              "cameras.settle_at > 0 (a first avatar to align to)")
-        if self.cameras.gauge not in ("rigid", "mean", "none"):
-            raise InputError(source, "cameras.gauge", f"expected 'rigid', 'mean' or 'none', got {self.cameras.gauge!r}")
+        if self.cameras.gauge not in CAMERA_GAUGES:
+            raise InputError(source, "cameras.gauge", f"expected one of {', '.join(map(repr, CAMERA_GAUGES))}, "
+                                                      f"got {self.cameras.gauge!r}")
         from .config_ranges import check_ranges
 
         check_ranges(self, source)
