@@ -138,13 +138,12 @@ def test_a_refiner_trained_on_rendered_offsets_reads_new_ones_from_full_size_ima
     assert error < 0.25 * zero, (error, zero)  # 0.08 at this seed
 
 
-def test_a_pass_the_views_do_not_support_is_not_taken(run_root):
-    """A refiner that answers nonsense (random matrices) cannot make the input views worse: its
-    steps are refused and the start comes back."""
+def _nonsense_frame(run_root):
+    """The avatar, a refiner that answers nonsense (random matrices, huge steps) with every answer
+    recorded, and a frame whose views are the avatar's own renders at the start."""
     avatar = frozen_avatar(run_root)
     capture = Capture.open(RunFolder(run_root).capture_root)
-    n_expr = avatar.flame.n_expr
-    refiner = _random_refiner(n_expr, cameras=sorted(capture.cameras), seed=5, gap=0.3)
+    refiner = _random_refiner(avatar.flame.n_expr, cameras=sorted(capture.cameras), seed=5, gap=0.3)
     refiner.forward = refiner.forward * 1e-2  # a made-up gap read through tiny changes: huge steps
     answers = []
     solve = refiner.offset
@@ -154,6 +153,14 @@ def test_a_pass_the_views_do_not_support_is_not_taken(run_root):
     start = capture.flame_params(t)
     with torch.no_grad():
         images = [avatar.render_posed(posed(avatar, start).vertices, c, (1.0, 1.0, 1.0)).rgb.numpy() for c in cameras]
+    return avatar, refiner, answers, start, cameras, images
+
+
+def test_a_pass_the_views_do_not_support_is_not_taken(run_root):
+    """A refiner that answers nonsense (random matrices) cannot make the input views worse: its
+    steps are refused and the start comes back."""
+    avatar, refiner, answers, start, cameras, images = _nonsense_frame(run_root)
+    n_expr = avatar.flame.n_expr
     history = refine(avatar, refiner, start, cameras, images, (1.0, 1.0, 1.0), passes=2)
     assert len(history) == 2 and len(answers) == 1  # refused once: the second pass would ask the same
     assert np.abs(answers[0] / refiner.scales.numpy()).max() > 3.0  # it did answer nonsense
@@ -167,22 +174,11 @@ def test_a_single_pass_renders_each_view_once_and_takes_the_solve(run_root, monk
     the first (the test above)."""
     import mogaface.core.refiner.views as views
 
-    avatar = frozen_avatar(run_root)
-    capture = Capture.open(RunFolder(run_root).capture_root)
+    avatar, refiner, answers, start, cameras, images = _nonsense_frame(run_root)
     n_expr = avatar.flame.n_expr
-    refiner = _random_refiner(n_expr, cameras=sorted(capture.cameras), seed=5, gap=0.3)
-    refiner.forward = refiner.forward * 1e-2
-    t = capture.timesteps[0]
-    cameras = [capture.camera_at(c, t) for c in sorted(capture.cameras)]
-    start = capture.flame_params(t)
-    with torch.no_grad():
-        images = [avatar.render_posed(posed(avatar, start).vertices, c, (1.0, 1.0, 1.0)).rgb.numpy() for c in cameras]
     renders = []
     render_world = views.render_world
     monkeypatch.setattr(views, "render_world", lambda *args: renders.append(args[1]) or render_world(*args))
-    answers = []
-    solve = refiner.offset
-    refiner.offset = lambda *args: answers.append(solve(*args)) or answers[-1]
     (single,) = refine(avatar, refiner, start, cameras, images, (1.0, 1.0, 1.0), passes=1)
     assert len(renders) == len(cameras) and len(answers) == 1
     np.testing.assert_allclose(flatten(single, n_expr), flatten(start, n_expr) + answers[0], rtol=1e-5, atol=1e-6)
