@@ -3,6 +3,13 @@
 Synthetic captures made with ``--camera-noise`` keep the true cameras in ``cameras_gt.json``.
 A method that refines cameras writes them beside the run as ``cameras_refined.json`` (the same
 form: camera id → camera fields); its error is then reported beside the calibration's.
+
+The rotation error is also split by what the images can see of it. Relative to the point the rig
+looks at (the subject), a camera's error is an *orbit* (its centre off sideways, so it sees the
+subject from a slightly other direction: only parallax shows it), a *roll* about its optical axis
+(the image turns about the subject) and an *aim* (the subject lands off-centre: the image shifts).
+``look_shift_mm`` is the common shift of the subject that the cameras agree on: an avatar that
+drifted while every camera followed it.
 """
 
 from __future__ import annotations
@@ -24,12 +31,77 @@ def pose_error(camera, truth) -> tuple[float, float]:
     return float(angle), float(np.linalg.norm(camera.center - truth.center) * 1000.0)
 
 
+def look_point(cameras) -> np.ndarray:
+    """The point nearest every camera's optical axis (least squares): where the rig looks."""
+    normal, rhs = np.zeros((3, 3)), np.zeros(3)
+    for camera in cameras:
+        axis = camera.w2c[2, :3]  # the optical axis (OpenCV +z) in world axes
+        across = np.eye(3) - np.outer(axis, axis)
+        normal += across
+        rhs += across @ camera.center
+    return np.linalg.solve(normal, rhs)
+
+
+def _turn(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The smallest rotation taking direction ``a`` to direction ``b``."""
+    a, b = a / np.linalg.norm(a), b / np.linalg.norm(b)
+    axis, cos = np.cross(a, b), float(a @ b)
+    sin = float(np.linalg.norm(axis))
+    if sin < 1e-12:
+        return np.eye(3)
+    k = _skew(axis / sin)
+    return np.eye(3) + sin * k + (1.0 - cos) * k @ k
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def _angle(rotation: np.ndarray) -> float:
+    return float(np.degrees(np.arccos(np.clip((np.trace(rotation) - 1.0) / 2.0, -1.0, 1.0))))
+
+
+def error_parts(camera, truth, point: np.ndarray) -> tuple[float, float, float]:
+    """``(orbit, roll, aim)`` in degrees of ``camera`` against ``truth``, about the looked-at ``point``.
+
+    Orbit: the angle between the directions to ``point`` from the two centres. Roll and aim: the
+    rest of the rotation once the true camera is moved to the estimated centre and turned by that
+    orbit, about the optical axis and across it.
+    """
+    orbit = _turn(point - truth.center, point - camera.center)
+    rest = camera.w2c[:3, :3] @ orbit @ truth.w2c[:3, :3].T  # in the camera's axes
+    half_sine = np.array([rest[2, 1] - rest[1, 2], rest[0, 2] - rest[2, 0], rest[1, 0] - rest[0, 1]]) / 2.0
+    return _angle(orbit), float(np.degrees(abs(np.arcsin(np.clip(half_sine[2], -1, 1))))), float(
+        np.degrees(np.arcsin(np.clip(np.hypot(half_sine[0], half_sine[1]), 0, 1))))
+
+
+def look_shift(cameras: dict, truth: dict, point: np.ndarray) -> np.ndarray:
+    """The shift ``δ`` (metres) for which ``point + δ`` lands where ``point`` does through the true
+    cameras, in least squares over the cameras (Gauss-Newton, linear to well under a millimetre)."""
+    ids = [cid for cid in truth if cid in cameras]
+    target = np.concatenate([truth[cid].project(point[None])[0][0] for cid in ids])
+
+    def landed(shift):
+        return np.concatenate([cameras[cid].project((point + shift)[None])[0][0] for cid in ids])
+
+    shift, step = np.zeros(3), 1e-4
+    for _ in range(3):
+        base = landed(shift)
+        jacobian = np.stack([(landed(shift + step * e) - base) / step for e in np.eye(3)], 1)
+        shift = shift + np.linalg.lstsq(jacobian, target - base, rcond=None)[0]
+    return shift
+
+
 def _summary(cameras: dict, truth: dict) -> dict:
-    errors = [pose_error(cameras[cid], truth[cid]) for cid in truth if cid in cameras]
-    if not errors:
+    ids = [cid for cid in truth if cid in cameras]
+    if not ids:
         return {}
-    rotation, position = np.array(errors).T
-    return {"cameras": len(errors), "rotation_deg": float(rotation.mean()), "position_mm": float(position.mean())}
+    rotation, position = np.array([pose_error(cameras[cid], truth[cid]) for cid in ids]).T
+    point = look_point([truth[cid] for cid in ids])
+    orbit, roll, aim = np.array([error_parts(cameras[cid], truth[cid], point) for cid in ids]).T
+    return {"cameras": len(ids), "rotation_deg": float(rotation.mean()), "position_mm": float(position.mean()),
+            "orbit_deg": float(orbit.mean()), "roll_deg": float(roll.mean()), "aim_deg": float(aim.mean()),
+            "look_shift_mm": [round(float(v) * 1000.0, 3) for v in look_shift(cameras, truth, point)]}
 
 
 def camera_errors(capture, run_dir: str | os.PathLike | None = None) -> dict:
