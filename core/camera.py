@@ -209,3 +209,14 @@ class Camera:
         cx = 0.5 * width if cx is None else cx
         cy = 0.5 * height if cy is None else cy
         return cls(intrinsics_matrix(fx, fy, cx, cy), w2c, width, height, camera_id)
+
+
+def look_point(cameras) -> np.ndarray:
+    """The point nearest every camera's optical axis (least squares): where the rig looks."""
+    normal, rhs = np.zeros((3, 3)), np.zeros(3)
+    for camera in cameras:
+        axis = camera.w2c[2, :3]  # the optical axis (OpenCV +z) in world axes
+        across = np.eye(3) - np.outer(axis, axis)
+        normal += across
+        rhs += across @ camera.center
+    return np.linalg.lstsq(normal, rhs, rcond=None)[0]  # (min-norm where the axes are parallel)

@@ -7,8 +7,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from mogaface.core.camera import Camera
-from mogaface.core.evaluate.camera_error import error_parts, look_point, look_shift, pose_error
+from mogaface.core.camera import Camera, look_point
+from mogaface.core.evaluate.camera_error import error_parts, look_shift, pose_error
 
 SUBJECT = np.array([0.02, 1.55, -0.01])
 

@@ -19,6 +19,7 @@ import pathlib
 
 import numpy as np
 
+from ..camera import look_point
 from .images import ScoringCameras, read_cameras
 
 REFINED_CAMERAS_FILE = "cameras_refined.json"
@@ -29,17 +30,6 @@ def pose_error(camera, truth) -> tuple[float, float]:
     relative = camera.w2c[:3, :3] @ truth.w2c[:3, :3].T
     angle = np.degrees(np.arccos(np.clip((np.trace(relative) - 1.0) / 2.0, -1.0, 1.0)))
     return float(angle), float(np.linalg.norm(camera.center - truth.center) * 1000.0)
-
-
-def look_point(cameras) -> np.ndarray:
-    """The point nearest every camera's optical axis (least squares): where the rig looks."""
-    normal, rhs = np.zeros((3, 3)), np.zeros(3)
-    for camera in cameras:
-        axis = camera.w2c[2, :3]  # the optical axis (OpenCV +z) in world axes
-        across = np.eye(3) - np.outer(axis, axis)
-        normal += across
-        rhs += across @ camera.center
-    return np.linalg.solve(normal, rhs)
 
 
 def _turn(a: np.ndarray, b: np.ndarray) -> np.ndarray:
