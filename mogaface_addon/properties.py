@@ -31,8 +31,9 @@ class MoGaFaceSceneSettings(bpy.types.PropertyGroup):
     seed: IntProperty(name="Seed", default=0, min=0, description="Random seed of training")
     camera_rounds: IntProperty(
         name="Camera Rounds", default=0, min=0, max=16,
-        description="For captures whose calibration is off: 0 trusts the cameras; 1 refines them with the avatar; "
-                    "N refines them in N rounds, each a fresh avatar (N times the training time; 3 recommended)")
+        description="For captures whose calibration is off: 0 trusts the cameras; 1 polishes a nearly right "
+                    "calibration; N refines them in N rounds, each a fresh avatar (N times the training time; 3 "
+                    "recommended when the cameras are off by more than a pixel)")
     viewport_resolution: IntProperty(
         name="Viewport Resolution", default=512, min=64, max=4096,
         description="Longest side in pixels of the avatar drawn in a still 3D view")

@@ -172,7 +172,7 @@ def refine_config(**train):
         "densify": {"start": 2, "stop": 8, "interval": 3, "grad_threshold": 1e-6, "opacity_reset_interval": 0,
                     "sh_degree_interval": 4},
         "eval": {"at_end": False, "lpips": False},
-        "cameras": {"refine": True, "rotation_lr": 1e-3, "translation_lr": 1e-4},
+        "cameras": {"refine": True, "rotation_lr": 1e-3, "translation_lr": 1e-4, "begin": 0.0},
     })
 
 
@@ -246,6 +246,11 @@ def test_camera_settings_are_checked():
         C.resolve(overrides={"cameras": {"refine": True, "settle_steps": 5}})  # no first avatar to align to
     with pytest.raises(Exception, match="cameras.settle_at"):
         C.resolve(overrides={"cameras": {"settle_at": -1}})
+    with pytest.raises(Exception, match="cameras.settle_at.*step 450"):  # the cameras would not move yet
+        C.resolve(overrides={"train": {"steps": 1000}, "cameras": {"refine": True, "settle_at": 300,
+                                                                   "settle_steps": 100}})
+    with pytest.raises(Exception, match="cameras.begin"):
+        C.resolve(overrides={"cameras": {"begin": 1.0}})
 
 
 def test_in_the_cameras_only_phase_only_the_cameras_move(capture, tmp_path):
@@ -273,6 +278,21 @@ def test_in_the_cameras_only_phase_only_the_cameras_move(capture, tmp_path):
     for step in (1, 6):
         assert "local_position" in moved(history[step], history[step + 1]), step
     assert any(k.startswith("table.") for k in moved(history[1], history[2]))
+
+
+def test_the_cameras_hold_still_until_their_first_step(capture, tmp_path):
+    config = refine_config(steps=6)
+    config.cameras.begin = 0.5
+    trainer = Trainer(capture, tmp_path / "run", config)
+    history = [torch.cat(trainer.camera_offsets.values()).clone()]
+    for _ in range(5):
+        trainer.train_step()
+        history.append(torch.cat(trainer.camera_offsets.values()).clone())
+    assert all(torch.equal(offsets, history[0]) for offsets in history[:4])  # steps 0..2 hold
+    assert not torch.equal(history[3], history[5])  # from step 3 they move
+    rotations = {g["name"]: g for g in trainer.optimizer.param_groups}["cameras.rotation"]["params"]
+    taken = sum(int(trainer.optimizer.state.get(p, {}).get("step", 0)) for p in rotations)
+    assert taken == 2  # steps 3 and 4, one camera each: Adam's moments start at ``begin``
 
 
 def test_a_new_round_starts_from_the_refined_cameras_of_the_last(capture, tmp_path):
@@ -306,6 +326,7 @@ def test_rounds_train_fresh_avatars_from_the_last_rounds_cameras_and_resume(capt
     run = tmp_path / "run"
     config = refine_config(steps=4)
     config.cameras.rounds = 3
+    config.cameras.begin = 0.5  # the last round's: the earlier ones move their cameras from the first step
     settings = tmp_path / "rounds.toml"
     settings.write_text(C.to_toml(config))
     # round 1 was stopped half-way: it resumes, round 2 starts from its cameras, the last is RUN itself
@@ -317,7 +338,10 @@ def test_rounds_train_fresh_avatars_from_the_last_rounds_cameras_and_resume(capt
     assert "resume" in [e["event"] for e in first]
     second = C.load(round_folder(run, 2) / "config.toml")
     assert second.cameras.start == str((round_folder(run, 1) / "cameras_refined.json").resolve())
-    assert C.load(run / "config.toml").cameras.start == str((round_folder(run, 2) / "cameras_refined.json").resolve())
+    assert second.cameras.begin == 0
+    last = C.load(run / "config.toml")
+    assert last.cameras.start == str((round_folder(run, 2) / "cameras_refined.json").resolve())
+    assert last.cameras.begin == 0.5
     final = read_cameras(run / "cameras_refined.json")
     assert any(not np.allclose(final[c].w2c, Capture.open(capture).cameras[c].w2c, atol=1e-6) for c in final)
     events = [json.loads(line) for line in (run / "events.jsonl").read_text().splitlines()]

@@ -90,6 +90,8 @@ class CamerasSection:
                                    "whose calibration is off; writes RUN/cameras_refined.json")
     rotation_lr: float = _setting(2e-3, "learning rate of the camera rotation offsets (radians)")
     translation_lr: float = _setting(2e-4, "learning rate of the camera centre offsets (metres)")
+    begin: float = _setting(0.45, "fraction of the last round's steps after which its camera offsets move (they "
+                                  "hold still while its avatar forms; earlier rounds move them from the first step)")
     final_ratio: float = _setting(1.0, "the camera rates at the last step, as a fraction of the first (exponential "
                                        "decay; 1: constant)")
     gauge: str = _setting("rigid", "'rigid': the offsets hold no rigid motion of the whole rig (the rig as a whole "
@@ -189,6 +191,10 @@ class TrainConfig:
         if self.cameras.settle_steps and not (self.cameras.refine and self.cameras.settle_at):
             raise InputError(source, "cameras.settle_steps", "a cameras-only phase needs cameras.refine = true and "
                                                              "cameras.settle_at > 0 (a first avatar to align to)")
+        first_move = self.cameras.begin * self.train.steps
+        if self.cameras.settle_steps and self.cameras.settle_at < first_move:
+            raise InputError(source, "cameras.settle_at", f"a cameras-only phase needs moving cameras: start it at "
+                                                          f"or after step {first_move:g} (cameras.begin × train.steps)")
         if self.cameras.gauge not in CAMERA_GAUGES:
             raise InputError(source, "cameras.gauge", f"expected one of {', '.join(map(repr, CAMERA_GAUGES))}, "
                                                       f"got {self.cameras.gauge!r}")

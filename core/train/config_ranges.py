@@ -25,7 +25,7 @@ RANGES: dict[str, tuple[float, float]] = {
     "densify.opacity_reset_interval": (0, BIG), "densify.reset_opacity": (0, 1),
     "densify.max_gaussians": (1, 50_000_000), "densify.sh_degree_interval": (1, BIG), "densify.max_sh_degree": (0, 3),
     "flame.expression_lr": (0, 10), "flame.joints_lr": (0, 10), "flame.translation_lr": (0, 10),
-    "cameras.rotation_lr": (0, 1), "cameras.translation_lr": (0, 1), "cameras.settle_at": (0, BIG),
+    "cameras.rotation_lr": (0, 1), "cameras.translation_lr": (0, 1), "cameras.begin": (0, 0.99), "cameras.settle_at": (0, BIG),
     "cameras.settle_steps": (0, BIG), "cameras.rounds": (1, 16), "cameras.final_ratio": (1e-12, 1),
     "eval.max_frames": (0, BIG), "eval.every": (0, BIG), "eval.every_frames": (0, 100_000),
     "mogaface.encoder_views": (1, 256), "mogaface.momentum_start": (0, 0.999999), "mogaface.momentum_end": (0, 0.999999),

@@ -28,8 +28,9 @@ def round_folder(run, k: int) -> pathlib.Path:
 
 
 def round_config(config: TrainConfig, start: str) -> TrainConfig:
-    """An earlier round's settings: one round, from ``start``, no evaluation at its end."""
-    return dataclasses.replace(config, cameras=dataclasses.replace(config.cameras, rounds=1, start=start),
+    """An earlier round's settings: one round, from ``start``, the cameras moving from the first
+    step (``begin`` is the last round's), no evaluation at its end."""
+    return dataclasses.replace(config, cameras=dataclasses.replace(config.cameras, rounds=1, start=start, begin=0),
                                eval=dataclasses.replace(config.eval, at_end=False, every=0))
 
 

@@ -76,6 +76,14 @@ def camera_lrs(config: TrainConfig, step: int) -> dict[str, float]:
             for name, rate in (("rotation", cams.rotation_lr), ("translation", cams.translation_lr))}
 
 
+def hold_still(optimizer, holds) -> None:
+    """Drop the gradients of the parameter groups whose name ``holds``: Adam skips them this step."""
+    for group in optimizer.param_groups:
+        if holds(group["name"]):
+            for param in group["params"]:
+                param.grad = None
+
+
 def principal_point_notes(capture, head) -> list[str]:
     """A warning when the masks fit the other reading of ``cy`` better (a capture written with
     ``cy`` from the top edge and no ``"cy_origin": "top"``): training would go on, misaligned."""
@@ -402,11 +410,10 @@ class Trainer:
                 self.strategy.observe(self.step + 1, None if grad is None else grad * batch, view["out"].radii,
                                       camera.width, camera.height)
         sums = comm.reduce_step(self._trainable(), sums)
-        if settling:  # only the cameras step: Adam skips a parameter without a gradient
-            for group in self.optimizer.param_groups:
-                if not group["name"].startswith("cameras."):
-                    for param in group["params"]:
-                        param.grad = None
+        if self.camera_offsets is not None and self.step < cfg.cameras.begin * cfg.train.steps:
+            hold_still(self.optimizer, lambda name: name.startswith("cameras."))
+        if settling:  # only the cameras step
+            hold_still(self.optimizer, lambda name: not name.startswith("cameras."))
         self.optimizer.step()
         self.optimizer.zero_grad(set_to_none=True)
         if self.camera_offsets is not None:
