@@ -193,8 +193,9 @@ class TrainConfig:
                                                              "cameras.settle_at > 0 (a first avatar to align to)")
         first_move = self.cameras.begin * self.train.steps
         if self.cameras.settle_steps and self.cameras.settle_at < first_move:
-            raise InputError(source, "cameras.settle_at", f"a cameras-only phase needs moving cameras: start it at "
-                                                          f"or after step {first_move:g} (cameras.begin × train.steps)")
+            raise InputError(source, "cameras.settle_at", "a cameras-only phase needs moving cameras: start it "
+                                                          f"at or after step {first_move:g} (cameras.begin × "
+                                                          "train.steps)")
         if self.cameras.gauge not in CAMERA_GAUGES:
             raise InputError(source, "cameras.gauge", f"expected one of {', '.join(map(repr, CAMERA_GAUGES))}, "
                                                       f"got {self.cameras.gauge!r}")
