@@ -20,6 +20,7 @@ import pathlib
 import numpy as np
 
 from ..camera import look_point
+from ..flame.numpy_model import axis_angle_to_matrix
 from .images import ScoringCameras, read_cameras
 
 REFINED_CAMERAS_FILE = "cameras_refined.json"
@@ -27,24 +28,17 @@ REFINED_CAMERAS_FILE = "cameras_refined.json"
 
 def pose_error(camera, truth) -> tuple[float, float]:
     """Rotation error (degrees) and camera-centre distance (mm) of one camera against the truth."""
-    relative = camera.w2c[:3, :3] @ truth.w2c[:3, :3].T
-    angle = np.degrees(np.arccos(np.clip((np.trace(relative) - 1.0) / 2.0, -1.0, 1.0)))
-    return float(angle), float(np.linalg.norm(camera.center - truth.center) * 1000.0)
+    rotation = _angle(camera.w2c[:3, :3] @ truth.w2c[:3, :3].T)
+    return rotation, float(np.linalg.norm(camera.center - truth.center) * 1000.0)
 
 
 def _turn(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """The smallest rotation taking direction ``a`` to direction ``b``."""
-    a, b = a / np.linalg.norm(a), b / np.linalg.norm(b)
-    axis, cos = np.cross(a, b), float(a @ b)
+    axis = np.cross(a, b)
     sin = float(np.linalg.norm(axis))
     if sin < 1e-12:
         return np.eye(3)
-    k = _skew(axis / sin)
-    return np.eye(3) + sin * k + (1.0 - cos) * k @ k
-
-
-def _skew(v: np.ndarray) -> np.ndarray:
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+    return axis_angle_to_matrix((axis / sin * np.arctan2(sin, float(a @ b)))[None])[0]
 
 
 def _angle(rotation: np.ndarray) -> float:
