@@ -10,7 +10,7 @@ import sys
 
 def add_arguments(parser) -> None:
     parser.add_argument("run", type=pathlib.Path, metavar="RUN", help="run folder written by 'train'")
-    parser.add_argument("--starts", type=int, default=50,
+    parser.add_argument("--starts", type=int, default=100,
                         help="jittered training frames rendered in every camera (default %(default)s)")
     parser.add_argument("--offsets-per-start", type=int, default=4,
                         help="known offsets rendered per start (default %(default)s)")

@@ -33,12 +33,12 @@ from .model import LinearRefiner
 from .sampler import OffsetSampler
 from .views import crop_cameras, image_crop, pooled_difference, posed, render_crop
 
-DEFAULT_SPEC = {"grid": 32, "render_limit": 512, "prior": 32.0, "gap_rank": 8}
+DEFAULT_SPEC = {"grid": 16, "render_limit": 512, "prior": 32.0, "gap_rank": 4}
 
 
 @dataclasses.dataclass
 class RefinerSettings:
-    starts: int = 50  # jittered training frames rendered in every camera's window
+    starts: int = 100  # jittered training frames rendered in every camera's window
     offsets_per_start: int = 4  # observations per start (so ``starts × offsets_per_start`` samples per camera)
     gap_timesteps: int = 40  # training timesteps whose captures measure the gap
     seed: int = 0
