@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import os
 
-SOURCES = ("tracked", "refined_1", "refined_3", "fit_10")
+SOURCES = ("tracked", "tracked_aligned", "refined_1", "refined_3", "fit_10")  # tracked_aligned: runs that fine-tuned
 
 
 def run(threads: int = 2, quick: bool = False, avatar: str | None = None) -> dict:
@@ -35,7 +35,7 @@ def run(threads: int = 2, quick: bool = False, avatar: str | None = None) -> dic
     frames = protocol_frames(capture, "self_reenactment", 4 if quick else 12)
     load_before = os.getloadavg()
     scores = {name: score_source(trained, capture, sources[name], frames, folder.background, lpips=False)
-              for name in SOURCES}
+              for name in SOURCES if name in sources}
     tracked = scores["tracked"]["psnr"]
     return {
         "run": str(folder.root), "frames": len(frames), "threads": threads,

@@ -17,7 +17,7 @@ from mogaface.core.errors import InputError
 from mogaface.core.evaluate.run_folder import RunFolder
 from mogaface.core.evaluate.sources.base import InputCameras
 from mogaface.core.evaluate.sources.refined import RefinedParams, run_refiner
-from mogaface.core.evaluate.sources.tracked import TrackedParams
+from mogaface.core.evaluate.sources.tracked import AlignedTrackedParams, TrackedParams
 from mogaface.core.refiner.tracking import RECORD_FILE, refine_tracking
 from mogaface.core.refiner.training import RefinerSettings, frozen_avatar, train_refiner
 from mogaface.core.scene_conversion import read_tracking
@@ -49,7 +49,7 @@ def test_every_timestep_is_written_in_the_captures_layout_with_the_refined_value
     assert [f.name for f in files] == sorted(capture.path(f, "flame_param_path").name
                                              for f in {f.timestep_index: f for f in capture.frames()}.values())
     avatar = frozen_avatar(run_root)
-    source = RefinedParams(avatar, capture, TrackedParams(capture, run), run_refiner(run_root, avatar), run.background,
+    source = RefinedParams(avatar, capture, AlignedTrackedParams(capture, run), run_refiner(run_root, avatar), run.background,
                            passes=2, max_views=2, cameras=InputCameras.of_run(capture, run_root))
     moved = 0
     for timestep in capture.timesteps:
@@ -59,7 +59,7 @@ def test_every_timestep_is_written_in_the_captures_layout_with_the_refined_value
             expected = source.params_for(timestep)
             for key in ("expr", "rotation", "jaw_pose", "translation"):
                 np.testing.assert_allclose(written[key][0], expected[key], rtol=1e-6, atol=1e-7)
-            start = TrackedParams(capture, run).params_for(timestep)
+            start = AlignedTrackedParams(capture, run).params_for(timestep)
             moved += not np.allclose(written["expr"][0], start["expr"])
     assert moved > 0  # not a copy of the start (the guard keeps only steps the views support)
     tracking = read_tracking(out / "flame_param")  # Blender's Import Tracking reads it, on the tracker's frames
@@ -160,8 +160,12 @@ def test_errors_against_the_truth_are_zero_for_the_truth_and_its_gauge(run_root,
     assert errors["start"]["unseen"]["vertex_mm"] == pytest.approx(direct, rel=1e-6)
     refine_tracking(run_root, out=tmp_path / "r", passes=1, views=2, threads=1)
     record = json.loads((tmp_path / "r" / RECORD_FILE).read_text())
-    assert set(record["truth_errors"]) == {"start", "refined"}
-    assert record["truth_errors"]["start"]["unseen"]["vertex_mm"] == pytest.approx(direct, rel=1e-5)
+    assert set(record["truth_errors"]) == {"tracked", "start", "refined"}
+    assert record["truth_errors"]["tracked"]["unseen"]["vertex_mm"] == pytest.approx(direct, rel=1e-5)
+    aligned = AlignedTrackedParams(capture, run).params_for  # the start: tracked + the mean fine-tuning offset
+    moved = np.mean([frame_errors(model, aligned(t), truth[t])["vertex_mm"] for t in unseen])
+    assert moved != pytest.approx(direct, rel=1e-3)  # the fake run's nudge of timestep 0 moves it
+    assert record["truth_errors"]["start"]["unseen"]["vertex_mm"] == pytest.approx(moved, rel=1e-5)
 
 
 def test_cancelling_the_worker_stops_the_child_and_keeps_nothing_half_done(run_root, tmp_path):

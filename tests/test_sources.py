@@ -232,7 +232,8 @@ def test_no_scored_view_reaches_any_source(capture, run_with_refiner, monkeypatc
 
     monkeypatch.setattr(Capture, "load_image", spy)
     sources = standard_sources(run, capture, avatar, fit_steps=(1,))
-    assert set(sources) == {"tracked", "smoothed", "fit_1", "refined_1", "refined_3", "refined_fit_1", "true"}
+    assert set(sources) == {"tracked", "tracked_aligned", "smoothed", "fit_1", "refined_1", "refined_3",
+                            "refined_fit_1", "true"}
     checked = []
     source_of = dict(sources)
     for name, source in sources.items():

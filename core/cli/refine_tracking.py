@@ -61,12 +61,12 @@ def run(args) -> int:
 
 
 def _truth_lines(errors) -> list[str]:
-    """A synthetic capture's errors against the truth, start and refined, per group of timesteps."""
+    """A synthetic capture's errors against the truth (tracked, start and refined), per group of timesteps."""
     if not errors:
         return []
     lines = ["against the truth (mm; in the avatar's gauge): whole mesh, expression alone"]
     for group in errors["start"]:
-        for name in ("start", "refined"):
+        for name in [n for n in ("tracked", "start", "refined") if n in errors]:
             e = errors[name][group]
             lines.append(f"  {group:8s} {name:7s} ({e['timesteps']} timesteps): {e['vertex_mm']:.2f} "
                          f"({e['vertex_mm_gauge']:.2f}), {e['expr_vertex_mm']:.2f} ({e['expr_vertex_mm_gauge']:.2f})")

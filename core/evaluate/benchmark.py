@@ -28,20 +28,25 @@ PARAMETER_METRICS = ("expr_rmse", "expr_vertex_mm", "vertex_mm")
 
 def standard_sources(run: RunFolder, capture, avatar, fit_steps=FIT_STEPS,
                      refiner_passes=REFINER_PASSES) -> dict[str, ParamSource]:
-    """name → source, in table order: tracked, smoothed, fit_N…, refined_K… and refined_fit_N (the
-    refiner's one pass, then fitting from there; runs with a refiner), method (MoGaFace runs), true."""
+    """name → source, in table order: tracked, tracked_aligned (runs that fine-tuned their
+    parameters), smoothed, fit_N…, refined_K… and refined_fit_N (the refiner's one pass, then
+    fitting from there; runs with a refiner), method (MoGaFace runs), true. Fitting and the refiner
+    start from the aligned tracked parameters (:class:`.sources.tracked.AlignedTrackedParams`)."""
     from .sources.base import InputCameras
     from .sources.fitted import FittedParams
     from .sources.mogaface import MoGaFaceParams
     from .sources.refined import RefinedParams, run_refiner
     from .sources.smoothed import SmoothedParams, choose_sigmas
-    from .sources.tracked import TrackedParams
+    from .sources.tracked import AlignedTrackedParams, TrackedParams
     from .run_folder import capture_info
     from .sources.true import TrueParams, truth_dir
 
     tracked = TrackedParams(capture, run)
+    start = AlignedTrackedParams(capture, run)
     inputs = InputCameras.of_run(capture, run.root)  # the run's refined cameras, where it refined them
     sources: dict[str, ParamSource] = {"tracked": tracked}
+    if start.offset:
+        sources["tracked_aligned"] = start
     try:
         truth_dir(capture)
         has_truth = True
@@ -51,16 +56,16 @@ def standard_sources(run: RunFolder, capture, avatar, fit_steps=FIT_STEPS,
         held_out = [capture_info(capture.root).get("test_sequence")]
         sources["smoothed"] = SmoothedParams(capture, tracked, choose_sigmas(capture, held_out))
     for steps in fit_steps:
-        sources[f"fit_{steps}"] = FittedParams(avatar, capture, tracked, steps, run.background, cameras=inputs)
+        sources[f"fit_{steps}"] = FittedParams(avatar, capture, start, steps, run.background, cameras=inputs)
     refiner = run_refiner(run.root, avatar)
     if refiner is not None:
         for passes in refiner_passes:
-            sources[f"refined_{passes}"] = RefinedParams(avatar, capture, tracked, refiner, run.background, passes,
+            sources[f"refined_{passes}"] = RefinedParams(avatar, capture, start, refiner, run.background, passes,
                                                          cameras=inputs)
         if fit_steps:
-            start = RefinedParams(avatar, capture, tracked, refiner, run.background, 1, cameras=inputs)
-            sources[f"refined_fit_{fit_steps[0]}"] = FittedParams(avatar, capture, start, fit_steps[0], run.background,
-                                                                  cameras=inputs)
+            one_pass = RefinedParams(avatar, capture, start, refiner, run.background, 1, cameras=inputs)
+            sources[f"refined_fit_{fit_steps[0]}"] = FittedParams(avatar, capture, one_pass, fit_steps[0],
+                                                                  run.background, cameras=inputs)
     model = getattr(avatar, "model", None)
     if model is not None and model.mode != "off":
         sources["method"] = MoGaFaceParams(capture, run, model, image_assisted=True)

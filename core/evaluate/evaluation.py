@@ -110,15 +110,17 @@ def evaluate_run(
 
 
 def _with_refiner(run, capture, avatar, source):
-    """A run with a refiner (``RUN/refiner.pt``) is scored with it, starting from the tracked parameters."""
+    """A run with a refiner (``RUN/refiner.pt``) is scored with it, starting from the tracked parameters
+    moved by the run's mean fine-tuning offset (:class:`.sources.tracked.AlignedTrackedParams`)."""
     from .sources.base import InputCameras
     from .sources.refined import RefinedParams, run_refiner
+    from .sources.tracked import AlignedTrackedParams
 
     avatar = run.load_avatar() if avatar is None else avatar
     refiner = run_refiner(run.root, avatar)
     if refiner is None:
         return avatar, source
-    return avatar, RefinedParams(avatar, capture, TrackedParams(capture, run), refiner, run.background, passes=3,
+    return avatar, RefinedParams(avatar, capture, AlignedTrackedParams(capture, run), refiner, run.background, passes=3,
                                  cameras=InputCameras.of_run(capture, run.root))
 
 

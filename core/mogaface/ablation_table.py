@@ -5,7 +5,8 @@ from __future__ import annotations
 
 from ..evaluate.seed_stats import format_difference, format_mean_std, paired_difference
 
-SOURCE_LABELS = {"tracked": "tracked", "smoothed": "smoothed (σ from training sequences)",
+SOURCE_LABELS = {"tracked": "tracked", "tracked_aligned": "tracked + the run's mean fine-tuning offset",
+                 "smoothed": "smoothed (σ from training sequences)",
                  "method": "the method's image-assisted inference", "true": "true parameters (ceiling)"}
 BASELINE = "freeze"
 

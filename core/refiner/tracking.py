@@ -22,7 +22,7 @@ from ..evaluate.expression_error import tracking_errors
 from ..evaluate.run_folder import RunFolder
 from ..evaluate.sources.base import InputCameras
 from ..evaluate.sources.refined import RefinedParams, run_refiner
-from ..evaluate.sources.tracked import TrackedParams
+from ..evaluate.sources.tracked import AlignedTrackedParams, TrackedParams
 from ..io.atomic import write_json
 from ..io.npz import save_npz
 from .files import REFINER_FILE
@@ -106,7 +106,7 @@ def refine_tracking(run_dir, out=None, capture=None, passes: int = 3, views: int
         return {"state": "stopped", "path": str(out)}
     avatar = frozen_avatar(run.root)
     refiner = run_refiner(run.root, avatar)
-    source = RefinedParams(avatar, cap, TrackedParams(cap, run), refiner, run.background, passes=passes,
+    source = RefinedParams(avatar, cap, AlignedTrackedParams(cap, run), refiner, run.background, passes=passes,
                            max_views=views, cameras=InputCameras.of_run(cap, run.root))
     staging = _staging(out, "partial")
     began, folders, refined = time.perf_counter(), set(), {}
@@ -127,7 +127,8 @@ def refine_tracking(run_dir, out=None, capture=None, passes: int = 3, views: int
         record = {"run": str(run.root.resolve()), "capture": str(cap.root.resolve()), "passes": passes,
                   "views": views, "timesteps": steps, "folders": sorted(folders),
                   "seconds": time.perf_counter() - began}
-        errors = tracking_errors(run, cap, {"start": source.base.params_for, "refined": refined.__getitem__})
+        errors = tracking_errors(run, cap, {"tracked": TrackedParams(cap, run).params_for,
+                                            "start": source.base.params_for, "refined": refined.__getitem__})
         if errors is not None:  # a synthetic capture: how far from the truth, before and after
             record["truth_errors"] = errors
         write_json(staging / RECORD_FILE, record)
