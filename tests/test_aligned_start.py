@@ -95,7 +95,8 @@ def test_a_run_that_kept_the_tracking_moves_nothing(tmp_path_factory):
         _write(run.flame_param_dir / f"{t:05d}.npz", params)
     assert mean_finetuning_offset(run, capture) == {}
     unseen = [t for t in capture.timesteps if t not in run.trained_timesteps]
-    moved, start = AlignedTrackedParams(capture, run).params_for(unseen[0]), TrackedParams(capture, run).params_for(unseen[0])
+    moved = AlignedTrackedParams(capture, run).params_for(unseen[0])
+    start = TrackedParams(capture, run).params_for(unseen[0])
     for key in MOTION_KEYS:
         np.testing.assert_array_equal(moved[key], start[key])
 

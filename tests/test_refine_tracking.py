@@ -49,8 +49,8 @@ def test_every_timestep_is_written_in_the_captures_layout_with_the_refined_value
     assert [f.name for f in files] == sorted(capture.path(f, "flame_param_path").name
                                              for f in {f.timestep_index: f for f in capture.frames()}.values())
     avatar = frozen_avatar(run_root)
-    source = RefinedParams(avatar, capture, AlignedTrackedParams(capture, run), run_refiner(run_root, avatar), run.background,
-                           passes=2, max_views=2, cameras=InputCameras.of_run(capture, run_root))
+    source = RefinedParams(avatar, capture, AlignedTrackedParams(capture, run), run_refiner(run_root, avatar),
+                           run.background, passes=2, max_views=2, cameras=InputCameras.of_run(capture, run_root))
     moved = 0
     for timestep in capture.timesteps:
         with np.load(out / "flame_param" / f"{timestep:05d}.npz") as written:  # plain numpy, VHAP's shapes
