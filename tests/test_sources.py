@@ -294,7 +294,7 @@ def test_image_assisted_sources_see_their_input_views_through_the_runs_refined_c
         sources[name].params_for(frame, exclude_view=frame.camera_id)
     fitted = {c.camera_id: c for c in seen["fit"]}
     refined = {c.camera_id: c for c in seen["refined"]}
-    np.testing.assert_allclose(fitted["cam00"].w2c, moved, atol=1e-9)  # fitting renders at half size, same pose
+    np.testing.assert_allclose(fitted["cam00"].w2c, moved, atol=1e-9)  # fitting renders through the refined pose
     np.testing.assert_allclose(refined["cam00"].w2c, moved, atol=1e-9)
     np.testing.assert_allclose(refined["cam02"].w2c, capture.camera_at("cam02", frame.timestep_index).w2c)
     assert frame.camera_id not in fitted and frame.camera_id not in refined

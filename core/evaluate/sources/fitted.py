@@ -23,11 +23,16 @@ PRIOR_SIGMA = {"expr": 0.5, "rotation": 0.02, "neck_pose": 0.02, "jaw_pose": 0.0
                "translation": 2e-3}
 RATES = {k: v / 5 for k, v in PRIOR_SIGMA.items()}
 PRIOR_WEIGHT = 1e-3
+# Renders at the views' full size: at half size the avatar (trained at full size) renders what a
+# downsampled capture does not show, and fitting read the expression worse than it started
+# (docs/results.md, "Fitting at full size").
+SCALE = 1.0
 
 
 def fitting_settings() -> dict:
     """The defaults that decide what fitting returns: scores kept with other settings are stale."""
-    return {"rates": RATES, "prior_sigma": PRIOR_SIGMA, "prior_weight": PRIOR_WEIGHT, "decay": "cosine"}
+    return {"rates": RATES, "prior_sigma": PRIOR_SIGMA, "prior_weight": PRIOR_WEIGHT, "decay": "cosine",
+            "scale": SCALE}
 
 
 @contextlib.contextmanager
@@ -61,7 +66,7 @@ class FittedParams:
     uses_images = True
 
     def __init__(self, avatar, capture: Capture, base: ParamSource, steps: int, background,
-                 views_per_step: int = 2, scale: float = 0.5, rates: dict[str, float] | None = None,
+                 views_per_step: int = 2, scale: float = SCALE, rates: dict[str, float] | None = None,
                  prior_weight: float = PRIOR_WEIGHT, decay: bool = True, cameras: InputCameras | None = None):
         self.avatar = avatar
         self.capture = capture
