@@ -314,12 +314,12 @@ class RefineTrackingWorker(TrainWorker):
 
 
 def refine_tracking_command(python: str, run, out=None, passes: int | None = None, views: int | None = None,
-                            threads: int | None = None, paths=()) -> list[str]:
+                            fit_steps: int | None = None, threads: int | None = None, paths=()) -> list[str]:
     """The argument list of a ``refine-tracking`` child process (see :func:`worker_command`)."""
     arguments = ["refine-tracking", os.fspath(run), "--quiet"]
     if out is not None:
         arguments += ["--out", os.fspath(out)]
-    for flag, value in (("--passes", passes), ("--views", views), ("--threads", threads)):
+    for flag, value in (("--passes", passes), ("--views", views), ("--fit-steps", fit_steps), ("--threads", threads)):
         if value is not None:
             arguments += [flag, str(int(value))]
     return worker_command(python, arguments, paths)

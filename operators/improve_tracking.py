@@ -58,8 +58,11 @@ class MOGAFACE_OT_improve_tracking(FollowsChildJob, bpy.types.Operator):
     out: StringProperty(name="Output", subtype="DIR_PATH",
                         description="Folder for the refined tracking (empty: the run's refined_tracking)")
     target: StringProperty(name="Head", description="Head object to key (empty: the active object)")
-    passes: IntProperty(name="Passes", default=3, min=1, max=10, description="Refiner passes per timestep")
+    passes: IntProperty(name="Passes", default=1, min=1, max=10, description="Refiner passes per timestep")
     views: IntProperty(name="Views", default=4, min=1, max=64, description="Views per timestep, spread over the rig")
+    fit_steps: IntProperty(name="Fitting Steps", default=10, min=0, max=200,
+                           description="Then fit each timestep to all its views from the refiner's answer: reads the "
+                                       "expression better, about a second per timestep (0: none)")
     python: StringProperty(name="Python", subtype="FILE_PATH", options={"HIDDEN", "SKIP_SAVE"},
                            description="Interpreter for the child process (empty: the preferences')")
 
@@ -94,7 +97,8 @@ class MOGAFACE_OT_improve_tracking(FollowsChildJob, bpy.types.Operator):
         python = bpy.path.abspath(self.python) if self.python else interpreter(context)
         out = bpy.path.abspath(self.out) if self.out else None
         command = refine_tracking_command(python, run, out=out, passes=self.passes, views=self.views,
-                                          threads=preferred_threads(context), paths=worker_paths(python))
+                                          fit_steps=self.fit_steps, threads=preferred_threads(context),
+                                          paths=worker_paths(python))
         worker = RefineTrackingWorker(command, run)
         try:
             worker.start()

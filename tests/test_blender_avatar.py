@@ -310,8 +310,9 @@ def test_improve_tracking_keys_the_head_with_the_refined_tracking(scene, tmp_pat
         bpy.ops.mogaface.improve_tracking(run=str(tmp_path / "nothing"))
     original = sc.read_tracking(scene["run"] / "flame_param")
     try:
-        assert bpy.ops.mogaface.improve_tracking(run=str(run), passes=1, views=2) == {"FINISHED"}
+        assert bpy.ops.mogaface.improve_tracking(run=str(run), passes=1, views=2, fit_steps=1) == {"FINISHED"}
         folder = run / "refined_tracking" / "flame_param"
+        assert json.loads((run / "refined_tracking" / "refined_tracking.json").read_text())["fit_steps"] == 1
         assert bpy.context.scene.mogaface.tracking_folder == str(folder)
         refined = sc.read_tracking(folder)
         assert len(refined.frames) == len(Capture.open(scene["capture"]).timesteps)

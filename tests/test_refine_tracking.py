@@ -41,7 +41,7 @@ def run_root(tmp_path_factory):
 def test_every_timestep_is_written_in_the_captures_layout_with_the_refined_values(run_root, tmp_path):
     out = tmp_path / "refined"
     events = []
-    result = refine_tracking(run_root, out=out, passes=2, views=2, threads=1, listeners=[events.append])
+    result = refine_tracking(run_root, out=out, passes=2, views=2, fit_steps=0, threads=1, listeners=[events.append])
     run = RunFolder(run_root)
     capture = Capture.open(run.capture_root)
     assert result["state"] == "done" and result["folders"] == [str(out / "flame_param")]
@@ -69,6 +69,52 @@ def test_every_timestep_is_written_in_the_captures_layout_with_the_refined_value
     frames = [e for e in events if e["event"] == "iter"]
     assert [e["step"] for e in frames] == list(range(1, len(capture.timesteps) + 1))
     assert events[-1]["event"] == "done" and not list(tmp_path.glob(".refined.*"))
+
+
+def test_fitting_from_the_refiners_answer_lowers_the_image_error_in_every_view(run_root, tmp_path):
+    import torch
+
+    from mogaface.core.avatar.avatar import flame_params_to_torch
+    from mogaface.core.evaluate.images import target_image
+    from mogaface.core.evaluate.run_folder import capture_info, load_flame_file
+    from mogaface.core.evaluate.sources.fitted import FittedParams
+
+    refine_tracking(run_root, out=tmp_path / "refined", passes=1, views=2, fit_steps=0, threads=1)
+    refine_tracking(run_root, out=tmp_path / "fitted", passes=1, views=2, fit_steps=6, threads=1)
+    assert json.loads((tmp_path / "fitted" / RECORD_FILE).read_text())["fit_steps"] == 6
+    run = RunFolder(run_root)
+    capture = Capture.open(run.capture_root)
+    avatar = frozen_avatar(run_root)
+    cameras = InputCameras.of_run(capture, run_root)
+    recorded = capture_info(capture.root).get("background")
+
+    def image_error(params, timestep):  # mean L1 over every view of the timestep, at full size
+        frames = [f for f in capture.frames() if f.timestep_index == timestep]
+        with torch.no_grad():
+            return np.mean([float((avatar.render(flame_params_to_torch(params), cameras(f), run.background).rgb
+                                   - torch.as_tensor(np.array(target_image(capture, f, run.background, recorded))))
+                                  .abs().mean()) for f in frames])
+
+    before, after = [], []
+    for timestep in capture.timesteps:
+        name = f"{timestep:05d}.npz"
+        refined = load_flame_file(tmp_path / "refined" / "flame_param" / name)
+        fitted = load_flame_file(tmp_path / "fitted" / "flame_param" / name)
+        before.append(image_error(refined, timestep))
+        after.append(image_error(fitted, timestep))
+    assert np.mean(after) < np.mean(before)
+    assert sum(a < b for a, b in zip(after, before)) > len(before) / 2
+    # what is written is the evaluation's fitting from the refiner's answer, on all the views
+    refiner = RefinedParams(avatar, capture, AlignedTrackedParams(capture, run), run_refiner(run_root, avatar),
+                            run.background, passes=1, max_views=2, cameras=cameras)
+    source = FittedParams(avatar, capture, refiner, 6, run.background, cameras=cameras)
+    timestep = capture.timesteps[-1]
+    expected = source.params_for(timestep)
+    np.testing.assert_allclose(load_flame_file(tmp_path / "fitted" / "flame_param" / f"{timestep:05d}.npz")["expr"],
+                               expected["expr"], rtol=1e-5, atol=1e-6)
+    assert len(source.inputs[-1][1]) == len([f for f in capture.frames() if f.timestep_index == timestep])
+    with pytest.raises(InputError, match="fit_steps"):
+        refine_tracking(run_root, out=tmp_path / "bad", fit_steps=-1, threads=1)
 
 
 def test_a_run_without_a_refiner_gets_one_and_a_stop_keeps_none(run_root, tmp_path):
@@ -124,9 +170,10 @@ def test_the_command_and_its_worker(run_root, tmp_path):
 
     out = tmp_path / "refined"
     worker = RefineTrackingWorker(refine_tracking_command(sys.executable, run_root, out=out, passes=1, views=2,
-                                                          threads=1), run_root).start()
+                                                          fit_steps=1, threads=1), run_root).start()
     progress = worker.wait(interval=0.1, timeout=120)
     assert progress.state == "done", (progress.message, worker.stderr_tail())
+    assert json.loads((out / RECORD_FILE).read_text())["fit_steps"] == 1
     assert progress.stage == "frames" and progress.step == progress.steps == 16
     assert progress.message == "refined 16 timesteps"
     done = [e for e in worker.events if e["event"] == "done"]

@@ -13,9 +13,12 @@ def add_arguments(parser) -> None:
     parser.add_argument("--capture", type=pathlib.Path, help="the run's capture folder, when it has moved")
     parser.add_argument("--out", type=pathlib.Path, help="output folder (default RUN/refined_tracking; replaced only "
                                                          "if this command wrote it)")
-    parser.add_argument("--passes", type=int, default=3, help="refiner passes per timestep (default %(default)s)")
+    parser.add_argument("--passes", type=int, default=1, help="refiner passes per timestep (default %(default)s)")
     parser.add_argument("--views", type=int, default=4, help="views per timestep, spread over the rig "
                                                              "(default %(default)s)")
+    parser.add_argument("--fit-steps", type=int, default=10,
+                        help="then this many steps of test-time fitting to all the views from the refiner's answer: "
+                             "reads the expression better, about 1 s a timestep (default %(default)s; 0: none)")
     parser.add_argument("--threads", type=int, default=2, help="CPU threads (default %(default)s)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -43,7 +46,7 @@ def run(args) -> int:
     previous = {s: signal.signal(s, request_stop) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
         result = refine_tracking(args.run, out=args.out, capture=args.capture, passes=args.passes, views=args.views,
-                                 threads=args.threads, listeners=listeners,
+                                 fit_steps=args.fit_steps, threads=args.threads, listeners=listeners,
                                  should_stop=lambda: stop["signal"] is not None)
     finally:
         for number, handler in previous.items():

@@ -1,6 +1,6 @@
-"""A capture's tracking improved by a run's refiner: every timestep refined from its views and
-written as ``flame_param`` files in the capture's own layout, so Blender's Import Tracking and
-``render --params`` read them like the tracker's.
+"""A capture's tracking improved by a run's refiner: every timestep refined from its views
+(optionally then fitted to them from there) and written as ``flame_param`` files in the capture's
+own layout, so Blender's Import Tracking and ``render --params`` read them like the tracker's.
 
 The output folder (default ``RUN/refined_tracking``) holds the capture's ``flame_param`` paths
 (``flame_param/00042.npz``; each sequence's own folder in a union capture) and
@@ -21,6 +21,7 @@ from ..errors import InputError
 from ..evaluate.expression_error import tracking_errors
 from ..evaluate.run_folder import RunFolder
 from ..evaluate.sources.base import InputCameras
+from ..evaluate.sources.fitted import FittedParams
 from ..evaluate.sources.refined import RefinedParams, run_refiner
 from ..evaluate.sources.tracked import AlignedTrackedParams, TrackedParams
 from ..io.atomic import write_json
@@ -68,19 +69,25 @@ def _train_first(run_root: pathlib.Path, settings: RefinerSettings, listeners, s
         partial.unlink(missing_ok=True)
 
 
-def refine_tracking(run_dir, out=None, capture=None, passes: int = 3, views: int = 4, threads: int = 2,
-                    refiner_settings: RefinerSettings | None = None, listeners=(), should_stop=lambda: False) -> dict:
+def refine_tracking(run_dir, out=None, capture=None, passes: int = 1, views: int = 4, fit_steps: int = 10,
+                    threads: int = 2, refiner_settings: RefinerSettings | None = None, listeners=(),
+                    should_stop=lambda: False) -> dict:
     """Refine every timestep of the run's capture (``capture``: that capture, moved); returns what
     was written.
 
     ``passes`` and ``views`` are those of :class:`..evaluate.sources.refined.RefinedParams` (the
-    views spread over the rig). Events: the refiner's own when it is trained first, then ``iter``
-    with ``stage="frames"`` per timestep, then ``done`` (or ``stopped`` when ``should_stop`` said so).
+    views spread over the rig); ``fit_steps`` > 0 then fits each timestep's expression and pose to
+    all its views from the refiner's answer (:class:`..evaluate.sources.fitted.FittedParams`:
+    slower, and it reads the expression better; docs/results.md). Events: the refiner's own when it
+    is trained first, then ``iter`` with ``stage="frames"`` per timestep, then ``done`` (or
+    ``stopped`` when ``should_stop`` said so).
     """
     import torch
 
     if passes < 1 or views < 1:
         raise InputError(None, "passes" if passes < 1 else "views", "must be at least 1")
+    if fit_steps < 0:
+        raise InputError(None, "fit_steps", "must be 0 (no fitting) or more")
 
     where = {"stage": "frames", "step": 0, "steps": 0}  # the last progress, for a stop
 
@@ -106,8 +113,12 @@ def refine_tracking(run_dir, out=None, capture=None, passes: int = 3, views: int
         return {"state": "stopped", "path": str(out)}
     avatar = frozen_avatar(run.root)
     refiner = run_refiner(run.root, avatar)
-    source = RefinedParams(avatar, cap, AlignedTrackedParams(cap, run), refiner, run.background, passes=passes,
-                           max_views=views, cameras=InputCameras.of_run(cap, run.root))
+    cameras = InputCameras.of_run(cap, run.root)
+    start = AlignedTrackedParams(cap, run)
+    source = RefinedParams(avatar, cap, start, refiner, run.background, passes=passes, max_views=views,
+                           cameras=cameras)
+    if fit_steps:
+        source = FittedParams(avatar, cap, source, fit_steps, run.background, cameras=cameras)
     staging = _staging(out, "partial")
     began, folders, refined = time.perf_counter(), set(), {}
     steps = len(cap.timesteps)
@@ -125,10 +136,10 @@ def refine_tracking(run_dir, out=None, capture=None, passes: int = 3, views: int
             emit("iter", step=index + 1, steps=steps, stage="frames",
                  eta_s=elapsed / (index + 1) * (steps - index - 1))
         record = {"run": str(run.root.resolve()), "capture": str(cap.root.resolve()), "passes": passes,
-                  "views": views, "timesteps": steps, "folders": sorted(folders),
+                  "views": views, "fit_steps": fit_steps, "timesteps": steps, "folders": sorted(folders),
                   "seconds": time.perf_counter() - began}
         errors = tracking_errors(run, cap, {"tracked": TrackedParams(cap, run).params_for,
-                                            "start": source.base.params_for, "refined": refined.__getitem__})
+                                            "start": start.params_for, "refined": refined.__getitem__})
         if errors is not None:  # a synthetic capture: how far from the truth, before and after
             record["truth_errors"] = errors
         write_json(staging / RECORD_FILE, record)
