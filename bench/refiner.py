@@ -12,7 +12,8 @@ from __future__ import annotations
 
 import os
 
-SOURCES = ("tracked", "tracked_aligned", "refined_1", "refined_3", "fit_10")  # tracked_aligned: runs that fine-tuned
+# tracked_aligned: runs that fine-tuned; refined_fit_10: 10 fitting steps from the refiner's one pass
+SOURCES = ("tracked", "tracked_aligned", "refined_1", "refined_3", "fit_10", "refined_fit_10")
 
 
 def run(threads: int = 2, quick: bool = False, avatar: str | None = None) -> dict:
