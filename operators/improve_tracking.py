@@ -62,7 +62,7 @@ class MOGAFACE_OT_improve_tracking(FollowsChildJob, bpy.types.Operator):
     views: IntProperty(name="Views", default=4, min=1, max=64, description="Views per timestep, spread over the rig")
     fit_steps: IntProperty(name="Fitting Steps", default=10, min=0, max=200,
                            description="Then fit each timestep to all its views from the refiner's answer: reads the "
-                                       "expression better, about a second per timestep (0: none)")
+                                       "expression better, one to two seconds per timestep (0: none)")
     python: StringProperty(name="Python", subtype="FILE_PATH", options={"HIDDEN", "SKIP_SAVE"},
                            description="Interpreter for the child process (empty: the preferences')")
 

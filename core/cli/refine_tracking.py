@@ -18,7 +18,7 @@ def add_arguments(parser) -> None:
                                                              "(default %(default)s)")
     parser.add_argument("--fit-steps", type=int, default=10,
                         help="then this many steps of test-time fitting to all the views from the refiner's answer: "
-                             "reads the expression better, about 1 s a timestep (default %(default)s; 0: none)")
+                             "reads the expression better, 1-2 s a timestep (default %(default)s; 0: none)")
     parser.add_argument("--threads", type=int, default=2, help="CPU threads (default %(default)s)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
