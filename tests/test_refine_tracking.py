@@ -1,6 +1,7 @@
 """Improving a capture's tracking with a run's refiner (``refine-tracking``): every timestep is
 written in the capture's own flame_param layout, as plain numpy and the Blender reader see it,
-with the values the evaluation's refined source computes; a run without a refiner gets one; a
+with the values the evaluation's refined source computes (and, with fitting steps, its fitting
+from there, which lowers the image error in the views); a run without a refiner gets one; a
 stopped job and a folder it did not write are left as they were; on a synthetic capture the
 record says how far the start and the result are from the truth."""
 
@@ -203,7 +204,8 @@ def test_errors_against_the_truth_are_zero_for_the_truth_and_its_gauge(run_root,
     unseen = [t for t in capture.timesteps if t not in trained]
     model = FlameModel.load(run_root / "head.pkl")
     direct = np.mean([frame_errors(model, start(t), truth[t])["vertex_mm"] for t in unseen])
-    assert errors["start"]["unseen"]["timesteps"] == len(unseen) and errors["start"]["training"]["timesteps"] == len(trained)
+    assert errors["start"]["unseen"]["timesteps"] == len(unseen)
+    assert errors["start"]["training"]["timesteps"] == len(trained)
     assert errors["start"]["unseen"]["vertex_mm"] == pytest.approx(direct, rel=1e-6)
     refine_tracking(run_root, out=tmp_path / "r", passes=1, views=2, threads=1)
     record = json.loads((tmp_path / "r" / RECORD_FILE).read_text())
