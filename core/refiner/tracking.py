@@ -76,9 +76,10 @@ def refine_tracking(run_dir, out=None, capture=None, passes: int = 1, views: int
     was written.
 
     ``passes`` and ``views`` are those of :class:`..evaluate.sources.refined.RefinedParams` (the
-    views spread over the rig); ``fit_steps`` > 0 then fits each timestep's expression and pose to
-    all its views from the refiner's answer (:class:`..evaluate.sources.fitted.FittedParams`:
-    slower, and it reads the expression better; docs/results.md). Events: the refiner's own when it
+    views spread over the rig); ``fit_steps`` > 0 then fits the expression and pose of each timestep
+    the run did not train on to all its views from the refiner's answer
+    (:class:`..evaluate.sources.fitted.FittedParams`: slower, and it reads the expression better;
+    docs/results.md). Events: the refiner's own when it
     is trained first, then ``iter`` with ``stage="frames"`` per timestep, then ``done`` (or
     ``stopped`` when ``should_stop`` said so).
     """
@@ -117,8 +118,10 @@ def refine_tracking(run_dir, out=None, capture=None, passes: int = 1, views: int
     start = AlignedTrackedParams(cap, run)
     source = RefinedParams(avatar, cap, start, refiner, run.background, passes=passes, max_views=views,
                            cameras=cameras)
-    if fit_steps:
-        source = FittedParams(avatar, cap, source, fit_steps, run.background, cameras=cameras)
+    # Timesteps the run trained on start from its fine-tuned parameters, already fitted to every
+    # view: fitting from there only moves them off (docs/results.md, "Fitting at full size").
+    trained = set(run.trained_timesteps)
+    fitted = FittedParams(avatar, cap, source, fit_steps, run.background, cameras=cameras) if fit_steps else source
     staging = _staging(out, "partial")
     began, folders, refined = time.perf_counter(), set(), {}
     steps = len(cap.timesteps)
@@ -129,15 +132,16 @@ def refine_tracking(run_dir, out=None, capture=None, passes: int = 1, views: int
                 emit("stopped", **where)
                 return {"state": "stopped", "path": str(out)}
             relative = cap.path(cap.timestep_frame(timestep), "flame_param_path").relative_to(cap.root)
-            params = refined[timestep] = source.params_for(timestep)
+            params = refined[timestep] = (source if timestep in trained else fitted).params_for(timestep)
             save_npz(staging / relative, layout.batched_flame_params(params))
             folders.add(relative.parent.as_posix())
             elapsed = time.perf_counter() - began
             emit("iter", step=index + 1, steps=steps, stage="frames",
                  eta_s=elapsed / (index + 1) * (steps - index - 1))
+        fitted_count = sum(t not in trained for t in cap.timesteps) if fit_steps else 0
         record = {"run": str(run.root.resolve()), "capture": str(cap.root.resolve()), "passes": passes,
-                  "views": views, "fit_steps": fit_steps, "timesteps": steps, "folders": sorted(folders),
-                  "seconds": time.perf_counter() - began}
+                  "views": views, "fit_steps": fit_steps, "fitted_timesteps": fitted_count, "timesteps": steps,
+                  "folders": sorted(folders), "seconds": time.perf_counter() - began}
         errors = tracking_errors(run, cap, {"tracked": TrackedParams(cap, run).params_for,
                                             "start": start.params_for, "refined": refined.__getitem__})
         if errors is not None:  # a synthetic capture: how far from the truth, before and after
