@@ -127,6 +127,22 @@ def test_fitting_from_the_refiners_answer_lowers_the_image_error_on_unseen_times
         refine_tracking(run_root, out=tmp_path / "bad", fit_steps=-1, threads=1)
 
 
+def test_a_run_that_kept_the_tracking_gets_every_timestep_fitted(run_root, tmp_path, monkeypatch):
+    import mogaface.core.evaluate.sources.tracked as tracked_module
+    from mogaface.core.evaluate.run_folder import load_flame_file
+
+    monkeypatch.setattr(tracked_module, "mean_finetuning_offset", lambda run, capture: {})  # as Freeze
+    refine_tracking(run_root, out=tmp_path / "fitted", passes=1, views=2, fit_steps=2, threads=1)
+    refine_tracking(run_root, out=tmp_path / "refined", passes=1, views=2, fit_steps=0, threads=1)
+    capture = Capture.open(RunFolder(run_root).capture_root)
+    assert json.loads((tmp_path / "fitted" / RECORD_FILE).read_text())["fitted_timesteps"] == len(capture.timesteps)
+    trained = RunFolder(run_root).trained_timesteps
+    moved = [not np.allclose(load_flame_file(tmp_path / "fitted" / "flame_param" / f"{t:05d}.npz")["expr"],
+                             load_flame_file(tmp_path / "refined" / "flame_param" / f"{t:05d}.npz")["expr"])
+             for t in trained]
+    assert all(moved)
+
+
 def test_a_run_without_a_refiner_gets_one_and_a_stop_keeps_none(run_root, tmp_path):
     bare = tmp_path / "run"
     shutil.copytree(run_root, bare)

@@ -77,11 +77,10 @@ def refine_tracking(run_dir, out=None, capture=None, passes: int = 1, views: int
 
     ``passes`` and ``views`` are those of :class:`..evaluate.sources.refined.RefinedParams` (the
     views spread over the rig); ``fit_steps`` > 0 then fits the expression and pose of each timestep
-    the run did not train on to all its views from the refiner's answer
+    whose parameters training did not fit to all its views, from the refiner's answer
     (:class:`..evaluate.sources.fitted.FittedParams`: slower, and it reads the expression better;
-    docs/results.md). Events: the refiner's own when it
-    is trained first, then ``iter`` with ``stage="frames"`` per timestep, then ``done`` (or
-    ``stopped`` when ``should_stop`` said so).
+    docs/results.md). Events: the refiner's own when it is trained first, then ``iter`` with
+    ``stage="frames"`` per timestep, then ``done`` (or ``stopped`` when ``should_stop`` said so).
     """
     import torch
 
@@ -118,9 +117,10 @@ def refine_tracking(run_dir, out=None, capture=None, passes: int = 1, views: int
     start = AlignedTrackedParams(cap, run)
     source = RefinedParams(avatar, cap, start, refiner, run.background, passes=passes, max_views=views,
                            cameras=cameras)
-    # Timesteps the run trained on start from its fine-tuned parameters, already fitted to every
-    # view: fitting from there only moves them off (docs/results.md, "Fitting at full size").
-    trained = set(run.trained_timesteps)
+    # A run that fine-tuned its parameters fitted its training timesteps to every view already:
+    # fitting from there only moves them off (docs/results.md, "Fitting at full size"). A run that
+    # kept the tracking (no fine-tuning offset) gets every timestep fitted.
+    trained = set(run.trained_timesteps) if start.offset else set()
     fitted = FittedParams(avatar, cap, source, fit_steps, run.background, cameras=cameras) if fit_steps else source
     staging = _staging(out, "partial")
     began, folders, refined = time.perf_counter(), set(), {}
