@@ -120,7 +120,7 @@ def refine_tracking(run_dir, out=None, capture=None, passes: int = 1, views: int
     # A run that fine-tuned its parameters fitted its training timesteps to every view already:
     # fitting from there only moves them off (docs/results.md, "Fitting at full size"). A run that
     # kept the tracking (no fine-tuning offset) gets every timestep fitted.
-    trained = set(run.trained_timesteps) if start.offset else set()
+    fitted_by_training = set(run.trained_timesteps) if start.offset else set()
     fitted = FittedParams(avatar, cap, source, fit_steps, run.background, cameras=cameras) if fit_steps else source
     staging = _staging(out, "partial")
     began, folders, refined = time.perf_counter(), set(), {}
@@ -132,13 +132,13 @@ def refine_tracking(run_dir, out=None, capture=None, passes: int = 1, views: int
                 emit("stopped", **where)
                 return {"state": "stopped", "path": str(out)}
             relative = cap.path(cap.timestep_frame(timestep), "flame_param_path").relative_to(cap.root)
-            params = refined[timestep] = (source if timestep in trained else fitted).params_for(timestep)
+            params = refined[timestep] = (source if timestep in fitted_by_training else fitted).params_for(timestep)
             save_npz(staging / relative, layout.batched_flame_params(params))
             folders.add(relative.parent.as_posix())
             elapsed = time.perf_counter() - began
             emit("iter", step=index + 1, steps=steps, stage="frames",
                  eta_s=elapsed / (index + 1) * (steps - index - 1))
-        fitted_count = sum(t not in trained for t in cap.timesteps) if fit_steps else 0
+        fitted_count = sum(t not in fitted_by_training for t in cap.timesteps) if fit_steps else 0
         record = {"run": str(run.root.resolve()), "capture": str(cap.root.resolve()), "passes": passes,
                   "views": views, "fit_steps": fit_steps, "fitted_timesteps": fitted_count, "timesteps": steps,
                   "folders": sorted(folders), "seconds": time.perf_counter() - began}
