@@ -143,6 +143,40 @@ def test_a_run_that_kept_the_tracking_gets_every_timestep_fitted(run_root, tmp_p
     assert all(moved)
 
 
+def test_eval_scores_a_run_with_a_refiner_as_refine_tracking_applies_it(run_root, tmp_path, monkeypatch):
+    """The refiner's one pass on every scored frame, and fitting on the unseen timesteps only: the
+    parameters scored are those ``refine-tracking`` writes (less the scored view)."""
+    from mogaface.core.evaluate.evaluation import evaluate_run
+    from mogaface.core.evaluate.sources.fitted import FittedParams
+    from mogaface.core.evaluate.sources.refined import RefinerInference
+
+    fitted, refined = [], []
+    fit, refine = FittedParams.params_for, RefinedParams.params_for
+    monkeypatch.setattr(FittedParams, "params_for",
+                        lambda self, frame, exclude_view=None: fitted.append(frame) or fit(self, frame, exclude_view))
+    monkeypatch.setattr(RefinedParams, "params_for",
+                        lambda self, frame, exclude_view=None: refined.append(frame) or refine(self, frame, exclude_view))
+    result = evaluate_run(run_root, ["novel_view", "self_reenactment"], 2, lpips=False, out_dir=tmp_path)
+    run = RunFolder(run_root)
+    trained = set(run.trained_timesteps)
+    scored = {name: [(row["timestep"], row["camera"]) for row in result["protocols"][name]["per_frame"]]
+              for name in ("novel_view", "self_reenactment")}
+    assert scored["novel_view"] and {t for t, _ in scored["novel_view"]} <= trained
+    assert scored["self_reenactment"] and not {t for t, _ in scored["self_reenactment"]} & trained
+    assert sorted((f.timestep_index, f.camera_id) for f in fitted) == sorted(scored["self_reenactment"])
+    assert sorted((f.timestep_index, f.camera_id) for f in refined) == sorted(scored["novel_view"]
+                                                                              + scored["self_reenactment"])
+    assert "then 10 fitting steps" in result["inference"]
+    # the same source, the same defaults, as refine-tracking
+    capture = Capture.open(run.capture_root)
+    avatar = frozen_avatar(run_root)
+    source = RefinerInference(avatar, capture, run, run_refiner(run_root, avatar))
+    assert [source.fits(t) for t in capture.timesteps] == [t not in trained for t in capture.timesteps]
+    frame = next(f for f in capture.frames() if f.timestep_index not in trained)
+    source.params_for(frame, exclude_view=frame.camera_id)
+    assert source.inputs[-1][0] == frame.camera_id and frame.camera_id not in source.inputs[-1][1]
+
+
 def test_a_run_without_a_refiner_gets_one_and_a_stop_keeps_none(run_root, tmp_path):
     bare = tmp_path / "run"
     shutil.copytree(run_root, bare)

@@ -29,13 +29,14 @@ PARAMETER_METRICS = ("expr_rmse", "expr_vertex_mm", "vertex_mm")
 def standard_sources(run: RunFolder, capture, avatar, fit_steps=FIT_STEPS,
                      refiner_passes=REFINER_PASSES) -> dict[str, ParamSource]:
     """name → source, in table order: tracked, tracked_aligned (runs that fine-tuned their
-    parameters), smoothed, fit_N…, refined_K… and refined_fit_N (the refiner's one pass, then
-    fitting from there; runs with a refiner), method (MoGaFace runs), true. Fitting and the refiner
-    start from the aligned tracked parameters (:class:`.sources.tracked.AlignedTrackedParams`)."""
+    parameters), smoothed, fit_N…, refined_K… and refined_fit_N (runs with a refiner; the refiner's
+    one pass, then fitting from there where training did not fit, as ``refine-tracking`` does),
+    method (MoGaFace runs), true. Fitting and the refiner start from the aligned tracked parameters
+    (:class:`.sources.tracked.AlignedTrackedParams`)."""
     from .sources.base import InputCameras
     from .sources.fitted import FittedParams
     from .sources.mogaface import MoGaFaceParams
-    from .sources.refined import RefinedParams, run_refiner
+    from .sources.refined import RefinedParams, RefinerInference, run_refiner
     from .sources.smoothed import SmoothedParams, choose_sigmas
     from .sources.tracked import AlignedTrackedParams, TrackedParams
     from .run_folder import capture_info
@@ -63,9 +64,8 @@ def standard_sources(run: RunFolder, capture, avatar, fit_steps=FIT_STEPS,
             sources[f"refined_{passes}"] = RefinedParams(avatar, capture, start, refiner, run.background, passes,
                                                          cameras=inputs)
         if fit_steps:
-            one_pass = RefinedParams(avatar, capture, start, refiner, run.background, 1, cameras=inputs)
-            sources[f"refined_fit_{fit_steps[0]}"] = FittedParams(avatar, capture, one_pass, fit_steps[0],
-                                                                  run.background, cameras=inputs)
+            sources[f"refined_fit_{fit_steps[0]}"] = RefinerInference(avatar, capture, run, refiner, passes=1,
+                                                                      fit_steps=fit_steps[0], cameras=inputs)
     model = getattr(avatar, "model", None)
     if model is not None and model.mode != "off":
         sources["method"] = MoGaFaceParams(capture, run, model, image_assisted=True)

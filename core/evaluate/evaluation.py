@@ -110,18 +110,16 @@ def evaluate_run(
 
 
 def _with_refiner(run, capture, avatar, source):
-    """A run with a refiner (``RUN/refiner.pt``) is scored with it, starting from the tracked parameters
-    moved by the run's mean fine-tuning offset (:class:`.sources.tracked.AlignedTrackedParams`)."""
+    """A run with a refiner (``RUN/refiner.pt``) is scored with it as ``refine-tracking`` applies it
+    (:class:`.sources.refined.RefinerInference`, its defaults): what is scored is what a user gets."""
     from .sources.base import InputCameras
-    from .sources.refined import RefinedParams, run_refiner
-    from .sources.tracked import AlignedTrackedParams
+    from .sources.refined import RefinerInference, run_refiner
 
     avatar = run.load_avatar() if avatar is None else avatar
     refiner = run_refiner(run.root, avatar)
     if refiner is None:
         return avatar, source
-    return avatar, RefinedParams(avatar, capture, AlignedTrackedParams(capture, run), refiner, run.background, passes=3,
-                                 cameras=InputCameras.of_run(capture, run.root))
+    return avatar, RefinerInference(avatar, capture, run, refiner, cameras=InputCameras.of_run(capture, run.root))
 
 
 def write_cross_identity(avatar, capture, run, driver, out: pathlib.Path, max_frames, progress, cameras=None) -> dict:

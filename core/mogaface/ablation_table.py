@@ -15,7 +15,8 @@ def source_label(name: str) -> str:
     if name.startswith("fit_"):
         return f"test-time fitting, {name[4:]} steps"
     if name.startswith("refined_fit_"):
-        return f"multi-view refiner, 1 pass, then test-time fitting, {name[len('refined_fit_'):]} steps"
+        return (f"multi-view refiner, 1 pass, then test-time fitting, {name[len('refined_fit_'):]} steps "
+                "where training did not fit")
     if name.startswith("refined_"):
         passes = name[len("refined_"):]
         return f"multi-view refiner, {passes} pass{'' if passes == '1' else 'es'}"

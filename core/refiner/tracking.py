@@ -21,9 +21,8 @@ from ..errors import InputError
 from ..evaluate.expression_error import tracking_errors
 from ..evaluate.run_folder import RunFolder
 from ..evaluate.sources.base import InputCameras
-from ..evaluate.sources.fitted import FittedParams
-from ..evaluate.sources.refined import RefinedParams, run_refiner
-from ..evaluate.sources.tracked import AlignedTrackedParams, TrackedParams
+from ..evaluate.sources.refined import RefinerInference, run_refiner
+from ..evaluate.sources.tracked import TrackedParams
 from ..io.atomic import write_json
 from ..io.npz import save_npz
 from .files import REFINER_FILE
@@ -75,11 +74,10 @@ def refine_tracking(run_dir, out=None, capture=None, passes: int = 1, views: int
     """Refine every timestep of the run's capture (``capture``: that capture, moved); returns what
     was written.
 
-    ``passes`` and ``views`` are those of :class:`..evaluate.sources.refined.RefinedParams` (the
-    views spread over the rig); ``fit_steps`` > 0 then fits the expression and pose of each timestep
-    whose parameters training did not fit to all its views, from the refiner's answer
-    (:class:`..evaluate.sources.fitted.FittedParams`: slower, and it reads the expression better;
-    docs/results.md). Events: the refiner's own when it is trained first, then ``iter`` with
+    ``passes``, ``views`` and ``fit_steps`` are those of
+    :class:`..evaluate.sources.refined.RefinerInference`: the refiner on every timestep (``views``
+    spread over the rig), then fitting to all the views of each timestep whose parameters training
+    did not fit (slower, and it reads the expression better; docs/results.md). Events: the refiner's own when it is trained first, then ``iter`` with
     ``stage="frames"`` per timestep, then ``done`` (or ``stopped`` when ``should_stop`` said so).
     """
     import torch
@@ -113,15 +111,8 @@ def refine_tracking(run_dir, out=None, capture=None, passes: int = 1, views: int
         return {"state": "stopped", "path": str(out)}
     avatar = frozen_avatar(run.root)
     refiner = run_refiner(run.root, avatar)
-    cameras = InputCameras.of_run(cap, run.root)
-    start = AlignedTrackedParams(cap, run)
-    source = RefinedParams(avatar, cap, start, refiner, run.background, passes=passes, max_views=views,
-                           cameras=cameras)
-    # A run that fine-tuned its parameters fitted its training timesteps to every view already:
-    # fitting from there only moves them off (docs/results.md, "Fitting at full size"). A run that
-    # kept the tracking (no fine-tuning offset) gets every timestep fitted.
-    fitted_by_training = set(run.trained_timesteps) if start.offset else set()
-    fitted = FittedParams(avatar, cap, source, fit_steps, run.background, cameras=cameras) if fit_steps else source
+    source = RefinerInference(avatar, cap, run, refiner, passes=passes, views=views, fit_steps=fit_steps,
+                              cameras=InputCameras.of_run(cap, run.root))
     staging = _staging(out, "partial")
     began, folders, refined = time.perf_counter(), set(), {}
     steps = len(cap.timesteps)
@@ -132,18 +123,18 @@ def refine_tracking(run_dir, out=None, capture=None, passes: int = 1, views: int
                 emit("stopped", **where)
                 return {"state": "stopped", "path": str(out)}
             relative = cap.path(cap.timestep_frame(timestep), "flame_param_path").relative_to(cap.root)
-            params = refined[timestep] = (source if timestep in fitted_by_training else fitted).params_for(timestep)
+            params = refined[timestep] = source.params_for(timestep)
             save_npz(staging / relative, layout.batched_flame_params(params))
             folders.add(relative.parent.as_posix())
             elapsed = time.perf_counter() - began
             emit("iter", step=index + 1, steps=steps, stage="frames",
                  eta_s=elapsed / (index + 1) * (steps - index - 1))
-        fitted_count = sum(t not in fitted_by_training for t in cap.timesteps) if fit_steps else 0
+        fitted_count = sum(source.fits(t) for t in cap.timesteps)
         record = {"run": str(run.root.resolve()), "capture": str(cap.root.resolve()), "passes": passes,
                   "views": views, "fit_steps": fit_steps, "fitted_timesteps": fitted_count, "timesteps": steps,
                   "folders": sorted(folders), "seconds": time.perf_counter() - began}
         errors = tracking_errors(run, cap, {"tracked": TrackedParams(cap, run).params_for,
-                                            "start": start.params_for, "refined": refined.__getitem__})
+                                            "start": source.start.params_for, "refined": refined.__getitem__})
         if errors is not None:  # a synthetic capture: how far from the truth, before and after
             record["truth_errors"] = errors
         write_json(staging / RECORD_FILE, record)

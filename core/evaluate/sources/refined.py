@@ -1,6 +1,8 @@
 """The multi-view refiner's parameters (``RUN/refiner.pt``): the frozen avatar renders the frame
 at the base source's parameters, the refiner compares those renders with the other views of the
 timestep (the scored view left out) and regresses an offset; ``passes`` times, re-rendering between.
+:class:`RefinerInference` is what a run's refiner gives a user: the refiner, then fitting where
+training did not fit.
 
 Every set of views it looks at is recorded in :attr:`inputs` (scored camera, cameras seen).
 """
@@ -14,6 +16,8 @@ from ...refiner.inference import refine
 from ..images import target_image
 from ..run_folder import capture_info
 from .base import InputCameras, ParamSource, timestep_of, views_at
+from .fitted import FittedParams
+from .tracked import AlignedTrackedParams
 
 
 class RefinedParams:
@@ -50,6 +54,42 @@ class RefinedParams:
         images = [target_image(self.capture, f, self.background, self.recorded) for f in frames]
         cameras = [self.cameras(f) for f in frames]
         return refine(self.avatar, self.refiner, start, cameras, images, self.background, self.passes)[-1]
+
+
+class RefinerInference:
+    """A run's refiner as ``refine-tracking``, Blender's Improve Tracking and ``eval`` use it:
+    ``passes`` refiner passes from :class:`AlignedTrackedParams` on every timestep, then
+    ``fit_steps`` of test-time fitting from the refiner's answer on the timesteps whose parameters
+    training did not fit (the unseen ones; every timestep of a run that kept the tracking).
+
+    Why not fit everywhere: a fine-tuned run fitted its training timesteps to every view already,
+    and fitting from there moved them off (docs/results.md, "Fitting at full size").
+    """
+
+    uses_images = True
+
+    def __init__(self, avatar, capture: Capture, run, refiner, passes: int = 1, views: int = 4,
+                 fit_steps: int = 10, cameras: InputCameras | None = None):
+        self.start = AlignedTrackedParams(capture, run)
+        self.refined = RefinedParams(avatar, capture, self.start, refiner, run.background, passes=passes,
+                                     max_views=views, cameras=cameras)
+        self.fitted = (FittedParams(avatar, capture, self.refined, fit_steps, run.background, cameras=cameras)
+                       if fit_steps else None)
+        self.fitted_by_training = set(run.trained_timesteps) if self.start.offset else set()
+        self.inputs: list[tuple[str | None, list[str]]] = []
+        self.description = self.refined.description + (
+            f", then {fit_steps} fitting steps on the timesteps training did not fit" if fit_steps else "")
+
+    def fits(self, timestep: int) -> bool:
+        """Whether ``timestep`` gets test-time fitting after the refiner."""
+        return self.fitted is not None and timestep not in self.fitted_by_training
+
+    def params_for(self, frame: Frame | int, exclude_view: str | None = None) -> dict[str, np.ndarray]:
+        source = self.fitted if self.fits(timestep_of(frame)) else self.refined
+        params = source.params_for(frame, exclude_view)
+        if source.inputs:
+            self.inputs.append(source.inputs[-1])
+        return params
 
 
 def run_refiner(run_root, avatar):
