@@ -151,11 +151,14 @@ def test_eval_scores_a_run_with_a_refiner_as_refine_tracking_applies_it(run_root
     from mogaface.core.evaluate.sources.refined import RefinerInference
 
     fitted, refined = [], []
-    fit, refine = FittedParams.params_for, RefinedParams.params_for
-    monkeypatch.setattr(FittedParams, "params_for",
-                        lambda self, frame, exclude_view=None: fitted.append(frame) or fit(self, frame, exclude_view))
-    monkeypatch.setattr(RefinedParams, "params_for",
-                        lambda self, frame, exclude_view=None: refined.append(frame) or refine(self, frame, exclude_view))
+
+    def spy(cls, calls):
+        real = cls.params_for
+        monkeypatch.setattr(cls, "params_for", lambda self, frame, exclude_view=None:
+                            calls.append(frame) or real(self, frame, exclude_view))
+
+    spy(FittedParams, fitted)
+    spy(RefinedParams, refined)
     result = evaluate_run(run_root, ["novel_view", "self_reenactment"], 2, lpips=False, out_dir=tmp_path)
     run = RunFolder(run_root)
     trained = set(run.trained_timesteps)

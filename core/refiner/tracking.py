@@ -77,8 +77,9 @@ def refine_tracking(run_dir, out=None, capture=None, passes: int = 1, views: int
     ``passes``, ``views`` and ``fit_steps`` are those of
     :class:`..evaluate.sources.refined.RefinerInference`: the refiner on every timestep (``views``
     spread over the rig), then fitting to all the views of each timestep whose parameters training
-    did not fit (slower, and it reads the expression better; docs/results.md). Events: the refiner's own when it is trained first, then ``iter`` with
-    ``stage="frames"`` per timestep, then ``done`` (or ``stopped`` when ``should_stop`` said so).
+    did not fit (slower, and it reads the expression better; docs/results.md). Events: the
+    refiner's own when it is trained first, then ``iter`` with ``stage="frames"`` per timestep,
+    then ``done`` (or ``stopped`` when ``should_stop`` said so).
     """
     import torch
 

@@ -86,9 +86,9 @@ class RefinerInference:
 
     def params_for(self, frame: Frame | int, exclude_view: str | None = None) -> dict[str, np.ndarray]:
         source = self.fitted if self.fits(timestep_of(frame)) else self.refined
+        seen = len(source.inputs)
         params = source.params_for(frame, exclude_view)
-        if source.inputs:
-            self.inputs.append(source.inputs[-1])
+        self.inputs.extend(source.inputs[seen:])
         return params
 
 
