@@ -89,7 +89,9 @@ class CamerasSection:
     refine: bool = _setting(False, "learn a 6-DoF offset per training camera (shared by all timesteps) for captures "
                                    "whose calibration is off; writes RUN/cameras_refined.json")
     rotation_lr: float = _setting(2e-3, "learning rate of the camera rotation offsets (radians)")
-    translation_lr: float = _setting(2e-4, "learning rate of the camera centre offsets (metres)")
+    translation_lr: float = _setting(0.0, "learning rate of the camera centre offsets (metres); 0: the centres "
+                                          "move only with the rig's rigid motion that the gauge takes out (the "
+                                          "images pin a sideways centre shift too weakly: docs/results.md)")
     begin: float = _setting(0.45, "fraction of the last round's steps after which its camera offsets move (they "
                                   "hold still while its avatar forms; earlier rounds move them from the first step)")
     final_ratio: float = _setting(1.0, "the camera rates at the last step, as a fraction of the first (exponential "
