@@ -220,7 +220,7 @@ def test_by_default_only_the_rotations_are_stepped_and_the_centres_move_with_the
     state = load_checkpoint(latest_checkpoint(tmp_path / "run" / "checkpoints"))["cameras"]
     assert state["rotation"].abs().max() > 1e-4
     calibrated = Capture.open(capture).cameras
-    centres = np.stack([-calibrated[cid].w2c[:3, :3].T @ calibrated[cid].w2c[:3, 3] for cid in state["ids"]])
+    centres = np.stack([calibrated[cid].center for cid in state["ids"]])
     # every centre shift is ω₀ × c_i + t₀ for one (ω₀, t₀): a rigid motion of the rig, nothing per camera
     basis = np.stack([np.stack([np.cross(np.eye(3)[k], c) for k in range(3)], 1) for c in centres])
     basis = np.concatenate([basis, np.tile(np.eye(3), (len(centres), 1, 1))], 2).reshape(-1, 6)
