@@ -49,7 +49,7 @@ class CameraOffsets(nn.Module):
         self.gauge = gauge
         self.rotation = nn.ParameterList([nn.Parameter(torch.zeros(3)) for _ in self.ids])
         self.translation = nn.ParameterList([nn.Parameter(torch.zeros(3)) for _ in self.ids])
-        centres = np.stack([_centre(cameras[cid]) for cid in self.ids])
+        centres = np.stack([cameras[cid].center for cid in self.ids])
         self.register_buffer("centres", torch.as_tensor(centres, dtype=torch.float32))
         self._rigid_basis = _rigid_motions(centres)
 
@@ -109,7 +109,7 @@ class CameraOffsets(nn.Module):
                                                     "(cameras of another capture?)")
             turn = start.w2c[:3, :3].T @ calibrated.w2c[:3, :3]  # exp(ω) = R_start · R_calibrated⁻¹ (camera-to-world)
             self.rotation[i].copy_(_axis_angle(turn))
-            self.translation[i].copy_(torch.as_tensor(_centre(start) - _centre(calibrated)))
+            self.translation[i].copy_(torch.as_tensor(start.center - calibrated.center))
 
     def refined_camera(self, camera_id: str) -> Camera:
         """The calibrated camera moved by its offset (float64 numbers, same intrinsics)."""
@@ -117,7 +117,7 @@ class CameraOffsets(nn.Module):
         i = self.index[camera_id]
         rotation = axis_angle_to_matrix(self.rotation[i].detach().double()).numpy()
         c2w_rotation = rotation @ camera.w2c[:3, :3].T
-        centre = _centre(camera) + self.translation[i].detach().double().numpy()
+        centre = camera.center + self.translation[i].detach().double().numpy()
         w2c = np.eye(4)
         w2c[:3, :3] = c2w_rotation.T
         w2c[:3, 3] = -c2w_rotation.T @ centre
@@ -165,10 +165,6 @@ def _axis_angle(matrix: np.ndarray) -> torch.Tensor:
     vector = torch.tensor(xyz, dtype=torch.float64)
     norm = float(vector.norm())
     return (vector * (2.0 * np.arctan2(norm, w) / norm) if norm > 1e-12 else 2.0 * vector).float()
-
-
-def _centre(camera: Camera) -> np.ndarray:
-    return -camera.w2c[:3, :3].T @ camera.w2c[:3, 3]
 
 
 def write_refined_cameras(path: str | os.PathLike, offsets: CameraOffsets) -> None:
