@@ -1,7 +1,9 @@
 """The multi-view refiner: its offsets have the asked scale, a pass is the weighted least-squares
-solution (against numpy's), a refiner trained on rendered crops reads new offsets from full-size
-images, a step the views do not support is refused, its file round-trips and refuses damaged or
-hostile files, and the command writes a refiner that ``eval`` then uses."""
+solution (against numpy's), the full-size step's gradient and curvature are the derivatives of the
+crops (against finite differences along other directions) and its step reads a small offset, a
+refiner trained on rendered crops reads new offsets from full-size images, a step the views do not
+support is refused, its file round-trips and refuses damaged or hostile files, and the command
+writes a refiner that ``eval`` then uses."""
 
 import pathlib
 import shutil
@@ -18,8 +20,8 @@ from mogaface.core.refiner.groups import GROUPS, add_offset, flatten, group_size
 from mogaface.core.refiner.inference import refine
 from mogaface.core.refiner.model import LinearRefiner
 from mogaface.core.refiner.sampler import OffsetSampler
-from mogaface.core.refiner.training import RefinerSettings, frozen_avatar, train_refiner
-from mogaface.core.refiner.views import posed
+from mogaface.core.refiner.training import DEFAULT_SPEC, RefinerSettings, _curvatures, _Run, frozen_avatar, train_refiner
+from mogaface.core.refiner.views import crop_cameras, full_size_gradient, posed, render_crop
 from test_evaluate_fixtures import fake_run, tiny_capture
 
 SMALL = {"grid": 8, "render_limit": 64, "prior": 1e-3, "gap_rank": 2}
@@ -48,15 +50,19 @@ def test_sampler_offsets_have_the_asked_scale():
 
 
 def _random_refiner(n_expr: int, cameras=("a", "b", "c"), grid: int = 4, seed: int = 0, gap: float = 0.0,
-                    rank: int = 2):
+                    rank: int = 2, curvature: float = 0.0):
+    """Random matrices; ``curvature`` 0: never measured, so a pass takes no full-size step."""
     gen = torch.Generator().manual_seed(seed)
     count, features = len(scale_vector(n_expr)), 3 * grid * grid
-    return LinearRefiner({"grid": grid, "render_limit": 64, "n_expr": n_expr, "prior": 1e-6, "gap_rank": rank},
+    roots = torch.randn(len(cameras), count, count, generator=gen)
+    return LinearRefiner({"grid": grid, "render_limit": 64, "n_expr": n_expr, "prior": 1e-6, "gap_rank": rank,
+                          "full_size_steps": 1, "damping": 1e-3},
                          list(cameras), torch.randn(len(cameras), features, count, generator=gen),
                          torch.rand(len(cameras), features, generator=gen) + 0.5,
                          gap * torch.randn(len(cameras), features, generator=gen),
                          torch.rand(len(cameras), features, generator=gen),
-                         gap * torch.randn(len(cameras), rank, features, generator=gen))
+                         gap * torch.randn(len(cameras), rank, features, generator=gen),
+                         curvature * roots @ roots.transpose(1, 2))
 
 
 def test_a_pass_is_the_weighted_least_squares_solution_over_the_views_it_is_given():
@@ -85,6 +91,86 @@ def test_a_pass_is_the_weighted_least_squares_solution_over_the_views_it_is_give
     assert not np.allclose(diagonal_only.offset(torch.as_tensor(noisy), views), refiner.offset(torch.as_tensor(noisy), views))
     with pytest.raises(InputError, match="'z'"):
         refiner.offset(torch.as_tensor(features[:1]), ["z"])
+
+
+def _full_size_frame(run_root, seed=0):
+    """The avatar, its run, one timestep's crops (every camera) at the tracked parameters, and the
+    avatar's own renders there at a small known translation offset (the observation)."""
+    avatar = frozen_avatar(run_root)
+    folder = RunFolder(run_root)
+    capture = Capture.open(folder.capture_root)
+    run = _Run(folder, capture)
+    n_expr = avatar.flame.n_expr
+    t = run.timesteps[0]
+    start = run.params[t]
+    offset = OffsetSampler(n_expr, width=1.0, seed=seed, groups=("translation",))()
+    crops = crop_cameras([run.cameras.at(c, t) for c in run.camera_ids], posed(avatar, start).vertices, 64)
+    observed = [render_crop(posed(avatar, add_offset(start, offset, n_expr)), crop, run.background) for crop in crops]
+    return avatar, run, t, start, offset, crops, observed
+
+
+def _crop_loss(avatar, params, crops, observed, background) -> float:
+    """What the full-size gradient descends, rendered without autograd: Σ_v ‖o_v − r_v‖² / (2·pixels_v)."""
+    head = posed(avatar, params)
+    return sum(float(((render_crop(head, crop, background) - seen) ** 2).sum()) / (2 * crop[1].width ** 2)
+               for crop, seen in zip(crops, observed))
+
+
+def test_the_full_size_gradient_and_curvature_are_the_crops_derivatives(run_root):
+    """Against central differences along random directions (the curvature was measured by forward
+    differences along each regressed value, the gradient by autograd): ``−gᵀu`` is the loss's slope
+    along ``u`` and ``uᵀHu`` the mean squared change of the crops' pixels. The tolerance is wide
+    (the tiny head's float32 renders scatter); a lost scale, pixel count or sign is far outside it."""
+    avatar, run, t, start, _, crops, observed = _full_size_frame(run_root)
+    n_expr = avatar.flame.n_expr
+    gradient = full_size_gradient(avatar, start, crops, observed, run.background, n_expr).numpy()
+    run.timesteps = [t]  # the curvature at this frame alone
+    settings = RefinerSettings(curvature_timesteps=1, spec={**SMALL, "render_limit": 64})
+    spec = {"render_limit": 64, "full_size_steps": 1, "n_expr": n_expr}
+    curvature = _curvatures(avatar, run, settings, spec, np.random.default_rng(0), lambda *a, **k: None,
+                            lambda: False).numpy()
+    scales = scale_vector(n_expr).numpy()
+    rng = np.random.default_rng(4)
+    eps = 0.2  # smaller steps amplify the float32 renders' noise in the squared change
+    for name in ("translation", "rotation"):  # the groups a 48 px head shows clearly
+        u = np.zeros(len(scales))
+        u[_group_slice(name, n_expr)] = rng.normal(size=3)
+        plus, minus = (add_offset(start, (sign * eps * u * scales).astype(np.float32), n_expr) for sign in (1, -1))
+        slope = (_crop_loss(avatar, plus, crops, observed, run.background)
+                 - _crop_loss(avatar, minus, crops, observed, run.background)) / (2 * eps)
+        assert -gradient @ u == pytest.approx(slope, rel=0.3), name  # float32 renders: differences scatter ±15 %
+        if name != "translation":  # at 48 px a rotation this small is sub-pixel: its squared change is noise
+            continue
+        measured = sum(float(u @ curvature[i] @ u) for i in range(len(crops)))
+        change = sum(float((((render_crop(posed(avatar, plus), crop, run.background)
+                              - render_crop(posed(avatar, minus), crop, run.background)) / (2 * eps)) ** 2).sum())
+                     / crop[1].width ** 2 for crop in crops)
+        assert measured == pytest.approx(change, rel=0.3), name
+
+
+def _group_slice(name: str, n_expr: int) -> slice:
+    at = 0
+    for group, size in group_sizes(n_expr).items():
+        if group == name:
+            return slice(at, at + size)
+        at += size
+    raise KeyError(name)
+
+
+def test_one_full_size_step_reads_a_small_offset_from_the_crops(run_root):
+    """The avatar's own crops at a tracker-sized translation offset: one damped Gauss–Newton step
+    with the measured curvature takes most of it out."""
+    avatar, run, t, start, offset, crops, observed = _full_size_frame(run_root, seed=2)
+    n_expr = avatar.flame.n_expr
+    refiner = _random_refiner(n_expr, cameras=run.camera_ids)
+    refiner.spec["damping"] = DEFAULT_SPEC["damping"]
+    refiner.curvature = _curvatures(avatar, run, RefinerSettings(curvature_timesteps=3),
+                                    {"render_limit": 64, "full_size_steps": 1, "n_expr": n_expr},
+                                    np.random.default_rng(0), lambda *a, **k: None, lambda: False)
+    gradient = full_size_gradient(avatar, start, crops, observed, run.background, n_expr)
+    step = refiner.full_size_offset(gradient, run.camera_ids)
+    left = (step - offset)[_group_slice("translation", n_expr)]
+    assert np.linalg.norm(left) < 0.35 * np.linalg.norm(offset), (left, offset[_group_slice("translation", n_expr)])
 
 
 def _known_offsets(avatar, capture, refiner, width, count=6, seed=11, groups=None):
@@ -128,14 +214,14 @@ def test_a_refiner_trained_on_rendered_offsets_reads_new_ones_from_full_size_ima
     events = []
     result = train_refiner(run_root, settings, out=tmp_path / "refiner.pt", listeners=[events.append])
     assert events[0]["event"] == "start" and events[-1]["event"] == "done"
-    assert {e.get("stage") for e in events if e["event"] == "iter"} == {"offsets"}
+    assert {e.get("stage") for e in events if e["event"] == "iter"} == {"offsets", "curvature"}
     assert result["samples_per_camera"] == 48 and (tmp_path / "refiner.pt").exists()
     avatar = frozen_avatar(run_root)
     capture = Capture.open(RunFolder(run_root).capture_root)
     refiner, trained = load_refiner(tmp_path / "refiner.pt", avatar.flame.n_expr)
     assert trained["explained"] > 0.5 and refiner.camera_ids == ["cam00", "cam01", "cam02"]
     error, zero = _known_offsets(avatar, capture, refiner, width, groups=("translation",))["translation"]
-    assert error < 0.25 * zero, (error, zero)  # 0.08 at this seed
+    assert error < 0.25 * zero, (error, zero)  # 0.30 against 4.2 at this seed
 
 
 def _nonsense_frame(run_root):
@@ -219,7 +305,7 @@ def test_the_refiner_renders_a_modulated_avatar_with_its_texture_attention(run_r
 
 
 def test_refiner_file_round_trip(tmp_path):
-    refiner = _random_refiner(5, gap=0.2)
+    refiner = _random_refiner(5, gap=0.2, curvature=1.0)
     save_refiner(refiner, tmp_path / "refiner.pt", {"samples_per_camera": 7})
     assert [p.name for p in tmp_path.iterdir()] == ["refiner.pt"]  # no temporary file left
     loaded, trained = load_refiner(tmp_path / "refiner.pt", n_expr=5)
@@ -227,6 +313,9 @@ def test_refiner_file_round_trip(tmp_path):
     assert loaded.camera_ids == refiner.camera_ids
     features = torch.rand(2, 48, dtype=torch.float64)
     np.testing.assert_allclose(loaded.offset(features, ["b", "c"]), refiner.offset(features, ["b", "c"]), rtol=1e-4)
+    gradient = torch.rand(len(refiner.scales), dtype=torch.float64)
+    np.testing.assert_allclose(loaded.full_size_offset(gradient, ["a"]), refiner.full_size_offset(gradient, ["a"]),
+                               rtol=1e-4)
 
 class _Hostile:
     def __reduce__(self):
@@ -237,6 +326,11 @@ class _Hostile:
     (lambda s: b"not a torch file", None),
     (lambda s: {**s, "format": "mogaface-modules"}, "format"),
     (lambda s: {**s, "version": 1}, "version"),  # the earlier convolutional refiner
+    (lambda s: {**s, "version": 2}, "train-refiner"),  # no curvature yet: train it again
+    (lambda s: {**s, "spec": {**s["spec"], "full_size_steps": -1}}, "spec.full_size_steps"),
+    (lambda s: {**s, "spec": {**s["spec"], "damping": 0.0}}, "spec.damping"),
+    (lambda s: {**s, "state": {**s["state"], "curvature": -s["state"]["curvature"]}}, "state.curvature"),
+    (lambda s: {**s, "state": {**s["state"], "curvature": s["state"]["curvature"][:, :3]}}, "state.curvature"),
     (lambda s: {**s, "spec": {**s["spec"], "grid": "four"}}, "spec.grid"),
     (lambda s: {**s, "spec": {**s["spec"], "prior": float("nan")}}, "spec.prior"),
     (lambda s: {**s, "spec": {**s["spec"], "n_expr": 6}}, "spec.n_expr"),
@@ -251,7 +345,7 @@ class _Hostile:
 ])
 def test_a_damaged_or_hostile_refiner_file_is_a_clear_error(tmp_path, damage, field):
     path = tmp_path / "refiner.pt"
-    save_refiner(_random_refiner(5), path)
+    save_refiner(_random_refiner(5, curvature=1.0), path)
     state = damage(torch.load(path, weights_only=True))
     if isinstance(state, bytes):
         path.write_bytes(state)

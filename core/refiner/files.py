@@ -17,8 +17,11 @@ from .model import SPEC_KEYS, LinearRefiner
 
 REFINER_FILE = "refiner.pt"
 REFINER_FORMAT = "mogaface-refiner"
-REFINER_VERSION = 2  # 1 was a convolutional network: files of it are refused by the version check
-_LIMITS = {"grid": (2, 128), "render_limit": (8, 4096), "n_expr": (1, 400), "prior": (1e-6, 1e6), "gap_rank": (0, 64)}
+# 1 was a convolutional network, 2 had no full-size curvature: files of either are refused by the version check
+REFINER_VERSION = 3
+_LIMITS = {"grid": (2, 128), "render_limit": (8, 4096), "n_expr": (1, 400), "prior": (1e-6, 1e6), "gap_rank": (0, 64),
+           "full_size_steps": (0, 16), "damping": (1e-12, 1e6)}
+_NUMBERS = ("prior", "damping")
 _MAX_CAMERAS = 1024
 
 
@@ -35,9 +38,9 @@ def _checked_spec(spec, source) -> dict:
     for key in SPEC_KEYS:
         value = spec.get(key)
         low, high = _LIMITS[key]
-        kinds = (int, float) if key == "prior" else (int,)
+        kinds = (int, float) if key in _NUMBERS else (int,)
         if not isinstance(value, kinds) or isinstance(value, bool) or not low <= value <= high:
-            raise InputError(source, f"spec.{key}", f"expected {'a number' if key == 'prior' else 'an integer'} "
+            raise InputError(source, f"spec.{key}", f"expected {'a number' if key in _NUMBERS else 'an integer'} "
                                                     f"in [{low:g}, {high:g}], got {value!r}")
     return {k: spec[k] for k in SPEC_KEYS}
 
@@ -52,6 +55,9 @@ def _checked_cameras(cameras, source) -> list[str]:
 def load_refiner(path: str | os.PathLike, n_expr: int | None = None) -> tuple[LinearRefiner, dict]:
     """``(refiner, how it was trained)``; ``n_expr``: the avatar's expression count it must match."""
     state = load_torch_state(path, "refiner file")
+    if isinstance(state, dict) and state.get("format") == REFINER_FORMAT and state.get("version") in (1, 2):
+        raise InputError(path, "version", f"written by an earlier refiner (version {state['version']}, this one reads "
+                                          f"{REFINER_VERSION}): run 'train-refiner RUN' again")
     check_format(state, path, REFINER_FORMAT, REFINER_VERSION)
     spec = _checked_spec(state.get("spec"), path)
     if n_expr is not None and spec["n_expr"] != n_expr:
@@ -64,7 +70,7 @@ def load_refiner(path: str | os.PathLike, n_expr: int | None = None) -> tuple[Li
     features, count = 3 * spec["grid"] ** 2, len(scale_vector(spec["n_expr"]))
     shapes = {"forward": (len(cameras), features, count), "residual": (len(cameras), features),
               "gap_mean": (len(cameras), features), "gap_var": (len(cameras), features),
-              "gap_basis": (len(cameras), spec["gap_rank"], features)}
+              "gap_basis": (len(cameras), spec["gap_rank"], features), "curvature": (len(cameras), count, count)}
     for key, shape in shapes.items():
         value = tensors.get(key)
         if not isinstance(value, torch.Tensor) or not value.is_floating_point():
@@ -76,6 +82,8 @@ def load_refiner(path: str | os.PathLike, n_expr: int | None = None) -> tuple[Li
     for key in ("residual", "gap_var"):
         if bool((tensors[key] < 0).any()) or (key == "residual" and not bool((tensors[key] > 0).all())):
             raise InputError(path, f"state.{key}", "a variance must be positive")
+    if bool((torch.diagonal(tensors["curvature"], dim1=-2, dim2=-1) < 0).any()):
+        raise InputError(path, "state.curvature", "a mean JᵀJ has no negative diagonal")
     extra = sorted(set(tensors) - set(shapes))
     if extra:
         raise InputError(path, f"state.{extra[0]}", "not a part of this refiner")

@@ -37,11 +37,16 @@ def flatten(params: dict[str, np.ndarray], n_expr: int) -> np.ndarray:
                            for name, size in group_sizes(n_expr).items()]).astype(np.float32)
 
 
+def split(offset, n_expr: int) -> dict:
+    """A flat offset (numpy or torch) as ``{group: its slice}``, in :func:`flatten` order."""
+    parts, start = {}, 0
+    for name, size in group_sizes(n_expr).items():
+        parts[name] = offset[start:start + size]
+        start += size
+    return parts
+
+
 def add_offset(params: dict[str, np.ndarray], offset: np.ndarray, n_expr: int) -> dict[str, np.ndarray]:
     """``params`` with a flat offset added to the regressed groups (others kept as they are)."""
-    out = dict(params)
-    start = 0
-    for name, size in group_sizes(n_expr).items():
-        out[name] = (np.asarray(params[name], np.float32) + offset[start:start + size]).astype(np.float32)
-        start += size
-    return out
+    return {**params, **{name: (np.asarray(params[name], np.float32) + part).astype(np.float32)
+                         for name, part in split(offset, n_expr).items()}}

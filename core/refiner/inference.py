@@ -1,5 +1,6 @@
 """Refining one frame: K passes of (render at the current parameters, compare with the views,
-solve for the offset), in the head windows of the start. Every pass re-renders, so each corrects
+solve for the offset from the pooled features, then Gauss–Newton steps from the full-size crops
+at that answer), in the head windows of the start. Every pass re-renders, so each corrects
 what the last one left; in a run of several passes a pass is kept only when it lowers the
 photometric error on the views it was given (else half of it is tried), so extra passes cannot
 walk away from what the images support.
@@ -14,8 +15,8 @@ import numpy as np
 import torch
 
 from ..errors import InputError
-from .groups import add_offset
-from .views import crop_cameras, image_crop, pooled_difference, posed, render_crop
+from .groups import add_offset, flatten
+from .views import crop_cameras, full_size_gradient, image_crop, pooled_difference, posed, render_crop
 
 
 def _known_views(refiner, cameras, images):
@@ -47,11 +48,15 @@ def refine(avatar, refiner, params: dict[str, np.ndarray], cameras, images, back
     error = _error(observed, rendered)
     for done in range(passes):
         features = torch.stack([pooled_difference(o, r, refiner.grid) for o, r in zip(observed, rendered)])
-        offset = refiner.offset(features, ids)
+        solved = add_offset(params, refiner.offset(features, ids), n_expr)
+        for _ in range(refiner.full_size_steps(ids)):
+            gradient = full_size_gradient(avatar, solved, crops, observed, background, n_expr)
+            solved = add_offset(solved, refiner.full_size_offset(gradient, ids), n_expr)
         if passes == 1:
-            return [add_offset(params, offset, n_expr)]
+            return [solved]
+        move = flatten(solved, n_expr) - flatten(params, n_expr)
         for share in (1.0, 0.5):  # keep the step only where the views agree it helps (same windows)
-            candidate = add_offset(params, offset * share, n_expr)
+            candidate = add_offset(params, move * share, n_expr)
             moved = posed(avatar, candidate)
             candidate_renders = [render_crop(moved, crop, background) for crop in crops]
             candidate_error = _error(observed, candidate_renders)

@@ -14,6 +14,14 @@ leading components and ``s_v`` the variance they leave. The gap is structured (t
 the face are off together), and telling the solve which patterns are gap rather than motion was
 worth more than any other change (docs/results.md). The solve fuses any subset of the cameras it
 knows (a scored view is simply left out).
+
+Pooled cells keep the low frequencies of the difference and lose where an edge sits within a cell,
+which is where an expression shows. So a pass ends with ``full_size_steps`` Gauss–Newton steps on
+the full-size crops: the gradient ``g = Σ_v J_vᵀ(o_v − r_v) / pixels_v`` is exact (one render and
+one backward per view), and the matrix ``Σ_v H_v`` is each camera's mean ``J_vᵀJ_v / pixels_v``
+measured at training timesteps (``curvature``), damped by ``damping``:
+``x = (Σ_v H_v + damping·I)⁻¹ g``. Measuring ``J`` itself at every frame would take a render per
+regressed value and view; its mean over a few frames read the expression as well (docs/results.md).
 """
 
 from __future__ import annotations
@@ -24,15 +32,15 @@ import torch
 from ..errors import InputError
 from .groups import scale_vector
 
-SPEC_KEYS = ("grid", "render_limit", "n_expr", "prior", "gap_rank")
+SPEC_KEYS = ("grid", "render_limit", "n_expr", "prior", "gap_rank", "full_size_steps", "damping")
 
 
 class LinearRefiner:
-    """``forward`` (C, D, P), ``residual`` / ``gap_mean`` / ``gap_var`` (C, D) and ``gap_basis``
-    (C, gap_rank, D) for ``camera_ids``."""
+    """``forward`` (C, D, P), ``residual`` / ``gap_mean`` / ``gap_var`` (C, D), ``gap_basis``
+    (C, gap_rank, D) and ``curvature`` (C, P, P) for ``camera_ids``."""
 
     def __init__(self, spec: dict, camera_ids: list[str], forward: torch.Tensor, residual: torch.Tensor,
-                 gap_mean: torch.Tensor, gap_var: torch.Tensor, gap_basis: torch.Tensor):
+                 gap_mean: torch.Tensor, gap_var: torch.Tensor, gap_basis: torch.Tensor, curvature: torch.Tensor):
         self.spec = {k: spec[k] for k in SPEC_KEYS}
         self.camera_ids = list(camera_ids)
         self.forward = forward.to(torch.float64)
@@ -40,6 +48,7 @@ class LinearRefiner:
         self.gap_mean = gap_mean.to(torch.float64)
         self.gap_var = gap_var.to(torch.float64)
         self.gap_basis = gap_basis.to(torch.float64)
+        self.curvature = curvature.to(torch.float64)
         self.scales = scale_vector(spec["n_expr"]).to(torch.float64)
 
     @property
@@ -49,6 +58,12 @@ class LinearRefiner:
     def knows(self, camera_id: str) -> bool:
         return camera_id in self.camera_ids
 
+    def _index(self, camera_id: str) -> int:
+        if not self.knows(camera_id):
+            raise InputError(None, "camera", f"the refiner was trained for cameras {self.camera_ids}, "
+                                             f"not {camera_id!r}")
+        return self.camera_ids.index(camera_id)
+
     def offset(self, features: torch.Tensor, camera_ids: list[str]) -> np.ndarray:
         """The flat parameter offset (:func:`.groups.flatten` order) that best explains ``features``
         (V, D), one row per view from the cameras ``camera_ids``."""
@@ -56,14 +71,27 @@ class LinearRefiner:
         normal = self.spec["prior"] * torch.eye(size, dtype=torch.float64)
         projected = torch.zeros(size, dtype=torch.float64)
         for row, camera_id in zip(features.to(torch.float64), camera_ids):
-            if not self.knows(camera_id):
-                raise InputError(None, "camera", f"the refiner was trained for cameras {self.camera_ids}, "
-                                                 f"not {camera_id!r}")
-            c = self.camera_ids.index(camera_id)
+            c = self._index(camera_id)
             weighted = self._whitened(c, self.forward[c]).T
             normal += weighted @ self.forward[c]
             projected += weighted @ (row - self.gap_mean[c])
         return (torch.linalg.solve(normal, projected) * self.scales).numpy().astype(np.float32)
+
+    def full_size_steps(self, camera_ids: list[str]) -> int:
+        """The full-size steps a pass takes over these views: none where the curvature was never
+        measured (a refiner stopped before it)."""
+        measured = any(bool(self.curvature[self._index(c)].any()) for c in camera_ids)
+        return self.spec["full_size_steps"] if measured else 0
+
+    def full_size_offset(self, gradient: torch.Tensor, camera_ids: list[str]) -> np.ndarray:
+        """The flat offset of one damped Gauss–Newton step from the full-size ``gradient``
+        (:func:`.views.full_size_gradient` over the views of ``camera_ids``)."""
+        size = len(self.scales)
+        normal = self.spec["damping"] * torch.eye(size, dtype=torch.float64)
+        for camera_id in camera_ids:
+            normal += self.curvature[self._index(camera_id)]
+        step = torch.linalg.solve(normal, gradient.to(torch.float64))
+        return (step * self.scales).numpy().astype(np.float32)
 
     def _whitened(self, c: int, x: torch.Tensor) -> torch.Tensor:
         """``Σ_c⁻¹ x`` for the noise covariance ``diag(r + s) + BᵀB`` (Woodbury: one small solve)."""
@@ -75,4 +103,5 @@ class LinearRefiner:
 
     def tensors(self) -> dict[str, torch.Tensor]:
         return {"forward": self.forward.float(), "residual": self.residual.float(),
-                "gap_mean": self.gap_mean.float(), "gap_var": self.gap_var.float(), "gap_basis": self.gap_basis.float()}
+                "gap_mean": self.gap_mean.float(), "gap_var": self.gap_var.float(), "gap_basis": self.gap_basis.float(),
+                "curvature": self.curvature.float()}

@@ -1,4 +1,4 @@
-"""Training the refiner on a finished run, the avatar frozen; no gradient descent, two measured
+"""Training the refiner on a finished run, the avatar frozen; no gradient descent, three measured
 passes over the run:
 
 1. **Known offsets.** For a training timestep, the run's parameters are jittered (the start) and
@@ -11,6 +11,9 @@ passes over the run:
    teacher), the captured training views are compared with the avatar's renders; per camera, the
    mean of that gap, its leading components and the variance they leave tell the solve what in a
    capture is not a parameter change.
+3. **The full-size curvature.** At a few training timesteps' parameters, each camera's crop is
+   rendered at full size with every regressed value moved alone (finite differences); the mean
+   ``JᵀJ`` per pixel is the matrix of the pass's closing Gauss–Newton step (:mod:`.model`).
 """
 
 from __future__ import annotations
@@ -33,7 +36,9 @@ from .model import LinearRefiner
 from .sampler import OffsetSampler
 from .views import crop_cameras, image_crop, pooled_difference, posed, render_crop
 
-DEFAULT_SPEC = {"grid": 16, "render_limit": 512, "prior": 32.0, "gap_rank": 4}
+DEFAULT_SPEC = {"grid": 16, "render_limit": 512, "prior": 32.0, "gap_rank": 4, "full_size_steps": 2, "damping": 3e-5}
+_DIFFERENCE_STEP = 0.3  # finite-difference step of the curvature, in multiples of each group's expected error
+_CAMERAS_AT_ONCE = 4  # crops held per posing while measuring the curvature (memory: a crop per regressed value)
 
 
 @dataclasses.dataclass
@@ -41,19 +46,21 @@ class RefinerSettings:
     starts: int = 100  # jittered training frames rendered in every camera's window
     offsets_per_start: int = 4  # observations per start (so ``starts × offsets_per_start`` samples per camera)
     gap_timesteps: int = 40  # training timesteps whose captures measure the gap
+    curvature_timesteps: int = 4  # training timesteps at which the full-size curvature is measured
     seed: int = 0
     threads: int = 2
     offset_width: float = 1.0  # offsets in multiples of each group's expected error (:mod:`.sampler`)
     offset_groups: tuple[str, ...] | None = None  # None: every group of :mod:`.groups`
     ridge: float = 1e-3
-    spec: dict = dataclasses.field(default_factory=lambda: dict(DEFAULT_SPEC))
+    spec: dict = dataclasses.field(default_factory=lambda: dict(DEFAULT_SPEC))  # a partial one: defaults for the rest
 
     def check(self) -> None:
         for name in ("starts", "offsets_per_start", "threads"):
             if getattr(self, name) < 1:
                 raise InputError(None, name, f"must be at least 1, got {getattr(self, name)}")
-        if self.gap_timesteps < 0:
-            raise InputError(None, "gap_timesteps", f"must be at least 0, got {self.gap_timesteps}")
+        for name in ("gap_timesteps", "curvature_timesteps"):
+            if getattr(self, name) < 0:
+                raise InputError(None, name, f"must be at least 0, got {getattr(self, name)}")
 
 
 def frozen_avatar(run_dir):
@@ -162,6 +169,41 @@ def _capture_gap(avatar, capture, run: _Run, settings, spec, rng, emit):
     return torch.stack(means), torch.stack(variances), torch.stack(bases), sorted(measured)
 
 
+def _curvatures(avatar, run: _Run, settings, spec, rng, emit, should_stop):
+    """Per camera, the mean over ``curvature_timesteps`` of ``JᵀJ / pixels`` of its full-size crop
+    (J by forward differences, in multiples of each group's expected error); zero with none (the
+    pass then takes no full-size step)."""
+    n_expr = spec["n_expr"]
+    scales = scale_vector(n_expr).numpy()
+    size = len(scales)
+    total = {c: torch.zeros(size, size, dtype=torch.float64) for c in run.camera_ids}
+    chosen = rng.permutation(run.timesteps)[:settings.curvature_timesteps if spec["full_size_steps"] else 0]
+    done = 0
+    for index, t in enumerate(chosen):
+        if should_stop():
+            break
+        params = run.params[int(t)]
+        moved = [add_offset(params, (np.eye(size)[j] * _DIFFERENCE_STEP * scales).astype(np.float32), n_expr)
+                 for j in range(size)]
+        head = posed(avatar, params)
+        for first in range(0, len(run.camera_ids), _CAMERAS_AT_ONCE):
+            ids = run.camera_ids[first:first + _CAMERAS_AT_ONCE]
+            crops = crop_cameras([run.cameras.at(c, int(t)) for c in ids], head.vertices, spec["render_limit"])
+            base = [render_crop(head, crop, run.background).flatten() for crop in crops]
+            columns = [[] for _ in ids]
+            for shifted in moved:
+                moved_head = posed(avatar, shifted)
+                for column, crop, rendered in zip(columns, crops, base):
+                    column.append((render_crop(moved_head, crop, run.background).flatten() - rendered)
+                                  / _DIFFERENCE_STEP)
+            for camera_id, column, crop in zip(ids, columns, crops):
+                jacobian = torch.stack(column, 1).double()
+                total[camera_id] += jacobian.T @ jacobian / (crop[1].width * crop[1].height)
+        done += 1
+        emit("iter", step=index + 1, steps=len(chosen), stage="curvature")
+    return torch.stack([total[c] / max(1, done) for c in run.camera_ids])
+
+
 def train_refiner(run_dir, settings: RefinerSettings | None = None, out: str | pathlib.Path | None = None,
                   listeners=(), should_stop=lambda: False) -> dict:
     """Train a refiner for ``run_dir``'s avatar; write it to ``out`` (default ``RUN/refiner.pt``)."""
@@ -173,7 +215,7 @@ def train_refiner(run_dir, settings: RefinerSettings | None = None, out: str | p
     capture = folder.open_capture()
     avatar = frozen_avatar(folder.root)
     run = _Run(folder, capture)
-    spec = {**settings.spec, "n_expr": avatar.flame.n_expr}
+    spec = {**DEFAULT_SPEC, **settings.spec, "n_expr": avatar.flame.n_expr}
 
     def emit(event: str, **fields):
         for listener in listeners:
@@ -183,10 +225,11 @@ def train_refiner(run_dir, settings: RefinerSettings | None = None, out: str | p
     began = time.perf_counter()
     forward, residual, samples, explained = _forward_models(avatar, capture, run, settings, spec, rng, emit,
                                                             should_stop)
-    if should_stop():  # stopped: keep the offsets learnt so far, measure no gap
-        settings = dataclasses.replace(settings, gap_timesteps=0)
+    if should_stop():  # stopped: keep the offsets learnt so far, measure no gap and no curvature
+        settings = dataclasses.replace(settings, gap_timesteps=0, curvature_timesteps=0)
     gap_mean, gap_var, gap_basis, gap_cameras = _capture_gap(avatar, capture, run, settings, spec, rng, emit)
-    refiner = LinearRefiner(spec, run.camera_ids, forward, residual, gap_mean, gap_var, gap_basis)
+    curvature = _curvatures(avatar, run, settings, spec, rng, emit, should_stop)
+    refiner = LinearRefiner(spec, run.camera_ids, forward, residual, gap_mean, gap_var, gap_basis, curvature)
     trained = {"samples_per_camera": samples, "seed": settings.seed, "gap_cameras": gap_cameras,
                "seconds": time.perf_counter() - began, "explained": explained}
     path = pathlib.Path(out) if out is not None else folder.root / REFINER_FILE

@@ -1,6 +1,7 @@
 """One frame's views as the refiner sees them: per view the head's window, the observed crop and the
 avatar's render in the same window at the current parameters (no gradient), and their difference
-area-pooled to the refiner's grid.
+area-pooled to the refiner's grid; and, for the full-size step, the gradient of the crops' squared
+difference with respect to the regressed parameters.
 
 Crops are rendered at the window's own pixel size (up to ``render_limit``) and pooled afterwards:
 a Gaussian avatar rendered directly at a few dozen pixels is not the area average of its
@@ -19,6 +20,7 @@ import torch.nn.functional as F
 from ..avatar.avatar import flame_params_to_torch
 from ..mogaface.avatar import render_world
 from .crops import crop_camera, crop_image, head_window
+from .groups import scale_vector, split
 
 
 @dataclasses.dataclass(frozen=True)
@@ -63,3 +65,22 @@ def image_crop(image, crop, background) -> torch.Tensor:
 def pooled_difference(observed: torch.Tensor, rendered: torch.Tensor, grid: int) -> torch.Tensor:
     """The refiner's feature of one view: ``(3·grid²,)``."""
     return F.adaptive_avg_pool2d((observed - rendered)[None], grid).flatten()
+
+
+def full_size_gradient(avatar, params: dict[str, np.ndarray], crops, observed, background, n_expr: int
+                       ) -> torch.Tensor:
+    """``Σ_v J_vᵀ(o_v − r_v) / pixels_v`` at ``params``, in the refiner's units (each group's
+    expected error): what every full-size pixel of the crops says about the parameters, where the
+    pooled features keep only each cell's mean. One render and one backward per view."""
+    scales = scale_vector(n_expr)
+    offset = torch.zeros(len(scales), requires_grad=True)
+    flame_params = flame_params_to_torch(params)
+    with torch.enable_grad():
+        for name, part in split(offset * scales, n_expr).items():
+            flame_params[name] = flame_params[name] + part[None]
+        vertices = avatar.posed_vertices(flame_params)
+        world = avatar.world_posed(vertices, flame_params)
+        loss = sum(((render_world(world, crop[1], background).rgb.clamp(0, 1).permute(2, 0, 1) - seen) ** 2).sum()
+                   / (2 * crop[1].width * crop[1].height) for crop, seen in zip(crops, observed))
+        (gradient,) = torch.autograd.grad(loss, offset)
+    return -gradient.detach()
