@@ -203,6 +203,29 @@ def test_a_run_without_a_refiner_gets_one_and_a_stop_keeps_none(run_root, tmp_pa
     assert [e["event"] for e in events].count("done") == 1  # the refiner's own start/done stay inside
 
 
+def test_a_refiner_of_an_earlier_version_is_trained_again(run_root, tmp_path):
+    """A run refined before the full-size steps holds a version-2 refiner: ``refine-tracking``
+    replaces it rather than failing (Blender's Improve Tracking has no other way to renew it)."""
+    import torch
+
+    from mogaface.core.refiner.files import REFINER_VERSION, load_refiner
+
+    old = tmp_path / "run"
+    shutil.copytree(run_root, old)
+    state = torch.load(old / "refiner.pt", weights_only=True)
+    state["version"] = 2
+    del state["state"]["curvature"]
+    torch.save(state, old / "refiner.pt")
+    with pytest.raises(InputError, match="train-refiner"):
+        load_refiner(old / "refiner.pt")
+    events = []
+    result = refine_tracking(old, refiner_settings=RefinerSettings(**TINY), passes=1, views=2, fit_steps=0,
+                             threads=1, listeners=[events.append])
+    assert result["state"] == "done"
+    assert torch.load(old / "refiner.pt", weights_only=True)["version"] == REFINER_VERSION
+    assert "refiner curvature" in {e.get("stage") for e in events if e["event"] == "iter"}
+
+
 def test_a_stopped_job_leaves_the_previous_result_and_a_foreign_folder_is_refused(run_root, tmp_path):
     out = tmp_path / "refined"
     refine_tracking(run_root, out=out, passes=1, views=2, threads=1)

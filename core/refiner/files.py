@@ -52,10 +52,19 @@ def _checked_cameras(cameras, source) -> list[str]:
     return cameras
 
 
+def _earlier_version(state) -> bool:
+    return isinstance(state, dict) and state.get("format") == REFINER_FORMAT and state.get("version") in (1, 2)
+
+
+def is_outdated(path: str | os.PathLike) -> bool:
+    """Whether ``path`` holds a refiner of an earlier version (to be trained again, not read)."""
+    return _earlier_version(load_torch_state(path, "refiner file"))
+
+
 def load_refiner(path: str | os.PathLike, n_expr: int | None = None) -> tuple[LinearRefiner, dict]:
     """``(refiner, how it was trained)``; ``n_expr``: the avatar's expression count it must match."""
     state = load_torch_state(path, "refiner file")
-    if isinstance(state, dict) and state.get("format") == REFINER_FORMAT and state.get("version") in (1, 2):
+    if _earlier_version(state):
         raise InputError(path, "version", f"written by an earlier refiner (version {state['version']}, this one reads "
                                           f"{REFINER_VERSION}): run 'train-refiner RUN' again")
     check_format(state, path, REFINER_FORMAT, REFINER_VERSION)

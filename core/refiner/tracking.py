@@ -6,7 +6,8 @@ The output folder (default ``RUN/refined_tracking``) holds the capture's ``flame
 (``flame_param/00042.npz``; each sequence's own folder in a union capture) and
 ``refined_tracking.json`` (what was done, from what). It is written under a temporary name and
 renamed when complete: a cancelled or failed job leaves the previous result as it was. A run
-without a refiner gets one first (:func:`.training.train_refiner`, its stages reported as usual).
+without a refiner, or with one of an earlier version, gets one first
+(:func:`.training.train_refiner`, its stages reported as usual).
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ from ..evaluate.sources.refined import RefinerInference, run_refiner
 from ..evaluate.sources.tracked import TrackedParams
 from ..io.atomic import write_json
 from ..io.npz import save_npz
-from .files import REFINER_FILE
+from .files import REFINER_FILE, is_outdated
 from .training import RefinerSettings, frozen_avatar, train_refiner
 
 REFINED_TRACKING_DIR = "refined_tracking"
@@ -100,7 +101,7 @@ def refine_tracking(run_dir, out=None, capture=None, passes: int = 1, views: int
     out = pathlib.Path(out) if out is not None else run.root / REFINED_TRACKING_DIR
     _check_replaceable(out)
     cap = run.open_capture()
-    if not (run.root / REFINER_FILE).exists():
+    if not (run.root / REFINER_FILE).exists() or is_outdated(run.root / REFINER_FILE):
         def stage_progress(event):  # its stages' steps; its start and done are not this job's
             if event["event"] == "iter":
                 emit(**{**event, "stage": f"refiner {event['stage']}"})
