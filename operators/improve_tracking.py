@@ -60,10 +60,10 @@ class MOGAFACE_OT_improve_tracking(FollowsChildJob, bpy.types.Operator):
     target: StringProperty(name="Head", description="Head object to key (empty: the active object)")
     passes: IntProperty(name="Passes", default=1, min=1, max=10, description="Refiner passes per timestep")
     views: IntProperty(name="Views", default=4, min=1, max=64, description="Views per timestep, spread over the rig")
-    fit_steps: IntProperty(name="Fitting Steps", default=10, min=0, max=200,
+    fit_steps: IntProperty(name="Fitting Steps", default=0, min=0, max=200,
                            description="Then fit each timestep whose parameters training did not fit to all "
-                                       "its views from the refiner's answer: reads the expression better, one to "
-                                       "two seconds per timestep (0: none)")
+                                       "its views from the refiner's answer: one to two seconds per timestep; it "
+                                       "read the expression slightly better and the pose worse (0: none)")
     python: StringProperty(name="Python", subtype="FILE_PATH", options={"HIDDEN", "SKIP_SAVE"},
                            description="Interpreter for the child process (empty: the preferences')")
 

@@ -16,10 +16,10 @@ def add_arguments(parser) -> None:
     parser.add_argument("--passes", type=int, default=1, help="refiner passes per timestep (default %(default)s)")
     parser.add_argument("--views", type=int, default=4, help="views per timestep, spread over the rig "
                                                              "(default %(default)s)")
-    parser.add_argument("--fit-steps", type=int, default=10,
+    parser.add_argument("--fit-steps", type=int, default=0,
                         help="then this many steps of test-time fitting to all the views from the refiner's "
-                             "answer, on the timesteps whose parameters training did not fit: reads the expression "
-                             "better, 1-2 s a timestep (default %(default)s; 0: none)")
+                             "answer, on the timesteps whose parameters training did not fit: 1-2 s a timestep; "
+                             "it read the expression slightly better and the pose worse (default %(default)s: none)")
     parser.add_argument("--threads", type=int, default=2, help="CPU threads (default %(default)s)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 

@@ -69,7 +69,7 @@ def _train_first(run_root: pathlib.Path, settings: RefinerSettings, listeners, s
         partial.unlink(missing_ok=True)
 
 
-def refine_tracking(run_dir, out=None, capture=None, passes: int = 1, views: int = 4, fit_steps: int = 10,
+def refine_tracking(run_dir, out=None, capture=None, passes: int = 1, views: int = 4, fit_steps: int = 0,
                     threads: int = 2, refiner_settings: RefinerSettings | None = None, listeners=(),
                     should_stop=lambda: False) -> dict:
     """Refine every timestep of the run's capture (``capture``: that capture, moved); returns what
@@ -77,8 +77,8 @@ def refine_tracking(run_dir, out=None, capture=None, passes: int = 1, views: int
 
     ``passes``, ``views`` and ``fit_steps`` are those of
     :class:`..evaluate.sources.refined.RefinerInference`: the refiner on every timestep (``views``
-    spread over the rig), then fitting to all the views of each timestep whose parameters training
-    did not fit (slower, and it reads the expression better; docs/results.md). Events: the
+    spread over the rig), then, with ``fit_steps``, fitting to all the views of each timestep whose
+    parameters training did not fit (three times slower; docs/results.md). Events: the
     refiner's own when it is trained first, then ``iter`` with ``stage="frames"`` per timestep,
     then ``done`` (or ``stopped`` when ``should_stop`` said so).
     """

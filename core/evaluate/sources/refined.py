@@ -58,18 +58,20 @@ class RefinedParams:
 
 class RefinerInference:
     """A run's refiner as ``refine-tracking``, Blender's Improve Tracking and ``eval`` use it:
-    ``passes`` refiner passes from :class:`AlignedTrackedParams` on every timestep, then
-    ``fit_steps`` of test-time fitting from the refiner's answer on the timesteps whose parameters
-    training did not fit (the unseen ones; every timestep of a run that kept the tracking).
+    ``passes`` refiner passes from :class:`AlignedTrackedParams` on every timestep, then, when
+    asked, ``fit_steps`` of test-time fitting from the refiner's answer on the timesteps whose
+    parameters training did not fit (the unseen ones; every timestep of a run that kept the tracking).
 
-    Why not fit everywhere: a fine-tuned run fitted its training timesteps to every view already,
-    and fitting from there moved them off (docs/results.md, "Fitting at full size").
+    No fitting by default: since a pass ends with full-size steps, fitting after it lowered the
+    held-out view's PSNR and moved the pose away (docs/results.md, "A pass that ends at full size").
+    Never on training timesteps: a fine-tuned run fitted them to every view already, and fitting
+    from there moved them off ("Fitting at full size").
     """
 
     uses_images = True
 
     def __init__(self, avatar, capture: Capture, run, refiner, passes: int = 1, views: int = 4,
-                 fit_steps: int = 10, cameras: InputCameras | None = None):
+                 fit_steps: int = 0, cameras: InputCameras | None = None):
         self.start = AlignedTrackedParams(capture, run)
         self.refined = RefinedParams(avatar, capture, self.start, refiner, run.background, passes=passes,
                                      max_views=views, cameras=cameras)
