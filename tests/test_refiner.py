@@ -365,10 +365,12 @@ def test_the_command_trains_a_refiner_that_eval_then_uses(run_root, tmp_path, ca
     run = tmp_path / "run"
     shutil.copytree(run_root, run, ignore=shutil.ignore_patterns("refiner.pt"))
     assert main(["train-refiner", str(run), "--starts", "2", "--offsets-per-start", "2", "--gap-timesteps", "2",
-                 "--threads", "1", "--quiet", "--events", "stdout"]) == 0
+                 "--curvature-timesteps", "1", "--threads", "1", "--quiet", "--events", "stdout"]) == 0
     assert '"event": "done"' in capsys.readouterr().out
-    _, trained = load_refiner(run / "refiner.pt")
+    refiner, trained = load_refiner(run / "refiner.pt")
     assert trained["gap_cameras"] == ["cam00", "cam02"]  # the held-out camera's captures are never read
+    assert refiner.full_size_steps(refiner.camera_ids) == 2  # its curvature was measured (every camera)
+    assert all(bool(refiner.curvature[i].diagonal().gt(0).all()) for i in range(len(refiner.camera_ids)))
     result = evaluate_run(run, ["self_reenactment"], 1, lpips=False, out_dir=tmp_path / "eval")
     assert result["inference"].startswith("multi-view refiner")
     assert main(["train-refiner", str(tmp_path / "missing")]) == 2

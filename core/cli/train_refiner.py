@@ -16,6 +16,9 @@ def add_arguments(parser) -> None:
                         help="known offsets rendered per start (default %(default)s)")
     parser.add_argument("--gap-timesteps", type=int, default=40,
                         help="training timesteps whose captures measure the capture-render gap (default %(default)s)")
+    parser.add_argument("--curvature-timesteps", type=int, default=4,
+                        help="training timesteps at which the full-size steps' curvature is measured "
+                             "(default %(default)s)")
     parser.add_argument("--seed", type=int, default=0, help="random seed (default %(default)s)")
     parser.add_argument("--threads", type=int, default=2, help="CPU threads (default %(default)s)")
     parser.add_argument("--out", type=pathlib.Path, help="where to write the refiner (default RUN/refiner.pt)")
@@ -29,7 +32,8 @@ def run(args) -> int:
     from ..refiner.training import RefinerSettings, train_refiner
 
     settings = RefinerSettings(starts=args.starts, offsets_per_start=args.offsets_per_start,
-                               gap_timesteps=args.gap_timesteps, seed=args.seed, threads=args.threads)
+                               gap_timesteps=args.gap_timesteps, curvature_timesteps=args.curvature_timesteps,
+                               seed=args.seed, threads=args.threads)
     listeners = []
     if args.events == "stdout":
         listeners.append(lambda e: emit_event(sys.stdout, e["event"], **{k: v for k, v in e.items() if k != "event"}))
