@@ -20,7 +20,8 @@ from mogaface.core.refiner.groups import GROUPS, add_offset, flatten, group_size
 from mogaface.core.refiner.inference import refine
 from mogaface.core.refiner.model import LinearRefiner
 from mogaface.core.refiner.sampler import OffsetSampler
-from mogaface.core.refiner.training import DEFAULT_SPEC, RefinerSettings, _curvatures, _Run, frozen_avatar, train_refiner
+from mogaface.core.refiner.training import (DEFAULT_SPEC, RefinerSettings, _curvatures, _Run, frozen_avatar,
+                                            train_refiner)
 from mogaface.core.refiner.views import crop_cameras, full_size_gradient, posed, render_crop
 from test_evaluate_fixtures import fake_run, tiny_capture
 
@@ -93,6 +94,15 @@ def test_a_pass_is_the_weighted_least_squares_solution_over_the_views_it_is_give
         refiner.offset(torch.as_tensor(features[:1]), ["z"])
 
 
+def _group_slice(name: str, n_expr: int) -> slice:
+    at = 0
+    for group, size in group_sizes(n_expr).items():
+        if group == name:
+            return slice(at, at + size)
+        at += size
+    raise KeyError(name)
+
+
 def _full_size_frame(run_root, seed=0):
     """The avatar, its run, one timestep's crops (every camera) at the tracked parameters, and the
     avatar's own renders there at a small known translation offset (the observation)."""
@@ -125,10 +135,9 @@ def test_the_full_size_gradient_and_curvature_are_the_crops_derivatives(run_root
     n_expr = avatar.flame.n_expr
     gradient = full_size_gradient(avatar, start, crops, observed, run.background, n_expr).numpy()
     run.timesteps = [t]  # the curvature at this frame alone
-    settings = RefinerSettings(curvature_timesteps=1, spec={**SMALL, "render_limit": 64})
     spec = {"render_limit": 64, "full_size_steps": 1, "n_expr": n_expr}
-    curvature = _curvatures(avatar, run, settings, spec, np.random.default_rng(0), lambda *a, **k: None,
-                            lambda: False).numpy()
+    curvature = _curvatures(avatar, run, RefinerSettings(curvature_timesteps=1), spec, np.random.default_rng(0),
+                            lambda *a, **k: None, lambda: False).numpy()
     scales = scale_vector(n_expr).numpy()
     rng = np.random.default_rng(4)
     eps = 0.2  # smaller steps amplify the float32 renders' noise in the squared change
@@ -146,15 +155,6 @@ def test_the_full_size_gradient_and_curvature_are_the_crops_derivatives(run_root
                               - render_crop(posed(avatar, minus), crop, run.background)) / (2 * eps)) ** 2).sum())
                      / crop[1].width ** 2 for crop in crops)
         assert measured == pytest.approx(change, rel=0.3), name
-
-
-def _group_slice(name: str, n_expr: int) -> slice:
-    at = 0
-    for group, size in group_sizes(n_expr).items():
-        if group == name:
-            return slice(at, at + size)
-        at += size
-    raise KeyError(name)
 
 
 def test_one_full_size_step_reads_a_small_offset_from_the_crops(run_root):
