@@ -150,9 +150,13 @@ def _train_process(copies, tmp_path):
 
 def test_interrupt_during_start_up_exits_quietly(copies, tmp_path):
     process, _ = _train_process(copies, tmp_path)
-    time.sleep(1.0)  # importing torch and numba
-    process.send_signal(signal.SIGINT)
-    _, err = process.communicate(timeout=120)
+    try:
+        time.sleep(1.0)  # importing torch and numba
+        process.send_signal(signal.SIGINT)
+        _, err = process.communicate(timeout=120)
+    finally:  # a child that missed the signal must not train on after the test
+        if process.poll() is None:
+            process.kill()
     assert process.returncode == 128 + signal.SIGINT, err
     assert "Traceback" not in err
 
