@@ -13,7 +13,7 @@ from __future__ import annotations
 import os
 
 # tracked_aligned: runs that fine-tuned; refined_fit_10: 10 fitting steps from the refiner's one pass
-# on the timesteps training did not fit (refine-tracking's default)
+# on the timesteps training did not fit (`refine-tracking --fit-steps 10`)
 SOURCES = ("tracked", "tracked_aligned", "refined_1", "refined_3", "fit_10", "refined_fit_10")
 
 
