@@ -31,12 +31,15 @@ class PosedHead:
     world: dict[str, torch.Tensor]
 
 
+def _pose(avatar, flame_params: dict[str, torch.Tensor]) -> PosedHead:
+    vertices = avatar.posed_vertices(flame_params)
+    return PosedHead(vertices, avatar.world_posed(vertices, flame_params))
+
+
 @torch.no_grad()
 def posed(avatar, params: dict[str, np.ndarray]) -> PosedHead:
     """The avatar at ``params``, with whatever of its appearance follows them (texture attention)."""
-    flame_params = flame_params_to_torch(params)
-    vertices = avatar.posed_vertices(flame_params)
-    return PosedHead(vertices, avatar.world_posed(vertices, flame_params))
+    return _pose(avatar, flame_params_to_torch(params))
 
 
 @torch.no_grad()
@@ -50,10 +53,14 @@ def crop_cameras(cameras, vertices: torch.Tensor, render_limit: int) -> list:
     return crops
 
 
+def _render(head: PosedHead, crop, background) -> torch.Tensor:
+    return render_world(head.world, crop[1], background).rgb.clamp(0, 1).permute(2, 0, 1)
+
+
 @torch.no_grad()
 def render_crop(head: PosedHead, crop, background) -> torch.Tensor:
     """``(3, S, S)`` render of the posed avatar in one crop camera."""
-    return render_world(head.world, crop[1], background).rgb.clamp(0, 1).permute(2, 0, 1)
+    return _render(head, crop, background)
 
 
 @torch.no_grad()
@@ -78,9 +85,8 @@ def full_size_gradient(avatar, params: dict[str, np.ndarray], crops, observed, b
     with torch.enable_grad():
         for name, part in split(offset * scales, n_expr).items():
             flame_params[name] = flame_params[name] + part[None]
-        vertices = avatar.posed_vertices(flame_params)
-        world = avatar.world_posed(vertices, flame_params)
-        loss = sum(((render_world(world, crop[1], background).rgb.clamp(0, 1).permute(2, 0, 1) - seen) ** 2).sum()
-                   / (2 * crop[1].width * crop[1].height) for crop, seen in zip(crops, observed))
+        head = _pose(avatar, flame_params)
+        loss = sum(((_render(head, crop, background) - seen) ** 2).sum() / (2 * crop[1].width * crop[1].height)
+                   for crop, seen in zip(crops, observed))
         (gradient,) = torch.autograd.grad(loss, offset)
     return -gradient.detach()
