@@ -53,7 +53,8 @@ def _checked_cameras(cameras, source) -> list[str]:
 
 
 def _earlier_version(state) -> bool:
-    return isinstance(state, dict) and state.get("format") == REFINER_FORMAT and state.get("version") in (1, 2)
+    version = state.get("version") if isinstance(state, dict) and state.get("format") == REFINER_FORMAT else None
+    return isinstance(version, int) and 1 <= version < REFINER_VERSION
 
 
 def is_outdated(path: str | os.PathLike) -> bool:
