@@ -5,6 +5,7 @@ refiner trained on rendered crops reads new offsets from full-size images, a ste
 support is refused, its file round-trips and refuses damaged or hostile files, and the command
 writes a refiner that ``eval`` then uses."""
 
+import json
 import pathlib
 import shutil
 
@@ -374,3 +375,23 @@ def test_the_command_trains_a_refiner_that_eval_then_uses(run_root, tmp_path, ca
     result = evaluate_run(run, ["self_reenactment"], 1, lpips=False, out_dir=tmp_path / "eval")
     assert result["inference"].startswith("multi-view refiner")
     assert main(["train-refiner", str(tmp_path / "missing")]) == 2
+
+    # the benchmark of that refiner against fitting of every asked length
+    out = tmp_path / "bench.json"
+    capsys.readouterr()
+    assert main(["bench", "refiner", "--avatar", str(run), "--quick", "--threads", "1",
+                 "--fit-steps", "1,3", "--out", str(out)]) == 0
+    report = json.loads(out.read_text())
+    assert {"fit_1", "fit_3", "refined_1", "refined_3", "refined_fit_1"} <= set(report["psnr_db"])
+    assert set(report["fitting_time_over_refiner"]) == {"fit_1/refined_1", "fit_1/refined_3", "fit_3/refined_1",
+                                                        "fit_3/refined_3"}
+    seconds = report["seconds_per_frame"]
+    for steps in (1, 3):
+        ratio = report["fitting_time_over_refiner"][f"fit_{steps}/refined_1"]
+        assert ratio == pytest.approx(seconds[f"fit_{steps}"] / seconds["refined_1"], rel=0.05, abs=0.02)
+    assert report["psnr_db"]["fit_3"] != report["psnr_db"]["fit_1"]  # each length is a fit of its own
+    with pytest.raises(SystemExit):
+        main(["bench", "refiner", "--fit-steps", "10,x"])
+    assert "positive step counts" in capsys.readouterr().err
+    assert main(["bench", "train", "--fit-steps", "10"]) == 2
+    assert "refiner benchmark only" in capsys.readouterr().err

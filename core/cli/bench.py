@@ -18,6 +18,18 @@ BENCHMARKS = {
 }
 
 
+def _step_counts(text: str) -> tuple[int, ...]:
+    import argparse
+
+    try:
+        counts = tuple(int(part) for part in text.split(","))
+    except ValueError:
+        counts = ()
+    if not counts or min(counts) < 1:
+        raise argparse.ArgumentTypeError(f"expected positive step counts separated by commas, got {text!r}")
+    return counts
+
+
 def add_arguments(parser):
     parser.add_argument("name", choices=sorted(BENCHMARKS), help="which benchmark")
     parser.add_argument("--threads", type=int, default=2, help="CPU threads for numba and torch")
@@ -25,6 +37,8 @@ def add_arguments(parser):
     parser.add_argument("--out", help="also write the JSON report to this file")
     parser.add_argument("--avatar", help="viewport: the avatar (run folder or avatar.pt); refiner: the run folder "
                                          "with refiner.pt (default out/demo/run)")
+    parser.add_argument("--fit-steps", type=_step_counts,
+                        help="refiner only: fitting lengths to time, comma-separated (default 10)")
     parser.add_argument("--scale", choices=["small", "real"],
                         help="train only: 'real' times the full method at 802x550, 16 cameras, 100k Gaussians")
 
@@ -41,7 +55,12 @@ def run(args) -> int:
     if args.avatar is not None and args.name not in ("viewport", "refiner"):
         print("error: --avatar applies to the viewport and refiner benchmarks only", file=sys.stderr)
         return 2
+    if args.fit_steps is not None and args.name != "refiner":
+        print("error: --fit-steps applies to the refiner benchmark only", file=sys.stderr)
+        return 2
     options = {"scale": args.scale} if args.scale is not None else {}
+    if args.fit_steps is not None:
+        options["fit_steps"] = args.fit_steps
     if args.avatar is not None:
         options["avatar"] = args.avatar
     report = module.run(threads=args.threads, quick=args.quick, **options)
