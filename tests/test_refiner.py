@@ -389,7 +389,6 @@ def test_the_command_trains_a_refiner_that_eval_then_uses(run_root, tmp_path, ca
     for steps in (1, 3):
         ratio = report["fitting_time_over_refiner"][f"fit_{steps}/refined_1"]
         assert ratio == pytest.approx(seconds[f"fit_{steps}"] / seconds["refined_1"], rel=0.05, abs=0.02)
-    assert report["psnr_db"]["fit_3"] != report["psnr_db"]["fit_1"]  # each length is a fit of its own
     with pytest.raises(SystemExit):
         main(["bench", "refiner", "--fit-steps", "10,x"])
     assert "positive step counts" in capsys.readouterr().err
