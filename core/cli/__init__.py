@@ -39,6 +39,18 @@ COMMANDS: dict[str, tuple[str, str]] = {
 }
 
 
+def step_counts(text: str) -> tuple[int, ...]:
+    """An argparse type: ``"10,30"`` → ``(10, 30)``, positive counts only (the fitting lengths of
+    ``ablate`` and ``bench refiner``)."""
+    try:
+        counts = tuple(int(part) for part in text.split(","))
+    except ValueError:
+        counts = ()
+    if not counts or min(counts) < 1:
+        raise argparse.ArgumentTypeError(f"expected positive step counts separated by commas, got {text!r}")
+    return counts
+
+
 def _build_parser(argv: list[str]) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="python -m mogaface",

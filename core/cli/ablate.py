@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import pathlib
 
+from . import step_counts
+
 
 def add_arguments(parser):
     from ..mogaface.ablation import LADDER
@@ -22,7 +24,7 @@ def add_arguments(parser):
     parser.add_argument("--steps", type=int, help="training steps of every variant (overrides the preset)")
     parser.add_argument("--seed", type=int, default=0, help="first training seed (default %(default)s)")
     parser.add_argument("--seeds", type=int, default=3, help="seeds per variant: --seed, --seed+1, … (default %(default)s)")
-    parser.add_argument("--fit-steps", default="10,30",
+    parser.add_argument("--fit-steps", type=step_counts, default="10,30",
                         help="step counts of the test-time fitting baseline, comma-separated (default %(default)s)")
     parser.add_argument("--threads", type=int, help="CPU threads (overrides the preset)")
     parser.add_argument("--variants", help=f"comma-separated subset of {','.join(LADDER)} (default: all)")
@@ -41,15 +43,11 @@ def run(args) -> int:
             raise InputError(None, "--variants", f"unknown variant {name!r} (have {', '.join(LADDER)})")
     if args.seeds < 1:
         raise InputError(None, "--seeds", f"must be at least 1, got {args.seeds}")
-    try:
-        fit_steps = tuple(int(v) for v in args.fit_steps.split(",") if v.strip())
-    except ValueError:
-        raise InputError(None, "--fit-steps", f"expected comma-separated integers, got {args.fit_steps!r}") from None
     overrides = {"train": {k: getattr(args, k) for k in ("steps", "threads") if getattr(args, k) is not None}}
     result = run_ablation(args.capture, args.out, variants, seeds=[args.seed + i for i in range(args.seeds)],
                           preset=args.preset, config_path=args.config,
                           overrides=overrides if overrides["train"] else None, max_frames=args.max_frames,
-                          lpips=not args.no_lpips, fit_steps=fit_steps, progress=not args.quiet)
+                          lpips=not args.no_lpips, fit_steps=args.fit_steps, progress=not args.quiet)
     print((args.out / "results.md").read_text(encoding="utf-8"), end="")
     print(f"wrote {args.out / 'results.json'}, {args.out / 'results.md'} and {args.out / 'figure.png'}")
     return 0 if result else 1

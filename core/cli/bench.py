@@ -6,6 +6,8 @@ import importlib
 import json
 import sys
 
+from . import step_counts
+
 BENCHMARKS = {
     "cancel_latency": "SIGINT to exit while a raster kernel runs, at the largest allowed frame and in train",
     "distributed": "data-parallel training: ranks against threads, all-reduce volume and time per step",
@@ -18,18 +20,6 @@ BENCHMARKS = {
 }
 
 
-def _step_counts(text: str) -> tuple[int, ...]:
-    import argparse
-
-    try:
-        counts = tuple(int(part) for part in text.split(","))
-    except ValueError:
-        counts = ()
-    if not counts or min(counts) < 1:
-        raise argparse.ArgumentTypeError(f"expected positive step counts separated by commas, got {text!r}")
-    return counts
-
-
 def add_arguments(parser):
     parser.add_argument("name", choices=sorted(BENCHMARKS), help="which benchmark")
     parser.add_argument("--threads", type=int, default=2, help="CPU threads for numba and torch")
@@ -37,7 +27,7 @@ def add_arguments(parser):
     parser.add_argument("--out", help="also write the JSON report to this file")
     parser.add_argument("--avatar", help="viewport: the avatar (run folder or avatar.pt); refiner: the run folder "
                                          "with refiner.pt (default out/demo/run)")
-    parser.add_argument("--fit-steps", type=_step_counts,
+    parser.add_argument("--fit-steps", type=step_counts,
                         help="refiner only: fitting lengths to time, comma-separated (default 10)")
     parser.add_argument("--scale", choices=["small", "real"],
                         help="train only: 'real' times the full method at 802x550, 16 cameras, 100k Gaussians")
