@@ -6,12 +6,13 @@ import pathlib
 
 
 def add_arguments(parser) -> None:
-    from ..evaluate.protocols import PROTOCOLS
+    from ..evaluate.protocols import OPTIONAL_PROTOCOLS, PROTOCOLS
 
     parser.add_argument("run", type=pathlib.Path, metavar="RUN", help="run folder written by 'train'")
     parser.add_argument(
-        "--protocols", nargs="+", choices=PROTOCOLS, default=list(PROTOCOLS),
-        help="protocols to score (default: all)",
+        "--protocols", nargs="+", choices=PROTOCOLS + OPTIONAL_PROTOCOLS, default=list(PROTOCOLS),
+        help=f"protocols to score (default: {' '.join(PROTOCOLS)}); novel_view_aligned scores half the novel "
+             "view's frames after aligning the held-out camera to the avatar on the other half",
     )
     parser.add_argument("--max-frames", type=int, help="score at most this many frames per protocol, evenly spread")
     parser.add_argument("--no-lpips", action="store_true", help="skip LPIPS (PSNR and SSIM only)")

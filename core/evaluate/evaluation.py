@@ -10,10 +10,11 @@ import numpy as np
 
 from ..errors import InputError
 from . import report
+from .camera_alignment import split_frames
 from .images import ScoringCameras
 from .protocols import (
-    PROTOCOLS, DrivenParams, ParamSource, TrackedParams, cross_identity, protocol_frames, protocol_unavailable,
-    run_protocol, score,
+    OPTIONAL_PROTOCOLS, PROTOCOLS, DrivenParams, ParamSource, TrackedParams, cross_identity, novel_view_aligned,
+    protocol_frames, protocol_unavailable, run_protocol, score,
 )
 from .run_folder import RunFolder
 
@@ -56,8 +57,9 @@ def evaluate_run(
     run = RunFolder(run_dir, capture)
     protocols = list(protocols)
     for name in protocols:
-        if name not in PROTOCOLS:
-            raise InputError(None, "protocols", f"unknown protocol {name!r} (have {', '.join(PROTOCOLS)})")
+        if name not in PROTOCOLS + OPTIONAL_PROTOCOLS:
+            raise InputError(None, "protocols", f"unknown protocol {name!r} "
+                                                f"(have {', '.join(PROTOCOLS + OPTIONAL_PROTOCOLS)})")
     out = pathlib.Path(out_dir) if out_dir is not None else run.root
     cap = run.open_capture()
     if avatar is None and source is None:
@@ -71,7 +73,7 @@ def evaluate_run(
     if skipped and len(skipped) == len(protocols):
         raise InputError(cap.root, "protocols", "; ".join(f"{k}: {v}" for k, v in skipped.items()))
     plans = {name: protocol_frames(cap, name, max_frames) for name in protocols if name not in skipped}
-    total = sum(len(f) for f in plans.values())
+    total = sum(len(split_frames(f)[1]) if name == "novel_view_aligned" else len(f) for name, f in plans.items())
     bar = ProgressBar(total, "eval") if progress and total else None
     keys = ("psnr", "ssim", "lpips") if lpips else ("psnr", "ssim")
     result = {
@@ -84,8 +86,12 @@ def evaluate_run(
         "skipped": skipped,
     }
     for name, frames in plans.items():
-        rows = []
-        for index, item in enumerate(run_protocol(avatar, cap, source, frames, run.background)):
+        rows, alignment = [], None
+        if name == "novel_view_aligned":
+            items, alignment = novel_view_aligned(avatar, cap, source, run.background, frames)
+        else:
+            items = run_protocol(avatar, cap, source, frames, run.background)
+        for index, item in enumerate(items):
             row = score(item, lpips)
             frame = item.frame
             rows.append({"timestep": frame.timestep_index, "camera": frame.camera_id, "sequence": frame.sequence, **row})
@@ -99,6 +105,8 @@ def evaluate_run(
             values = sorted({r[field] for r in rows if r[field] is not None})
             summary[group] = {v: _summary([r for r in rows if r[field] == v], keys) for v in values}
         summary["per_frame"] = rows
+        if alignment is not None:
+            summary["alignment"] = alignment
         result["protocols"][name] = summary
     if driver is not None:
         result["cross_identity"] = write_cross_identity(

@@ -2,7 +2,9 @@
 
 - **novel view**: the held-out camera at the training timesteps (the capture's ``val`` split);
 - **self-reenactment**: the held-out sequence from every camera (the ``test`` split);
-- **cross-identity reenactment**: subject A driven by subject B's tracked motion; renders only.
+- **cross-identity reenactment**: subject A driven by subject B's tracked motion; renders only;
+- **novel view, aligned** (on request): the held-out camera aligned to the avatar on half its
+  frames, the other half scored (:mod:`.camera_alignment`), for runs whose cameras were refined.
 
 Images are full frames on the training background colour. Where an avatar's FLAME parameters
 come from is a parameter source (:mod:`.sources`): each protocol asks it for one frame's
@@ -27,8 +29,9 @@ from .sources.base import ParamSource, views_at
 from .sources.driven import DrivenParams
 from .sources.tracked import TrackedParams
 
-PROTOCOLS = ("novel_view", "self_reenactment")
-__all__ = ["PROTOCOLS", "DrivenParams", "ParamSource", "Scored", "TrackedParams", "cross_identity", "novel_view",
+PROTOCOLS = ("novel_view", "self_reenactment")  # scored by default
+OPTIONAL_PROTOCOLS = ("novel_view_aligned",)  # scored when asked for
+__all__ = ["OPTIONAL_PROTOCOLS", "PROTOCOLS", "DrivenParams", "ParamSource", "Scored", "TrackedParams", "cross_identity", "novel_view",
            "protocol_frames", "render_frame", "run_protocol", "score", "self_reenactment", "target_image", "views_at"]
 
 
@@ -49,10 +52,12 @@ def protocol_unavailable(capture: Capture, protocol: str) -> str | None:
         frames = _protocol_candidates(capture, protocol)
     except InputError as error:
         return error.problem
+    if frames and protocol == "novel_view_aligned" and len(frames) == len({f.camera_id for f in frames}):
+        return "the held-out camera has a single frame: aligning it on some frames and scoring others needs two"
     if frames:
         return None
-    split = {"novel_view": "val", "self_reenactment": "test"}[protocol]
-    what = {"novel_view": "a held-out camera", "self_reenactment": "a held-out sequence"}[protocol]
+    split = {"novel_view": "val", "novel_view_aligned": "val", "self_reenactment": "test"}[protocol]
+    what = "a held-out sequence" if protocol == "self_reenactment" else "a held-out camera"
     if split in capture.empty_splits:
         return f"the {split} split is empty ({capture.empty_splits[split]}), so there is no {what} to score"
     return f"the capture has no {split} split and capture_info.json names no {what}"
@@ -60,7 +65,7 @@ def protocol_unavailable(capture: Capture, protocol: str) -> str | None:
 
 def _protocol_candidates(capture: Capture, protocol: str) -> list[Frame]:
     info = capture_info(capture.root)
-    if protocol == "novel_view":
+    if protocol in ("novel_view", "novel_view_aligned"):
         if "val" in capture.splits:
             return capture.frames("val")
         camera = info.get("val_camera")
@@ -70,7 +75,8 @@ def _protocol_candidates(capture: Capture, protocol: str) -> list[Frame]:
             return capture.frames("test")
         sequence = info.get("test_sequence")
         return [f for f in capture.frames() if sequence is not None and f.sequence == sequence]
-    raise InputError(None, "protocol", f"unknown protocol {protocol!r} (have {', '.join(PROTOCOLS)})")
+    raise InputError(None, "protocol", f"unknown protocol {protocol!r} "
+                                       f"(have {', '.join(PROTOCOLS + OPTIONAL_PROTOCOLS)})")
 
 
 def protocol_frames(capture: Capture, protocol: str, max_frames: int | None = None) -> list[Frame]:
@@ -102,11 +108,13 @@ class Scored:
 
 
 def run_protocol(
-    avatar, capture: Capture, source: ParamSource, frames: Iterable[Frame], background
+    avatar, capture: Capture, source: ParamSource, frames: Iterable[Frame], background, cameras=None
 ) -> Iterator[Scored]:
-    """Render each frame from parameters that never saw its image, and pair it with the truth."""
+    """Render each frame from parameters that never saw its image, and pair it with the truth.
+
+    ``cameras``: frame → the camera it is rendered from (default :class:`~.images.ScoringCameras`)."""
     recorded = capture_info(capture.root).get("background")
-    cameras = ScoringCameras(capture)
+    cameras = ScoringCameras(capture) if cameras is None else cameras
     for frame in frames:
         start = time.perf_counter()
         params = source.params_for(frame, exclude_view=frame.camera_id)
@@ -123,6 +131,30 @@ def novel_view(avatar, capture, source, background, max_frames=None) -> Iterator
 
 def self_reenactment(avatar, capture, source, background, max_frames=None) -> Iterator[Scored]:
     return run_protocol(avatar, capture, source, protocol_frames(capture, "self_reenactment", max_frames), background)
+
+
+def novel_view_aligned(avatar, capture, source, background, frames: list[Frame]) -> tuple[Iterator[Scored], dict]:
+    """The scored half of ``frames`` (novel-view frames), each held-out camera first aligned to the
+    avatar on the other half; returns the scored items and, per camera, what the alignment moved."""
+    from .camera_alignment import MAX_FIT_FRAMES, align_camera, split_frames
+
+    fit, scored = split_frames(frames)
+    if not scored:
+        raise InputError(capture.root, "novel_view_aligned", "needs two or more frames of the held-out camera "
+                                                             "(one to align on, one to score): raise --max-frames")
+    recorded = capture_info(capture.root).get("background")
+    truth = ScoringCameras(capture)
+    aligned, report = {}, {}
+    for camera_id in sorted({f.camera_id for f in scored}):
+        camera = truth(next(f for f in fit if f.camera_id == camera_id))
+        if any(not np.allclose(truth(f).w2c, camera.w2c) for f in frames if f.camera_id == camera_id):
+            raise InputError(capture.root, "novel_view_aligned", f"camera {camera_id!r} moves between frames; "
+                                                                 "aligning it needs one pose for all its frames")
+        own = _spread([f for f in fit if f.camera_id == camera_id], MAX_FIT_FRAMES)
+        views = [(source.params_for(f, exclude_view=f.camera_id), target_image(capture, f, background, recorded))
+                 for f in own]
+        aligned[camera_id], report[camera_id] = align_camera(avatar, camera, views, background)
+    return run_protocol(avatar, capture, source, scored, background, lambda f: aligned[f.camera_id]), report
 
 
 def cross_identity(
