@@ -113,3 +113,21 @@ def test_eval_cli_takes_the_aligned_protocol_only_when_asked(tmp_path_factory, t
                  "--quiet", "--out", str(tmp_path)]) == 0
     assert json.loads((tmp_path / "metrics.json").read_text())["protocols"]["novel_view_aligned"]["frames"] == 2
     assert "novel view aligned" in capsys.readouterr().out
+
+
+def test_a_held_out_camera_that_moves_between_frames_is_refused(tmp_path_factory, monkeypatch):
+    capture = Capture.open(tiny_capture(tmp_path_factory))
+    run = RunFolder(fake_run(tmp_path_factory))
+    frames = protocol_frames(capture, "novel_view", max_frames=4)
+    moved = perturb_camera(capture.camera(frames[-1]), 1.0, np.random.default_rng(0))
+
+    class Moving:
+        def __init__(self, capture):
+            self.capture = capture
+
+        def __call__(self, frame):
+            return moved if frame is frames[-1] else self.capture.camera(frame)
+
+    monkeypatch.setattr(protocols, "ScoringCameras", Moving)
+    with pytest.raises(InputError, match="moves between frames"):
+        protocols.novel_view_aligned(run.load_avatar(), capture, TrackedParams(capture, run), run.background, frames)
