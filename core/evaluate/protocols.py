@@ -31,8 +31,9 @@ from .sources.tracked import TrackedParams
 
 PROTOCOLS = ("novel_view", "self_reenactment")  # scored by default
 OPTIONAL_PROTOCOLS = ("novel_view_aligned",)  # scored when asked for
-__all__ = ["OPTIONAL_PROTOCOLS", "PROTOCOLS", "DrivenParams", "ParamSource", "Scored", "TrackedParams", "cross_identity", "novel_view",
-           "protocol_frames", "render_frame", "run_protocol", "score", "self_reenactment", "target_image", "views_at"]
+__all__ = ["OPTIONAL_PROTOCOLS", "PROTOCOLS", "DrivenParams", "ParamSource", "Scored", "TrackedParams", "cross_identity",
+           "novel_view", "novel_view_aligned", "protocol_frames", "render_frame", "run_protocol", "score",
+           "self_reenactment", "target_image", "views_at"]
 
 
 # -- which frames a protocol scores --------------------------------------------------------------
