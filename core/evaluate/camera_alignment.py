@@ -58,9 +58,9 @@ def align_camera(avatar, camera: Camera, views: list[tuple[dict, np.ndarray]], b
                   for p, _ in views]
     targets = [torch.from_numpy(np.array(t, dtype=np.float32)) for _, t in views]
 
-    def error(index: int) -> torch.Tensor:
+    def error(index: int) -> torch.Tensor:  # of the image as scored: colours clamped to [0, 1]
         moved = offsets.move_scene(worlds[index], camera.camera_id)
-        return (render_world(moved, camera, background_tensor).rgb - targets[index]).abs().mean()
+        return (render_world(moved, camera, background_tensor).rgb.clamp(0.0, 1.0) - targets[index]).abs().mean()
 
     def mean_error() -> float:
         with torch.no_grad():
