@@ -48,6 +48,7 @@ def align_camera(avatar, camera: Camera, views: list[tuple[dict, np.ndarray]], b
     """
     from ..mogaface.avatar import render_world
     from ..train.camera_refine import CameraOffsets
+    from ..train.trainer import decayed
 
     if not views:
         raise ValueError("aligning a camera needs at least one view")
@@ -69,11 +70,9 @@ def align_camera(avatar, camera: Camera, views: list[tuple[dict, np.ndarray]], b
     before = mean_error()
     optimiser = torch.optim.Adam([{"params": list(offsets.rotation), "lr": ROTATION_RATE},
                                   {"params": list(offsets.translation), "lr": SHIFT_RATE}])
-    rates = [group["lr"] for group in optimiser.param_groups]
     for step in range(steps):
-        decay = 0.1 ** (step / max(steps - 1, 1))
-        for group, rate in zip(optimiser.param_groups, rates):
-            group["lr"] = rate * decay
+        for group, rate in zip(optimiser.param_groups, (ROTATION_RATE, SHIFT_RATE)):
+            group["lr"] = decayed(rate, 0.1, step, steps - 1)
         optimiser.zero_grad()
         error(step % len(views)).backward()
         optimiser.step()
