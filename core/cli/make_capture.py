@@ -39,6 +39,14 @@ def add_arguments(parser):
         help="degrees of rotation error (plus 5 mm per degree) in the cameras written to the json; "
         "the true ones go to cameras_gt.json (default %(default)s)",
     )
+    parser.add_argument(
+        "--landmark-noise", type=float, default=d.landmark_noise,
+        help="pixels of the simulated landmark detector's error, new in every image (default %(default)s)",
+    )
+    parser.add_argument(
+        "--landmark-bias", type=float, default=d.landmark_bias,
+        help="pixels of its constant error per camera and landmark (default %(default)s)",
+    )
     parser.add_argument("--seed", type=int, default=d.seed, help="seed (default %(default)s)")
     parser.add_argument("--model", type=pathlib.Path, help="use this FLAME-format model (with UVs and texture) instead")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -59,7 +67,8 @@ def run(args) -> int:
         noise.update(given)
     settings = CaptureSettings(
         subject=args.subject, views=args.views, timesteps=args.timesteps, size=args.size,
-        camera_noise=args.camera_noise, seed=args.seed, **noise,
+        camera_noise=args.camera_noise, landmark_noise=args.landmark_noise, landmark_bias=args.landmark_bias,
+        seed=args.seed, **noise,
     )
     start = time.monotonic()
     make_capture(args.out, settings, model_path=args.model, progress=not args.quiet)

@@ -18,6 +18,7 @@ import torch
 
 from ..camera import Camera
 from ..errors import InputError
+from ..flame.landmarks import IBUG_COUNT, model_landmarks
 from ..flame.lbs import axis_angle_to_matrix
 from ..flame.expression_roles import mouth_components
 from ..flame.model import FlameModel
@@ -28,6 +29,7 @@ from ..progress import ProgressBar
 from . import layout
 from .mesh_render import render_mesh, vertex_normals
 from .sequences import NOISE_GROUPS, TEST_SEQUENCE, GroupNoise, TrackingNoise, add_tracking_noise, make_sequences, tracking_biases
+from .landmarks import write_landmark_file
 from .writer import CaptureWriter, camera_fields
 
 GT_FLAME_DIR = "flame_param_gt"
@@ -56,6 +58,10 @@ class CaptureSettings:
     translation_correlation: float = 10.0
     translation_bias: float = 0.0006
     camera_noise: float = 0.0  # degrees of rotation error (and 5 mm of position error per degree)
+    # The landmark detector's error, pixels at the capture's size: new at every image, and a
+    # constant per camera and landmark (a detector errs alike on alike views).
+    landmark_noise: float = 0.5
+    landmark_bias: float = 0.5
     seed: int = 0
     supersample: int = 3
 
@@ -65,8 +71,9 @@ class CaptureSettings:
             value = getattr(self, name)
             if not low <= value <= high:
                 raise InputError(None, name, f"must lie in [{low}, {high}], got {value}")
-        if not self.camera_noise >= 0:
-            raise InputError(None, "camera_noise", f"must be >= 0, got {self.camera_noise}")
+        for name in ("camera_noise", "landmark_noise", "landmark_bias"):
+            if not getattr(self, name) >= 0:
+                raise InputError(None, name, f"must be >= 0, got {getattr(self, name)}")
         self.tracking_noise().check()
 
     def tracking_noise(self) -> TrackingNoise:
@@ -132,6 +139,41 @@ def perturb_camera(camera: Camera, degrees: float, rng) -> Camera:
     return dataclasses.replace(camera, w2c=delta @ camera.w2c)
 
 
+class LandmarkDetector:
+    """A simulated face-landmark detector: the head's 68 iBUG points projected by the *true*
+    cameras, with ``landmark_noise`` and ``landmark_bias`` pixels of error; points on surface that
+    faces away from a camera get confidence 0. Written as VHAP writes its detector's output.
+    It draws from a generator of its own, so the rest of the capture is the same with or without it."""
+
+    def __init__(self, settings: CaptureSettings, model: FlameModel, cameras: list[Camera]):
+        self.embedding = model_landmarks(model.arrays.faces)
+        self.cameras = cameras
+        self.faces = model.arrays.faces
+        self.rng = np.random.default_rng([settings.seed, settings.subject, 68])
+        self.jitter = settings.landmark_noise
+        shape = (len(cameras), IBUG_COUNT, 2)
+        self.bias = self.rng.normal(scale=settings.landmark_bias, size=shape) if settings.landmark_bias else np.zeros(shape)
+        self.found: list[list[np.ndarray]] = [[] for _ in cameras]
+
+    def detect(self, vertices: np.ndarray, normals: np.ndarray) -> None:
+        if self.embedding is None:
+            return
+        points = self.embedding.positions(vertices, self.faces)
+        facing = self.embedding.positions(normals, self.faces)
+        for k, camera in enumerate(self.cameras):
+            uv, _ = camera.project(points)
+            to_camera = camera.center - points
+            seen = np.sum(facing * to_camera, 1) > 0.1 * np.linalg.norm(facing, axis=1) * np.linalg.norm(to_camera, axis=1)
+            noisy = uv + self.bias[k] + self.rng.normal(scale=self.jitter, size=uv.shape) if self.jitter else uv + self.bias[k]
+            self.found[k].append(np.concatenate([noisy, seen[:, None].astype(np.float64)], 1))
+
+    def write(self, root: pathlib.Path) -> None:
+        if self.embedding is None:
+            return
+        for camera, rows in zip(self.cameras, self.found):
+            write_landmark_file(root, camera.camera_id, np.stack(rows), camera.width, camera.height)
+
+
 def _write_gt_params(root: pathlib.Path, timestep: int, params: dict[str, np.ndarray]) -> None:
     path = root / GT_FLAME_DIR / f"{timestep:05d}.npz"
     save_npz(path, layout.batched_flame_params(layout.normalize_flame_params(params, path)))
@@ -178,6 +220,7 @@ def make_capture(
     noise = settings.tracking_noise()
     biases = tracking_biases(sequences[0].params, noise, rng)  # one tracker, one bias per capture
 
+    detector = LandmarkDetector(settings, model, cameras)
     total = sum(s.length for s in sequences)
     bar = ProgressBar(total * len(cameras), "make-capture") if progress else None
     timestep = 0
@@ -193,6 +236,7 @@ def make_capture(
                 with torch.no_grad():
                     vertices = model(**{k: torch.from_numpy(v)[None] for k, v in truth.items()})[0].double().numpy()
                 normals = vertex_normals(vertices, arrays.faces)  # shared by every view of the timestep
+                detector.detect(vertices, normals)
                 for index, (camera, written) in enumerate(zip(cameras, reported)):
                     rgb, alpha = render_mesh(
                         vertices, arrays.faces, arrays.vt, arrays.ft, texture, camera, BACKGROUND,
@@ -208,6 +252,7 @@ def make_capture(
                 timestep += 1
         zeros = {k: np.zeros_like(v[0]) for k, v in sequences[0].params.items()}
         writer.write_canonical_flame_params(zeros)
+    detector.write(out)
     write_json(out / GT_CAMERAS_FILE, {c.camera_id: camera_fields(c) for c in cameras})
     write_json(
         out / INFO_FILE,

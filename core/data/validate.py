@@ -17,6 +17,7 @@ from ..io.files import check_regular_file
 from ..io.image import image_size, read_image
 from . import layout
 from .capture import DEFAULT_CACHE_BYTES, Capture
+from .landmarks import read_landmarks
 
 
 @dataclasses.dataclass
@@ -34,6 +35,7 @@ class CaptureSummary:
     has_canonical: bool
     memory_bound_bytes: int
     empty_splits: dict[str, str] = dataclasses.field(default_factory=dict)  # split -> why it has no frames
+    landmark_cameras: list[str] = dataclasses.field(default_factory=list)  # cameras with a landmark file
 
     def lines(self) -> list[str]:
         res = ", ".join(f"{w}x{h}" for w, h in self.resolutions)
@@ -53,6 +55,8 @@ class CaptureSummary:
             out.append(f"split {split}: empty ({reason})")
         sizes = ", ".join(f"{k} {v}" for k, v in self.flame_sizes.items())
         out.append(f"flame params: {sizes}; canonical: {'yes' if self.has_canonical else 'no'}")
+        out.append(f"landmarks: {len(self.landmark_cameras)} of {self.views} cameras" if self.landmark_cameras
+                   else "landmarks: none (solve-cameras needs landmark2d/, docs/data-format.md)")
         out.append(f"image cache bound: {self.memory_bound_bytes / 2**20:.0f} MiB")
         return out
 
@@ -94,6 +98,7 @@ def validate_capture(
         has_canonical=canonical is not None,
         memory_bound_bytes=capture.memory_bound_bytes,
         empty_splits=dict(capture.empty_splits),
+        landmark_cameras=sorted(read_landmarks(capture.root, capture.cameras, max(capture.timesteps) + 1)),
     )
 
 
