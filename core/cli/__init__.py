@@ -35,6 +35,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "environment": ("environment", "print where this process finds its code and packages (JSON)"),
     "train-refiner": ("train_refiner", "train the multi-view refiner of per-frame parameters on a finished run"),
     "refine-tracking": ("refine_tracking", "improve a capture's tracking with a run's refiner; write flame_param files"),
+    "solve-cameras": ("solve_cameras", "turn a capture's cameras to fit its 2D landmarks; write a cameras file"),
     "ablate": ("ablate", "train and score the MoGaFace ablation ladder on one capture (results.json, results.md)"),
 }
 

@@ -22,6 +22,9 @@ def add_arguments(parser):
     parser.add_argument("--refine-cameras", type=int, nargs="?", const=1, metavar="ROUNDS",
                         help="refine the cameras for a capture whose calibration is off; with ROUNDS > 1, in that "
                              "many rounds, each a fresh avatar (docs/training.md; overrides the config)")
+    parser.add_argument("--cameras-start", type=pathlib.Path, metavar="FILE",
+                        help="start the cameras' refinement from this cameras file (solve-cameras' output, or a "
+                             "run's cameras_refined.json); turns refinement on (overrides the config)")
     parser.add_argument("--events", choices=["file", "stdout"], default="file",
                         help="'stdout': also print every event as a JSON line on stdout (for other programs)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -32,6 +35,8 @@ def _overrides(args) -> dict:
     overrides = {"train": train} if train else {}
     if args.refine_cameras is not None:
         overrides["cameras"] = {"refine": True, "rounds": args.refine_cameras}
+    if args.cameras_start is not None:
+        overrides.setdefault("cameras", {}).update(refine=True, start=str(args.cameras_start.resolve()))
     return overrides
 
 

@@ -76,7 +76,8 @@ def look_shift(cameras: dict, truth: dict, point: np.ndarray) -> np.ndarray:
     return shift
 
 
-def _summary(cameras: dict, truth: dict) -> dict:
+def camera_summary(cameras: dict, truth: dict) -> dict:
+    """Mean errors of ``cameras`` against ``truth`` (the cameras both have), split as `eval` reports them."""
     ids = [cid for cid in truth if cid in cameras]
     if not ids:
         return {}
@@ -94,12 +95,12 @@ def camera_errors(capture, run_dir: str | os.PathLike | None = None) -> dict:
     truth = ScoringCameras(capture).truth
     if not truth:
         return {}
-    result = {"calibrated": _summary(capture.cameras, truth)}
+    result = {"calibrated": camera_summary(capture.cameras, truth)}
     refined = pathlib.Path(run_dir) / REFINED_CAMERAS_FILE if run_dir is not None else None
     if refined is not None and refined.exists():
         cameras = read_cameras(refined)
-        result["refined"] = _summary(cameras, truth)
+        result["refined"] = camera_summary(cameras, truth)
         # the calibration of the same cameras (the held-out one is not refined): the fair "before"
-        result["calibrated_refined_cameras"] = _summary({cid: capture.cameras[cid] for cid in cameras
+        result["calibrated_refined_cameras"] = camera_summary({cid: capture.cameras[cid] for cid in cameras
                                                          if cid in capture.cameras}, truth)
     return result
