@@ -8,8 +8,11 @@ the avatar learns from; started from the cameras they give, refinement ends near
 
 The adjustment (L-BFGS, Huber loss on pixel residuals): a rotation ``ω`` per camera about its own
 centre (centres are held, as refinement holds them: the images pin them only by parallax), and a
-rigid correction of every timestep's tracked mesh (the tracker's head pose is off too), its shift
-held near the tracking by a prior of a millimetre. Then the
+rigid correction of every timestep's tracked mesh (the tracker's head pose is off too). Nothing
+holds the head at the tracked position: a shift of the head and a turn of every camera toward it
+then differ only by perspective, and the cameras may aim a few tenths of a degree off; refinement
+takes that out from the images, and a prior of a millimetre on the shift, which aimed them right,
+scored 0.8 dB lower after refinement (docs/results.md). Then the
 refinement's gauge (``rigid`` by default) is applied, so the result starts ``[cameras] refine``
 exactly as an earlier round's cameras would.
 """
@@ -34,9 +37,6 @@ from .data import FlameTable
 
 HUBER_FRACTION = 0.01  # the Huber loss's knee, as a fraction of the image width (1.3 px at 128²)
 MIN_LANDMARKS = 20  # weighted observations a camera needs to be turned
-# The tracker's head position is trusted to about this (metres): a prior on each timestep's shift.
-# Without it, a shift of the head and a turn of every camera toward it differ only by perspective.
-HEAD_SHIFT_PRIOR = 0.001
 
 
 @dataclasses.dataclass
@@ -133,9 +133,7 @@ class _Adjustment:
     def loss(self) -> torch.Tensor:
         distance = self.residual().norm(dim=-1)
         huber = torch.where(distance < self.knee, 0.5 * distance**2, self.knee * (distance - 0.5 * self.knee))
-        prior = 0.5 * ((self.head_shift / HEAD_SHIFT_PRIOR) ** 2).sum()
-        # as a likelihood: residuals in units of the knee, the detector's error
-        return ((huber * self.weight).sum() / self.knee**2 + prior) / self.weight.sum().clamp_min(1.0)
+        return (huber * self.weight).sum() / self.weight.sum().clamp_min(1.0)
 
     def solve(self, rounds: int = 5) -> None:
         if float(self.weight.sum()) == 0:
