@@ -139,6 +139,8 @@ class MOGAFACE_PT_training(_SubPanel, bpy.types.Panel):
         layout.prop(settings, "iterations")
         layout.prop(settings, "seed")
         layout.prop(settings, "camera_rounds")
+        if settings.camera_rounds > 0:
+            layout.prop(settings, "cameras_from_landmarks")
         from ..operators.train import current_worker, last_progress
 
         progress = last_progress()

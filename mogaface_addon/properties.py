@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import bpy
-from bpy.props import EnumProperty, IntProperty, StringProperty
+from bpy.props import BoolProperty, EnumProperty, IntProperty, StringProperty
 
 from ..operators.train import PRESET_ITEMS
 
@@ -34,6 +34,10 @@ class MoGaFaceSceneSettings(bpy.types.PropertyGroup):
         description="For captures whose calibration is off: 0 trusts the cameras; 1 polishes a nearly right "
                     "calibration; N refines them in N rounds, each a fresh avatar (N times the training time; 3 "
                     "recommended when the cameras are off by more than a pixel)")
+    cameras_from_landmarks: BoolProperty(
+        name="Start from Landmarks", default=False,
+        description="Refined cameras start from cameras solved from the capture's 2D landmarks (landmark2d/, as VHAP "
+                    "writes them) instead of its calibration")
     viewport_resolution: IntProperty(
         name="Viewport Resolution", default=512, min=64, max=4096,
         description="Longest side in pixels of the avatar drawn in a still 3D view")

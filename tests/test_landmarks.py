@@ -275,3 +275,22 @@ def test_training_starts_its_refinement_from_solved_cameras(calibrated, tmp_path
     moved = np.mean([pose_error(refined[c], solved[c])[0] for c in solved])  # a step or two of Adam
     away = np.mean([pose_error(calibration[c], solved[c])[0] for c in solved])
     assert moved < 0.1 * away, (moved, away)
+
+
+def test_a_refining_run_can_solve_its_start_from_the_landmarks(calibrated, tmp_path):
+    from mogaface.core.cli import main
+
+    run = tmp_path / "run"
+    assert main(["train", str(calibrated), "--out", str(run), "--preset", "quick", "--steps", "2", "--quiet",
+                 "--refine-cameras", "2", "--cameras-start", "landmarks"]) == 0
+    first = run / "camera_rounds" / "1"
+    assert (first / "cameras_landmarks.json").exists()  # the first round solved them; the last starts from it
+    assert not (run / "cameras_landmarks.json").exists()
+    direct = solve_cameras(Capture.open(calibrated), calibrated / "head.pkl").cameras
+    solved = read_cameras(first / "cameras_landmarks.json")
+    assert max(pose_error(solved[c], direct[c])[0] for c in direct) < 1e-3
+    (calibrated / "landmark2d").rename(tmp_path / "away")  # a resumed run does not solve them again
+    try:
+        assert main(["train", str(calibrated), "--out", str(run), "--resume", "--steps", "3", "--quiet"]) == 0
+    finally:
+        (tmp_path / "away").rename(calibrated / "landmark2d")

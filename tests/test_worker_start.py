@@ -62,6 +62,11 @@ def test_train_command_is_an_isolated_worker(tmp_path):
     rounds = train_command("/py", "cap", "run", preset="quick", camera_rounds=3)
     assert rounds[-4:] == ["--preset", "quick", "--refine-cameras", "3"]
     assert "--refine-cameras" not in train_command("/py", "cap", "run", resume=True, camera_rounds=3)
+    landmarks = train_command("/py", "cap", "run", camera_rounds=3, cameras_from_landmarks=True)
+    assert landmarks[-4:] == ["--refine-cameras", "3", "--cameras-start", "landmarks"]
+    assert "--cameras-start" not in train_command("/py", "cap", "run", camera_rounds=0, cameras_from_landmarks=True)
+    assert "--cameras-start" not in train_command("/py", "cap", "run", resume=True, camera_rounds=3,
+                                                  cameras_from_landmarks=True)
 
 
 def test_refine_cameras_on_the_command_line_sets_the_rounds():

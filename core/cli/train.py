@@ -22,9 +22,10 @@ def add_arguments(parser):
     parser.add_argument("--refine-cameras", type=int, nargs="?", const=1, metavar="ROUNDS",
                         help="refine the cameras for a capture whose calibration is off; with ROUNDS > 1, in that "
                              "many rounds, each a fresh avatar (docs/training.md; overrides the config)")
-    parser.add_argument("--cameras-start", type=pathlib.Path, metavar="FILE",
+    parser.add_argument("--cameras-start", metavar="FILE",
                         help="start the cameras' refinement from this cameras file (solve-cameras' output, or a "
-                             "run's cameras_refined.json); turns refinement on (overrides the config)")
+                             "run's cameras_refined.json), or 'landmarks': solve them from the capture's landmarks "
+                             "first; turns refinement on (overrides the config)")
     parser.add_argument("--events", choices=["file", "stdout"], default="file",
                         help="'stdout': also print every event as a JSON line on stdout (for other programs)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -36,7 +37,11 @@ def _overrides(args) -> dict:
     if args.refine_cameras is not None:
         overrides["cameras"] = {"refine": True, "rounds": args.refine_cameras}
     if args.cameras_start is not None:
-        overrides.setdefault("cameras", {}).update(refine=True, start=str(args.cameras_start.resolve()))
+        from ..train.config import LANDMARKS_START
+
+        start = args.cameras_start
+        start = start if start == LANDMARKS_START else str(pathlib.Path(start).resolve())
+        overrides.setdefault("cameras", {}).update(refine=True, start=start)
     return overrides
 
 

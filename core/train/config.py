@@ -82,6 +82,7 @@ class FlameSection:
 
 #: The camera offsets' gauges (:mod:`.camera_refine`), the default first.
 CAMERA_GAUGES = ("rigid", "mean", "none")
+LANDMARKS_START = "landmarks"  # [cameras] start: solve the cameras from the capture's landmarks first
 
 
 @dataclasses.dataclass

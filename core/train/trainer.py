@@ -34,7 +34,7 @@ from . import config as config_module
 from .camera_refine import CameraOffsets, write_refined_cameras
 from .checkpoint import latest_checkpoint, newest_intact_checkpoint, save_checkpoint
 from .run_lock import resume_notes, take_run_folder
-from .config import TrainConfig
+from .config import LANDMARKS_START, TrainConfig
 from .data import TrainingData, capture_head_file
 from .distributed import Communicator
 from .events import EventLog, Listener
@@ -175,7 +175,7 @@ class Trainer:
         with torch.no_grad():
             for name, value in self.table.trainable().items():
                 value.copy_(state["table"][name])
-        self.camera_offsets = self._build_camera_offsets()
+        self.camera_offsets = self._build_camera_offsets(restoring=True)
         if self.camera_offsets is not None:
             if "cameras" not in state:
                 raise InputError(self.run_folder.checkpoints, "cameras", "the checkpoint holds no camera offsets "
@@ -200,7 +200,7 @@ class Trainer:
         if self.comm.is_writer:
             write_text(self.run_folder.config, config_module.to_toml(self.config))  # e.g. a new --steps
 
-    def _build_camera_offsets(self) -> CameraOffsets | None:
+    def _build_camera_offsets(self, restoring: bool = False) -> CameraOffsets | None:
         """The training cameras' offsets when ``[cameras] refine`` is on (each camera as first met)."""
         if not self.config.cameras.refine:
             return None
@@ -209,12 +209,25 @@ class Trainer:
             cameras.setdefault(frame.camera_id, self.data.capture.camera(frame))
         offsets = CameraOffsets(cameras, self.config.cameras.gauge)
         start = self.config.cameras.start
-        if start:  # a resumed run reloads its offsets from the checkpoint after this
-            from ..evaluate.images import read_cameras
-
-            offsets.start_from(read_cameras(pathlib.Path(start)), start)
+        if start and not restoring:  # a resumed run reloads its offsets from the checkpoint
+            offsets.start_from(self._start_cameras(start), start)
             offsets.fix_gauge()
         return offsets
+
+    def _start_cameras(self, start: str) -> dict:
+        """The cameras a refining run starts from: a cameras file, or ``"landmarks"``: solved from the
+        capture's landmark files (written to ``RUN/cameras_landmarks.json``)."""
+        if start != LANDMARKS_START:
+            from ..evaluate.images import read_cameras
+
+            return read_cameras(pathlib.Path(start))
+        from ..data.writer import camera_fields
+        from .landmark_cameras import LANDMARK_CAMERAS_FILE, solve_cameras
+
+        solved = solve_cameras(self.data.capture, self.avatar.head_file, gauge=self.config.cameras.gauge).cameras
+        if self.comm.is_writer:
+            write_json(self.run_folder.root / LANDMARK_CAMERAS_FILE, {cid: camera_fields(c) for cid, c in solved.items()})
+        return solved
 
     def _build_optimizer(self) -> None:
         lr = self.config.lr
