@@ -27,11 +27,10 @@ def run(args) -> int:
     import numpy as np
 
     from ..data.capture import Capture
-    from ..data.writer import camera_fields
+    from ..data.writer import write_cameras
     from ..evaluate.camera_error import camera_summary, pose_error
     from ..evaluate.images import ScoringCameras
     from ..flame.landmarks import IBUG_COUNT, STATIC_IBUG, read_embedding
-    from ..io.atomic import write_json
     from ..train.data import capture_head_file
     from ..train.landmark_cameras import solve_cameras, training_cameras
 
@@ -53,7 +52,7 @@ def run(args) -> int:
         was, now = camera_summary(calibrated, truth), camera_summary(result.cameras, truth)
         print("against cameras_gt.json: " + ", ".join(f"{k[:-4]} {was[k]:.3f}° → {now[k]:.3f}°" for k in
                                                       ("rotation_deg", "orbit_deg", "roll_deg", "aim_deg")))
-    write_json(args.out, {cid: camera_fields(camera) for cid, camera in result.cameras.items()})
+    write_cameras(args.out, result.cameras)
     print(f"wrote {len(result.cameras)} cameras to {args.out}; start refinement there with "
           f"[cameras] refine = true, start = \"{args.out}\"")
     return 0

@@ -30,7 +30,7 @@ from . import layout
 from .mesh_render import render_mesh, vertex_normals
 from .sequences import NOISE_GROUPS, TEST_SEQUENCE, GroupNoise, TrackingNoise, add_tracking_noise, make_sequences, tracking_biases
 from .landmarks import write_landmark_file
-from .writer import CaptureWriter, camera_fields
+from .writer import CaptureWriter, write_cameras
 
 GT_FLAME_DIR = "flame_param_gt"
 GT_CAMERAS_FILE = "cameras_gt.json"
@@ -253,7 +253,7 @@ def make_capture(
         zeros = {k: np.zeros_like(v[0]) for k, v in sequences[0].params.items()}
         writer.write_canonical_flame_params(zeros)
     detector.write(out)
-    write_json(out / GT_CAMERAS_FILE, {c.camera_id: camera_fields(c) for c in cameras})
+    write_cameras(out / GT_CAMERAS_FILE, {c.camera_id: c for c in cameras})
     write_json(
         out / INFO_FILE,
         {

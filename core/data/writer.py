@@ -39,6 +39,12 @@ def camera_fields(camera: Camera) -> dict:
     }
 
 
+def write_cameras(path, cameras: dict[str, Camera]) -> None:
+    """A cameras file: camera id → the camera fields above (``cameras_gt.json``, refined or solved
+    cameras; ``read_cameras`` in ``core/evaluate/images.py`` reads it), written atomically."""
+    write_json(path, {camera_id: camera_fields(camera) for camera_id, camera in cameras.items()})
+
+
 class CaptureWriter:
     """Builds a capture folder frame by frame.
 

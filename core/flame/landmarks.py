@@ -24,6 +24,7 @@ import numpy as np
 
 from ..errors import InputError, UnsafePickleError
 from ..io.restricted_pickle import NUMPY_ARRAY_GLOBALS, restricted_load
+from .safe_pickle import latin1_encode
 
 IBUG_COUNT = 68
 STATIC_IBUG = np.arange(17, IBUG_COUNT)  # the points that are fixed on the face (not the jaw contour)
@@ -197,7 +198,7 @@ _EMBEDDING_GLOBALS = {
     "torch._utils": lambda name: _skipped if name.startswith("_rebuild_tensor") else None,
     "torch.storage": lambda name: _skipped if name == "_load_from_bytes" else None,
     "collections": lambda name: dict if name == "OrderedDict" else None,
-    "_codecs": lambda name: (lambda text, encoding="latin1": text.encode("latin1")) if name == "encode" else None,
+    "_codecs": lambda name: latin1_encode if name == "encode" else None,
 }
 
 

@@ -91,7 +91,7 @@ _ALLOWED_MODULES = {
     "copyreg": lambda name: copyreg._reconstructor if name == "_reconstructor" else None,
     "__builtin__": lambda name: {"object": object, "bytes": _empty_bytes}.get(name),
     "builtins": lambda name: {"object": object, "bytes": _empty_bytes}.get(name),
-    "_codecs": lambda name: _latin1_encode if name == "encode" else None,
+    "_codecs": lambda name: latin1_encode if name == "encode" else None,
 }
 
 
@@ -103,7 +103,7 @@ def _empty_bytes(*args):
     return b""
 
 
-def _latin1_encode(text, encoding="latin1"):
+def latin1_encode(text, encoding="latin1"):
     """Python 3 pickles of ``bytes`` call ``_codecs.encode(str, 'latin1')``; only that is allowed."""
     if not isinstance(text, str) or encoding not in ("latin1", "latin-1"):
         raise UnsafePickleError(None, None, "refused _codecs.encode with unexpected arguments")

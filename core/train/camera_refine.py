@@ -32,7 +32,6 @@ from torch import nn
 from ..avatar.binding import matrix_to_quaternion, quaternion_multiply
 from ..camera import Camera
 from ..flame.lbs import axis_angle_to_matrix
-from ..io.atomic import write_json
 from .config import CAMERA_GAUGES
 
 class CameraOffsets(nn.Module):
@@ -169,6 +168,6 @@ def _axis_angle(matrix: np.ndarray) -> torch.Tensor:
 
 def write_refined_cameras(path: str | os.PathLike, offsets: CameraOffsets) -> None:
     """``RUN/cameras_refined.json``: camera id → the capture's camera fields (as ``cameras_gt.json``)."""
-    from ..data.writer import camera_fields
+    from ..data.writer import write_cameras
 
-    write_json(path, {cid: camera_fields(camera) for cid, camera in offsets.refined_cameras().items()})
+    write_cameras(path, offsets.refined_cameras())

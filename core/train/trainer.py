@@ -221,12 +221,12 @@ class Trainer:
             from ..evaluate.images import read_cameras
 
             return read_cameras(pathlib.Path(start))
-        from ..data.writer import camera_fields
+        from ..data.writer import write_cameras
         from .landmark_cameras import LANDMARK_CAMERAS_FILE, solve_cameras
 
         solved = solve_cameras(self.data.capture, self.avatar.head_file, gauge=self.config.cameras.gauge).cameras
         if self.comm.is_writer:
-            write_json(self.run_folder.root / LANDMARK_CAMERAS_FILE, {cid: camera_fields(c) for cid, c in solved.items()})
+            write_cameras(self.run_folder.root / LANDMARK_CAMERAS_FILE, solved)
         return solved
 
     def _build_optimizer(self) -> None:
