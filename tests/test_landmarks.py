@@ -130,6 +130,12 @@ def test_vhap_landmark_folders_are_read(tmp_path):
     np.savez(tmp_path / "bad.npz", face_landmark_2d=np.zeros((4, 51, 3)))
     with pytest.raises(InputError, match=r"bad.npz.*expected shape \(N, 68, 3\)"):
         read_landmark_file(tmp_path / "bad.npz", 200, 300, timesteps=4)
+    np.savez(tmp_path / "nan.npz", face_landmark_2d=np.full((4, 68, 3), np.nan))
+    with pytest.raises(InputError, match=r"nan.npz.*NaN"):
+        read_landmark_file(tmp_path / "nan.npz", 200, 300, timesteps=4)
+    np.savez(tmp_path / "pickled.npz", face_landmark_2d=np.array([{"x": 1}], dtype=object))
+    with pytest.raises(InputError, match="pickled.npz"):
+        read_landmark_file(tmp_path / "pickled.npz", 200, 300, timesteps=1)
 
 
 def test_landmark_files_round_trip(tmp_path):
