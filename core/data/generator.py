@@ -152,7 +152,7 @@ class LandmarkDetector:
         self.rng = np.random.default_rng([settings.seed, settings.subject, 68])
         self.jitter = settings.landmark_noise
         shape = (len(cameras), IBUG_COUNT, 2)
-        self.bias = self.rng.normal(scale=settings.landmark_bias, size=shape) if settings.landmark_bias else np.zeros(shape)
+        self.bias = self.rng.normal(scale=settings.landmark_bias, size=shape)
         self.found: list[list[np.ndarray]] = [[] for _ in cameras]
 
     def detect(self, vertices: np.ndarray, normals: np.ndarray) -> None:
@@ -164,7 +164,7 @@ class LandmarkDetector:
             uv, _ = camera.project(points)
             to_camera = camera.center - points
             seen = np.sum(facing * to_camera, 1) > 0.1 * np.linalg.norm(facing, axis=1) * np.linalg.norm(to_camera, axis=1)
-            noisy = uv + self.bias[k] + self.rng.normal(scale=self.jitter, size=uv.shape) if self.jitter else uv + self.bias[k]
+            noisy = uv + self.bias[k] + self.rng.normal(scale=self.jitter, size=uv.shape)
             self.found[k].append(np.concatenate([noisy, seen[:, None].astype(np.float64)], 1))
 
     def write(self, root: pathlib.Path) -> None:

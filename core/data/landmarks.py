@@ -21,11 +21,11 @@ import pathlib
 import numpy as np
 
 from ..errors import InputError
+from ..flame.landmarks import IBUG_COUNT
 from ..io.npz import load_npz, save_npz
 
 LANDMARK_DIR = "landmark2d"
 DETECTORS = ("STAR", "face-alignment")  # VHAP's subfolders, in the order they are looked for
-POINTS = 68
 
 
 def landmark_files(root, camera_ids) -> dict[str, pathlib.Path]:
@@ -52,8 +52,8 @@ def read_landmark_file(path, width: int, height: int, timesteps: int) -> np.ndar
     if "face_landmark_2d" not in arrays:
         raise InputError(path, "face_landmark_2d", f"missing (keys: {sorted(arrays)})")
     points = np.asarray(arrays["face_landmark_2d"], np.float64)
-    if points.ndim != 3 or points.shape[1:] != (POINTS, 3):
-        raise InputError(path, "face_landmark_2d", f"expected shape (N, {POINTS}, 3), found {points.shape}")
+    if points.ndim != 3 or points.shape[1:] != (IBUG_COUNT, 3):
+        raise InputError(path, "face_landmark_2d", f"expected shape (N, {IBUG_COUNT}, 3), found {points.shape}")
     if len(points) < timesteps:
         raise InputError(path, "face_landmark_2d", f"{len(points)} rows for a capture of {timesteps} timesteps "
                                                    "(landmarks of another sequence, or of part of it?)")
@@ -78,8 +78,8 @@ def write_landmark_file(root, camera_id: str, pixels: np.ndarray, width: int, he
     """Write ``(N,68,3)`` landmarks (x, y in pixels, confidence) as VHAP does:
     ``landmark2d/<detector>/<camera id>.npz``, coordinates divided by the image size."""
     pixels = np.asarray(pixels, np.float64)
-    if pixels.ndim != 3 or pixels.shape[1:] != (POINTS, 3):
-        raise ValueError(f"expected landmarks of shape (N, {POINTS}, 3), got {pixels.shape}")
+    if pixels.ndim != 3 or pixels.shape[1:] != (IBUG_COUNT, 3):
+        raise ValueError(f"expected landmarks of shape (N, {IBUG_COUNT}, 3), got {pixels.shape}")
     normalised = pixels / np.array([width, height, 1.0])
     box = np.concatenate([pixels[..., :2].min(1), pixels[..., :2].max(1), np.ones((len(pixels), 1))], 1)
     path = pathlib.Path(root) / LANDMARK_DIR / detector / f"{camera_id}.npz"

@@ -160,9 +160,8 @@ class _Adjustment:
     @torch.no_grad()
     def rms_by_camera(self) -> list[float]:
         squared = (self.residual() ** 2).sum(-1)
-        weight = self.weight.clamp_min(0)
-        totals = weight.sum((1, 2))
-        return [float(torch.sqrt((squared[k] * weight[k]).sum() / totals[k])) if totals[k] > 0 else float("nan")
+        totals = self.weight.sum((1, 2))
+        return [float(torch.sqrt((squared[k] * self.weight[k]).sum() / totals[k])) if totals[k] > 0 else float("nan")
                 for k in range(len(totals))]
 
 
