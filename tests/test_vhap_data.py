@@ -14,7 +14,7 @@ import torch
 import vhap_fixture as V
 from mogaface.core.avatar.avatar import Avatar, flame_params_to_torch
 from mogaface.core.data.capture import Capture
-from mogaface.core.data.cy_check import check_cy
+from mogaface.core.data.cy_check import check_cy, judge
 from mogaface.core.data.validate import validate_capture
 from mogaface.core.errors import CaptureError
 from mogaface.core.evaluate.evaluation import evaluate_run
@@ -203,6 +203,17 @@ def test_bottom_origin_cy_projects_the_tracked_mesh_into_the_masks(data, head, f
             doc = json.loads(path.read_text())
             doc.pop("cy_origin")
             path.write_text(json.dumps(doc))
+
+
+def test_the_cy_verdict_needs_a_difference_that_stands_out_of_its_spread():
+    steady = judge("bottom", [0.95, 0.96, 0.94, 0.95], [0.93, 0.94, 0.92, 0.935])
+    assert steady.verdict == "confirmed"
+    assert judge("top", [0.93, 0.94, 0.92, 0.935], [0.95, 0.96, 0.94, 0.95]).verdict == "mirrored"
+    # A calibration a degree off: frames disagree by more than their mean difference (what
+    # four frames of the 128² camera-noise capture once read as "mirrored").
+    scattered = judge("bottom", [0.80, 0.78, 0.83, 0.75, 0.82, 0.79], [0.814, 0.773, 0.837, 0.727, 0.844, 0.80])
+    assert scattered.verdict == "undecided" and "spread" in scattered.reason
+    assert judge("bottom", [0.9, 0.9], [0.899, 0.899]).verdict == "undecided"  # below the margin
 
 
 # -- monocular -----------------------------------------------------------------------------------

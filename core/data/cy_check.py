@@ -4,7 +4,10 @@ The split files may measure ``cy`` from the bottom edge (VHAP's exporter; our de
 from the top (``"cy_origin": "top"``). The two readings differ by ``h − 2·cy`` pixels
 vertically, which nothing in the json reveals. The tracked FLAME mesh does: projected with
 the right reading, its vertices fall inside the foreground masks; with the mirrored one,
-those near the silhouette fall out. This compares the two readings on a few frames.
+those near the silhouette fall out. This compares the two readings on a spread of frames and
+decides only when the difference stands out of its frame-to-frame spread: a calibration a degree
+off moves the mesh by more pixels than a principal point a few pixels off centre, and on four
+frames such a capture read "mirrored" by chance.
 """
 
 from __future__ import annotations
@@ -18,7 +21,8 @@ from ..camera import Camera
 from .capture import Capture
 
 MARGIN = 0.003  # the smallest difference in mean mask coverage that decides
-
+SIGNIFICANCE = 3.0  # ... and it must be this many standard errors of the per-frame differences
+FRAMES = 24  # frames compared, spread over the capture
 
 @dataclasses.dataclass
 class CyReport:
@@ -55,7 +59,7 @@ def mask_coverage(vertices: np.ndarray, camera: Camera, mask: np.ndarray) -> flo
     return float(values.mean())
 
 
-def check_cy(capture: Capture, head_file: str | pathlib.Path | None, max_frames: int = 4) -> CyReport:
+def check_cy(capture: Capture, head_file: str | pathlib.Path | None, max_frames: int = FRAMES) -> CyReport:
     """Compare the two readings of ``cy`` on up to ``max_frames`` frames (needs the head model)."""
     import torch
 
@@ -79,10 +83,20 @@ def check_cy(capture: Capture, head_file: str | pathlib.Path | None, max_frames:
             mask = capture.load_image(frame)[1]
             as_read.append(mask_coverage(vertices, capture.camera(frame), mask))
             other.append(mask_coverage(vertices, mirrored(capture.camera(frame)), mask))
+    return judge(declared, as_read, other)
+
+
+def judge(declared: str, as_read, other) -> CyReport:
+    """The verdict from per-frame mask coverages under the declared and the mirrored reading."""
+    difference = np.asarray(as_read, np.float64) - np.asarray(other, np.float64)
     coverage = (float(np.mean(as_read)), float(np.mean(other)))
-    if coverage[0] - coverage[1] > MARGIN:
+    spread = float(difference.std(ddof=1) / np.sqrt(len(difference))) if len(difference) > 1 else 0.0
+    if abs(difference.mean()) <= max(MARGIN, SIGNIFICANCE * spread):
+        return CyReport(declared, "undecided", coverage,
+                        f"the masks do not tell the readings apart on {len(difference)} frames: the difference is "
+                        "within its spread from frame to frame, as when the calibration or the tracking is off "
+                        "by more than the principal point is off centre")
+    if difference.mean() > 0:
         return CyReport(declared, "confirmed", coverage)
-    if coverage[1] - coverage[0] > MARGIN:
-        fix = '"cy_origin": "top"' if declared == "bottom" else 'no "cy_origin" key (or "bottom")'
-        return CyReport(declared, "mirrored", coverage, f"the masks fit the other reading: give the split files {fix}")
-    return CyReport(declared, "undecided", coverage, "the masks fit both readings equally")
+    fix = '"cy_origin": "top"' if declared == "bottom" else 'no "cy_origin" key (or "bottom")'
+    return CyReport(declared, "mirrored", coverage, f"the masks fit the other reading: give the split files {fix}")
