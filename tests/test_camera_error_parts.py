@@ -1,6 +1,6 @@
 """The split of a camera's rotation error into orbit, roll and aim, and the common look shift:
 each known motion of a camera lands in its own part, and a known shift of what every camera looks
-at is found again."""
+at is found again; the error after aligning the rig ignores a rigid motion of the whole rig."""
 
 import dataclasses
 
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from mogaface.core.camera import Camera, look_point
-from mogaface.core.evaluate.camera_error import error_parts, look_shift, pose_error
+from mogaface.core.evaluate.camera_error import camera_summary, error_parts, look_shift, pose_error
 
 SUBJECT = np.array([0.02, 1.55, -0.01])
 
@@ -61,3 +61,18 @@ def test_a_common_shift_of_the_looked_at_point_is_found():
     aimed = ring(target=SUBJECT + shift)  # same centres, every camera turned to the shifted point
     assert np.allclose(look_shift(aimed, truth, SUBJECT), shift, atol=2e-5)
     assert np.allclose(look_shift(truth, truth, SUBJECT), 0.0, atol=1e-9)
+
+
+def test_the_aligned_error_ignores_a_motion_of_the_whole_rig_and_keeps_the_rest():
+    truth = ring()
+    whole = np.array([0.004, -0.007, 0.005])  # radians, about a point off the subject
+    moved = {cid: rotated(camera, whole, SUBJECT + [0.1, 0.2, -0.3]) for cid, camera in truth.items()}
+    summary = camera_summary(moved, truth)
+    assert summary["rotation_deg"] == pytest.approx(np.degrees(np.linalg.norm(whole)), abs=1e-6)
+    assert summary["position_mm"] > 1.0
+    assert summary["rotation_aligned_deg"] < 1e-6 and summary["position_aligned_mm"] < 1e-6
+    # One camera turned by 0.8° on top: it alone carries the error once the rig is aligned (the
+    # alignment shares out a little of it: 1/8 of the turn to every camera, nearly).
+    one = dict(moved, cam3=rotated(moved["cam3"], np.radians(0.8) * np.array([0.0, 0.6, 0.8]), moved["cam3"].center))
+    aligned = camera_summary(one, truth)["rotation_aligned_deg"]
+    assert aligned == pytest.approx((0.8 * 7 / 8 + 7 * 0.8 / 8) / 8, rel=0.02)

@@ -51,7 +51,8 @@ def run(args) -> int:
     if truth:
         was, now = camera_summary(calibrated, truth), camera_summary(result.cameras, truth)
         print("against cameras_gt.json: " + ", ".join(f"{k[:-4]} {was[k]:.3f}° → {now[k]:.3f}°" for k in
-                                                      ("rotation_deg", "orbit_deg", "roll_deg", "aim_deg")))
+                                                      ("rotation_deg", "orbit_deg", "roll_deg", "aim_deg",
+                                                       "rotation_aligned_deg")))
     write_cameras(args.out, result.cameras)
     print(f"wrote {len(result.cameras)} cameras to {args.out}; start refinement there with "
           f"[cameras] refine = true, start = \"{args.out}\"")
