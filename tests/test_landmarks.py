@@ -210,6 +210,62 @@ def _turned(w2c, rotvec):
     return np.linalg.inv(c2w)
 
 
+class _VhapScene:
+    """The synthetic FLAME of ``vhap_fixture``, a 4-camera rig, a calibration turned by a degree per
+    camera, and a landmark embedding written as VHAP's ``.npy`` (70 points on the face)."""
+
+    def __init__(self, root, size=48, seed=4):
+        import vhap_fixture as V
+        from mogaface.core.flame.model import FlameModel
+        from mogaface.core.flame.model_file import write_model_file
+
+        self.size = size
+        self.head = root / "head.npz"
+        write_model_file(self.head, V.synthetic_flame_topology())
+        self.flame = FlameModel.load(self.head, n_vertices=5143)
+        rng = np.random.default_rng(seed)
+        self.true = V.rig(4, size)
+        self.calibrated = [dict(cam, w2c=_turned(cam["w2c"], rng.normal(scale=np.radians(1.0), size=3)))
+                           for cam in self.true]
+        self.faces = self.flame.faces.numpy()[: V.synthetic_flame_topology()["f"].shape[0]]
+        rest = V.synthetic_flame_topology()["v_template"]
+        front = np.where(rest[self.faces].mean(1)[:, 2] > 0.06)[0]
+        self.chosen = rng.choice(front, 70, replace=False)
+        self.bary = rng.dirichlet(np.ones(3) * 4, 70)
+        self.embedding_file = root / "landmark_embedding_with_eyes.npy"
+        _vhap_style_npy(self.embedding_file, self.chosen, self.bary)
+
+    def export(self, folder, tracked, missing=()):
+        """A sequence exported by VHAP with the turned calibration, and STAR's landmarks of the
+        true views in its ``landmark2d/``."""
+        import vhap_fixture as V
+
+        folder = V.export_sequence(folder, self.flame, tracked, self.calibrated, self.size)
+        steps = len(tracked["expr"])
+        with torch.no_grad():
+            posed = self.flame(**{k: torch.as_tensor(v if k != "shape" else v[None].repeat(steps, 0))
+                                  for k, v in tracked.items() if k != "static_offset"},
+                               static_offset=torch.as_tensor(tracked["static_offset"])).double().numpy()
+        points = np.einsum("tlkc,lk->tlc", posed[:, self.faces[self.chosen[:68]]], self.bary[:68])
+        (folder / "landmark2d" / "STAR").mkdir(parents=True)
+        for cam in self.true:  # the detector sees the true views
+            pixels = np.stack([V.project(p, cam)[0] for p in points])
+            np.savez(folder / "landmark2d" / "STAR" / f"{cam['id']}.npz",
+                     **_star_rows(pixels, self.size, self.size, missing=missing))
+        return folder
+
+    def check_turned_back(self, capture, result):
+        """Each training camera's turn comes back to within 15 % of the calibration's error, and
+        the landmarks are fitted exactly."""
+        before = training_cameras(capture)
+        assert sorted(result.cameras) == sorted(before) == sorted(cam["id"] for cam in self.true[:3])
+        for cam in self.true[:3]:
+            wrong = pose_error(before[cam["id"]], _as_camera(cam, before[cam["id"]]))[0]
+            right = pose_error(result.cameras[cam["id"]], _as_camera(cam, before[cam["id"]]))[0]
+            assert wrong > 0.5 and right < 0.15 * wrong, (cam["id"], wrong, right)
+        assert all(row["rms_after_px"] < 0.01 < row["rms_before_px"] for row in result.report.values())
+
+
 def test_cameras_of_a_vhap_export_are_turned_back_by_its_landmarks(tmp_path):
     """A sequence exported as VHAP exports it (OpenGL cameras, ``cy`` from the bottom, the 5143-vertex
     teeth, serial camera ids, the relocation by the mean translation) with a calibration turned by a
@@ -218,45 +274,77 @@ def test_cameras_of_a_vhap_export_are_turned_back_by_its_landmarks(tmp_path):
     come back to within what a shift of the head toward the cameras leaves free (perspective alone
     tells them apart on this narrow rig)."""
     import vhap_fixture as V
-    from mogaface.core.flame.model import FlameModel
-    from mogaface.core.flame.model_file import write_model_file
 
-    size, steps = 48, 6
-    head = tmp_path / "head.npz"
-    write_model_file(head, V.synthetic_flame_topology())
-    flame = FlameModel.load(head, n_vertices=5143)
-    rng = np.random.default_rng(4)
-    true = V.rig(4, size)
-    calibrated = [dict(cam, w2c=_turned(cam["w2c"], rng.normal(scale=np.radians(1.0), size=3))) for cam in true]
-    tracked = V.tracking(flame, steps, seed=0, translation=[0.0, 0.01, 0.0])
-    folder = V.export_sequence(tmp_path / "074_EMO-1_v16_DS4", flame, tracked, calibrated, size)
-
-    faces = flame.faces.numpy()[: V.synthetic_flame_topology()["f"].shape[0]]
-    rest = V.synthetic_flame_topology()["v_template"]
-    front = np.where(rest[faces].mean(1)[:, 2] > 0.06)[0]
-    chosen = rng.choice(front, 70, replace=False)
-    bary = rng.dirichlet(np.ones(3) * 4, 70)
-    _vhap_style_npy(tmp_path / "landmark_embedding_with_eyes.npy", chosen, bary)
-    with torch.no_grad():
-        posed = flame(**{k: torch.as_tensor(v if k != "shape" else v[None].repeat(steps, 0))
-                         for k, v in tracked.items() if k != "static_offset"},
-                      static_offset=torch.as_tensor(tracked["static_offset"])).double().numpy()
-    points = np.einsum("tlkc,lk->tlc", posed[:, faces[chosen[:68]]], bary[:68])
-    (folder / "landmark2d" / "STAR").mkdir(parents=True)
-    for cam in true:  # the detector sees the true views
-        pixels = np.stack([V.project(p, cam)[0] for p in points])
-        np.savez(folder / "landmark2d" / "STAR" / f"{cam['id']}.npz", **_star_rows(pixels, size, size, missing={1}))
-
+    scene = _VhapScene(tmp_path)
+    tracked = V.tracking(scene.flame, 6, seed=0, translation=[0.0, 0.01, 0.0])
+    folder = scene.export(tmp_path / "074_EMO-1_v16_DS4", tracked, missing={1})
     capture = Capture.open(folder)
-    result = solve_cameras(capture, head, read_embedding(tmp_path / "landmark_embedding_with_eyes.npy"),
+    result = solve_cameras(capture, scene.head, read_embedding(scene.embedding_file),
                            points=np.arange(IBUG_COUNT), gauge="none")
-    before = training_cameras(capture)
-    assert sorted(result.cameras) == sorted(before) == sorted(cam["id"] for cam in true[:3])
-    for cam in true[:3]:
-        wrong = pose_error(before[cam["id"]], _as_camera(cam, before[cam["id"]]))[0]
-        right = pose_error(result.cameras[cam["id"]], _as_camera(cam, before[cam["id"]]))[0]
-        assert wrong > 0.5 and right < 0.15 * wrong, (cam["id"], wrong, right)
-    assert all(row["rms_after_px"] < 0.01 < row["rms_before_px"] for row in result.report.values())
+    scene.check_turned_back(capture, result)
+
+
+def test_a_union_of_sequences_takes_each_sequences_landmarks_and_its_shifted_cameras(tmp_path):
+    """VHAP's union (``combine_nerf_datasets.py``): frames in the sibling sequence folders, timesteps
+    numbered across them, each sequence's cameras shifted by its own mean translation. Each sequence
+    keeps its own ``landmark2d/`` (rows of its own timesteps); the union reads them at its indices,
+    and one turn per camera fits all its shifted poses."""
+    import vhap_fixture as V
+    from mogaface.core.data.landmarks import capture_landmarks
+    from mogaface.core.data.validate import validate_capture
+
+    scene = _VhapScene(tmp_path, seed=5)
+    steps, subject = 5, V.tracking(scene.flame, 5, seed=0, translation=[0, 0, 0])
+    sequences = [scene.export(tmp_path / f"306_SEQ-{i}_v16_DS4",
+                              {**V.tracking(scene.flame, steps, seed=i, translation=[0.02 * i, 0.01, -0.015 * i]),
+                               "shape": subject["shape"], "static_offset": subject["static_offset"]},
+                              missing={2} if i == 1 else ())
+                 for i in range(3)]
+    union = V.combine(sequences, tmp_path / "UNION_306_3seq")
+    capture = Capture.open(union)
+    poses = {tuple(capture.camera(f).center.round(9)) for f in capture.frames("train") if f.camera_id == "220700191"}
+    assert len(poses) == 2  # sequences 0 and 1 train; each has its own shift of the camera
+
+    rows = capture_landmarks(capture, capture.cameras)
+    file = read_landmark_file(sequences[1] / "landmark2d" / "STAR" / "220700191.npz", scene.size, scene.size, steps)
+    assert np.array_equal(rows["220700191"][steps:2 * steps], file)  # sequence 1 is the union's timesteps 5–9
+    assert rows["220700191"][steps + 2, :, 2].max() == 0  # its frame without a face stays unused
+    assert validate_capture(union).landmark_cameras == sorted(capture.cameras)
+
+    result = solve_cameras(capture, scene.head, read_embedding(scene.embedding_file),
+                           points=np.arange(IBUG_COUNT), gauge="none")
+    scene.check_turned_back(capture, result)
+
+    # One command: the run solves its start, taking the embedding file that lies beside the FLAME model.
+    from mogaface.core.cli import main
+
+    run = tmp_path / "run"
+    assert main(["train", str(union), "--out", str(run), "--head", str(scene.head), "--preset", "quick",
+                 "--steps", "2", "--quiet", "--refine-cameras", "1", "--cameras-start", "landmarks"]) == 0
+    direct = solve_cameras(capture, scene.head).cameras
+    started = read_cameras(run / "cameras_landmarks.json")
+    assert max(pose_error(started[c], direct[c])[0] for c in direct) < 1e-3
+    assert max(pose_error(direct[c], result.cameras[c])[0] for c in direct) > 0.01  # a gauge and 51 points apart
+
+
+def test_a_flame_model_takes_its_embedding_from_beside_it_or_from_the_option(tmp_path):
+    import vhap_fixture as V
+    from mogaface.core.cli import main
+
+    scene = _VhapScene(tmp_path)
+    folder = scene.export(tmp_path / "seq", V.tracking(scene.flame, 4, seed=0, translation=[0.0, 0.01, 0.0]))
+    capture = Capture.open(folder)
+    beside = solve_cameras(capture, scene.head).cameras  # landmark_embedding_with_eyes.npy lies beside head.npz
+    moved = tmp_path / "elsewhere" / "embedding.npy"
+    moved.parent.mkdir()
+    scene.embedding_file.rename(moved)
+    with pytest.raises(InputError, match="beside the model as landmark_embedding_with_eyes.npy"):
+        solve_cameras(capture, scene.head)
+    run = tmp_path / "run"
+    assert main(["train", str(folder), "--out", str(run), "--head", str(scene.head), "--preset", "quick",
+                 "--steps", "1", "--quiet", "--cameras-start", "landmarks", "--landmark-embedding", str(moved)]) == 0
+    started = read_cameras(run / "cameras_landmarks.json")
+    assert max(pose_error(started[c], beside[c])[0] for c in beside) < 1e-3
 
 
 def _as_camera(cam, like):

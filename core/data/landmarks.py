@@ -10,12 +10,15 @@ sequence: one file, ``landmark2d/STAR.npz``). Its export does not copy them; a u
 - ``bounding_box`` (N,5): x1, y1, x2, y2 (pixels), score (optional here).
 
 Row ``i`` is the sequence's ``i``-th timestep, which is the capture's ``timestep_index`` of a
-single-sequence export. A union capture numbers timesteps across its sequences; its landmark rows
-must follow the same numbering (one file per camera over every sequence).
+single-sequence export. A union of sequences (VHAP's ``combine_nerf_datasets.py``: frames in the
+sibling sequence folders, timesteps numbered across them) reads each sequence folder's own
+``landmark2d/``, row by the timestep that folder's split files give the frame, and places it at the
+union's index; landmark files in the union folder itself, numbered as the union, are read first.
 """
 
 from __future__ import annotations
 
+import os
 import pathlib
 
 import numpy as np
@@ -71,6 +74,45 @@ def read_landmarks(root, cameras: dict, timesteps: int) -> dict[str, np.ndarray]
     files = landmark_files(root, sorted(cameras))
     return {cid: read_landmark_file(path, cameras[cid].width, cameras[cid].height, timesteps)
             for cid, path in files.items()}
+
+
+def capture_landmarks(capture, cameras: dict) -> dict[str, np.ndarray]:
+    """Every camera's landmarks as rows of ``capture``'s timestep indices (rows of weight 0 where
+    no file covers the frame): the capture's own ``landmark2d/``, or, for a union of sequences,
+    each sequence folder's (see the module's docstring)."""
+    from .capture import Capture
+
+    steps = max(f.timestep_index for f in capture.frames()) + 1
+    own = read_landmarks(capture.root, cameras, steps)
+    if own:
+        return own
+    rows: dict[str, np.ndarray] = {}
+    for folder, frames in _sequence_folders(capture).items():
+        if not (folder / LANDMARK_DIR).is_dir():
+            continue
+        local = {f.file_path: f.timestep_index for f in Capture.open(folder).frames()}
+        found = read_landmarks(folder, cameras, max(local.values()) + 1)
+        for frame, inside in frames:
+            if frame.camera_id not in found:
+                continue
+            if inside not in local:
+                raise InputError(folder, inside, f"the union's frame {frame.file_path} is not listed in the "
+                                                 "sequence folder's own split files (no landmark row to take)")
+            rows.setdefault(frame.camera_id, np.zeros((steps, IBUG_COUNT, 3)))[frame.timestep_index] = (
+                found[frame.camera_id][local[inside]])
+    return rows
+
+
+def _sequence_folders(capture) -> dict[pathlib.Path, list]:
+    """A union's sequence folders (frames given as ``../SEQUENCE/…``): folder → ``(frame, path
+    inside the folder)`` of each frame there."""
+    folders: dict[pathlib.Path, list] = {}
+    for frame in capture.frames():
+        parts = pathlib.PurePosixPath(frame.file_path).parts
+        if len(parts) > 2 and parts[0] == "..":
+            folder = pathlib.Path(os.path.normpath(capture.root / ".." / parts[1]))
+            folders.setdefault(folder, []).append((frame, "/".join(parts[2:])))
+    return folders
 
 
 def write_landmark_file(root, camera_id: str, pixels: np.ndarray, width: int, height: int,

@@ -17,7 +17,7 @@ from ..io.files import check_regular_file
 from ..io.image import image_size, read_image
 from . import layout
 from .capture import DEFAULT_CACHE_BYTES, Capture
-from .landmarks import read_landmarks
+from .landmarks import capture_landmarks
 
 
 @dataclasses.dataclass
@@ -98,7 +98,7 @@ def validate_capture(
         has_canonical=canonical is not None,
         memory_bound_bytes=capture.memory_bound_bytes,
         empty_splits=dict(capture.empty_splits),
-        landmark_cameras=sorted(read_landmarks(capture.root, capture.cameras, max(capture.timesteps) + 1)),
+        landmark_cameras=sorted(capture_landmarks(capture, capture.cameras)),
     )
 
 

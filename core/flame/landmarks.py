@@ -28,6 +28,7 @@ from .safe_pickle import latin1_encode
 
 IBUG_COUNT = 68
 STATIC_IBUG = np.arange(17, IBUG_COUNT)  # the points that are fixed on the face (not the jaw contour)
+EMBEDDING_FILES = ("landmark_embedding_with_eyes.npy", "flame_static_embedding.pkl")  # looked for beside a model
 
 
 @dataclasses.dataclass(frozen=True)
@@ -102,6 +103,21 @@ def model_landmarks(faces: np.ndarray) -> LandmarkEmbedding | None:
 
     own = build_mesh().faces
     return procedural_embedding() if faces.shape == own.shape and np.array_equal(faces, own) else None
+
+
+def head_landmarks(head_file, faces: np.ndarray) -> LandmarkEmbedding | None:
+    """The embedding of the head model in ``head_file``: the procedural head's own, or an
+    embedding file beside the model under the name VHAP or FLAME ship it with
+    (:data:`EMBEDDING_FILES`: VHAP's ``asset/flame`` holds ``flame2023.pkl`` beside
+    ``landmark_embedding_with_eyes.npy``; FLAME's download, ``flame_static_embedding.pkl``); else None."""
+    own = model_landmarks(faces)
+    if own is not None:
+        return own
+    folder = pathlib.Path(head_file).parent
+    for name in EMBEDDING_FILES:
+        if (folder / name).is_file():
+            return read_embedding(folder / name)
+    return None
 
 
 def _nearest_skin(mesh, directions) -> list[int]:

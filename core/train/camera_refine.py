@@ -59,13 +59,15 @@ class CameraOffsets(nn.Module):
         """``(rotation (C,3), translation (C,3))`` of every camera, detached."""
         return (torch.stack([p.detach() for p in self.rotation]), torch.stack([p.detach() for p in self.translation]))
 
-    def move_scene(self, world: dict[str, torch.Tensor], camera_id: str) -> dict[str, torch.Tensor]:
-        """World Gaussians as the calibrated camera must see them to show the refined camera's view."""
+    def move_scene(self, world: dict[str, torch.Tensor], camera_id: str, centre=None) -> dict[str, torch.Tensor]:
+        """World Gaussians as the calibrated camera must see them to show the refined camera's view.
+        ``centre``: the frame's own camera centre, when it is not the first pose's (a union of
+        sequences shifts each camera per sequence; the camera turns about where it is)."""
         if camera_id not in self.index:
             return world
         i = self.index[camera_id]
         undo = axis_angle_to_matrix(-self.rotation[i])
-        centre = self.centres[i]
+        centre = self.centres[i] if centre is None else torch.as_tensor(centre, dtype=torch.float32)
         means = (world["means"] - centre - self.translation[i]) @ undo.T + centre
         quats = quaternion_multiply(matrix_to_quaternion(undo)[None], world["quats"])
         return {**world, "means": means, "quats": quats}

@@ -104,6 +104,9 @@ class CamerasSection:
                               "refined (RUN/camera_rounds/<k>; train.steps each)")
     start: str = _setting("", "a cameras file in the layout of RUN/cameras_refined.json the offsets start from "
                               "(an earlier run's refined cameras: a new round with a fresh avatar); '': calibrated")
+    embedding: str = _setting("", "for start = 'landmarks' (ignored otherwise): where the landmarks lie on the head model (VHAP's "
+                                  "landmark_embedding_with_eyes.npy, FLAME's flame_static_embedding.pkl or an .npz); "
+                                  "'': the procedural head's own, or such a file beside the head model")
     settle_at: int = _setting(0, "step at which a cameras-only phase starts: the avatar and the FLAME parameters "
                                  "hold still while the cameras align to it (0: no such phase)")
     settle_steps: int = _setting(0, "steps of the cameras-only phase")

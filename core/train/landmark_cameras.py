@@ -14,7 +14,8 @@ then differ only by perspective, and the cameras may aim a few tenths of a degre
 takes that out from the images, and a prior of a millimetre on the shift, which aimed them right,
 scored 0.8 dB lower after refinement (docs/results.md). Then the
 refinement's gauge (``rigid`` by default) is applied, so the result starts ``[cameras] refine``
-exactly as an earlier round's cameras would.
+exactly as an earlier round's cameras would. A union of sequences shifts each camera per sequence;
+one turn per camera, about each pose's own centre, fits all its poses.
 """
 
 from __future__ import annotations
@@ -26,9 +27,9 @@ import torch
 
 from ..camera import Camera
 from ..data.capture import Capture
-from ..data.landmarks import read_landmarks
+from ..data.landmarks import capture_landmarks
 from ..errors import InputError
-from ..flame.landmarks import STATIC_IBUG, LandmarkEmbedding, model_landmarks
+from ..flame.landmarks import EMBEDDING_FILES, STATIC_IBUG, LandmarkEmbedding, head_landmarks
 from ..flame.lbs import axis_angle_to_matrix
 from ..flame.model import FlameModel
 from .camera_refine import CameraOffsets
@@ -47,43 +48,60 @@ class LandmarkCameras:
 
 
 def training_cameras(capture: Capture, split: str = "train") -> dict[str, Camera]:
-    """Each training camera, refusing one that moves between frames (no single turn fits it)."""
-    cameras: dict[str, Camera] = {}
+    """Each training camera as first met (see :func:`camera_poses`)."""
+    return {cid: poses[0] for cid, poses in camera_poses(capture, split)[0].items()}
+
+
+def camera_poses(capture: Capture, split: str = "train") -> tuple[dict[str, list[Camera]], dict[tuple[str, int], int]]:
+    """Each training camera's poses (first met first) and which of them each ``(camera id,
+    timestep)`` frame uses. A union of sequences shifts its cameras per sequence (VHAP moves every
+    sequence by its mean head translation); one turn about each pose's own centre fits them all. A
+    camera that turns or changes its intrinsics between frames is refused: no single turn fits it."""
+    poses: dict[str, list[Camera]] = {}
+    used: dict[tuple[str, int], int] = {}
     for frame in capture.frames(split):
         camera = capture.camera(frame)
-        known = cameras.setdefault(frame.camera_id, camera)
-        if not np.allclose(known.w2c, camera.w2c, atol=1e-9):
-            raise InputError(capture.root, frame.camera_id,
-                             "the camera moves between frames; cameras from landmarks need fixed cameras")
-    return cameras
+        known = poses.setdefault(frame.camera_id, [camera])
+        index = next((i for i, pose in enumerate(known) if np.allclose(pose.w2c, camera.w2c, atol=1e-9)), None)
+        if index is None:
+            if not (np.allclose(known[0].w2c[:3, :3], camera.w2c[:3, :3], atol=1e-9) and np.allclose(known[0].K, camera.K)):
+                raise InputError(capture.root, frame.camera_id, "the camera turns or changes its intrinsics between "
+                                                                "frames; cameras from landmarks need fixed cameras")
+            index = len(known)
+            known.append(camera)
+        used[frame.camera_id, frame.timestep_index] = index
+    return poses, used
 
 
 def solve_cameras(capture: Capture, head_file, embedding: LandmarkEmbedding | None = None, *,
                   points=STATIC_IBUG, gauge: str = CAMERA_GAUGES[0], split: str = "train") -> LandmarkCameras:
     """Turn the capture's ``split`` cameras to fit its landmark files (``landmark2d/``).
-    ``embedding``: where the landmarks lie on ``head_file``'s mesh (the procedural head's own when
-    None; a FLAME model needs its embedding file)."""
-    cameras = training_cameras(capture, split)
+    ``embedding``: where the landmarks lie on ``head_file``'s mesh (when None: the procedural head's
+    own, or a FLAME embedding file beside the model, :func:`head_landmarks`)."""
+    poses, used = camera_poses(capture, split)
+    cameras = {cid: known[0] for cid, known in poses.items()}
     timesteps = sorted({f.timestep_index for f in capture.frames(split)})
     table = FlameTable(timesteps, capture.flame_params_stacked(timesteps))
     model = FlameModel.load(head_file, n_vertices=table.n_vertices)
     if embedding is None:
-        embedding = model_landmarks(model.faces.numpy())
+        embedding = head_landmarks(head_file, model.faces.numpy())
         if embedding is None:
-            raise InputError(head_file, None, "no landmark embedding for this head model: pass FLAME's "
-                                              "(landmark_embedding_with_eyes.npy or flame_static_embedding.pkl)")
-    found = read_landmarks(capture.root, cameras, max(timesteps) + 1)
+            raise InputError(head_file, None, "no landmark embedding for this head model: pass FLAME's, or put it "
+                                              f"beside the model as {' or '.join(EMBEDDING_FILES)}")
+    found = capture_landmarks(capture, cameras)
     if not found:
         raise InputError(capture.root / "landmark2d", None, "no landmark file for any training camera "
                                                             "(expected landmark2d/STAR/<camera id>.npz, docs/data-format.md)")
     embedding = embedding.subset(np.asarray(points)).check(len(model.faces), "landmark embedding")
     ids = sorted(found)
-    shown = {(f.camera_id, f.timestep_index) for f in capture.frames(split)}
-    observed = np.stack([found[c][timesteps][:, embedding.ibug] for c in ids])  # (C,T,L,3)
-    observed[..., 2] *= np.array([[(c, t) in shown for t in timesteps] for c in ids], np.float64)[..., None]
+    views = [(k, j) for k, cid in enumerate(ids) for j in range(len(poses[cid]))]  # (camera, pose) pairs
+    observed = np.stack([found[ids[k]][timesteps][:, embedding.ibug] for k, _ in views])  # (V,T,L,3)
+    observed[..., 2] *= np.array([[used.get((ids[k], t)) == j for t in timesteps] for k, j in views],
+                                 np.float64)[..., None]
     with torch.no_grad():
         landmarks = embedding.positions(model(**table.params()).double(), model.faces)  # (T,L,3)
-    problem = _Adjustment([cameras[c] for c in ids], landmarks, torch.as_tensor(observed))
+    problem = _Adjustment([poses[ids[k]][j] for k, j in views], [k for k, _ in views], landmarks,
+                          torch.as_tensor(observed))
     before = problem.rms_by_camera()
     problem.solve()
     after = problem.rms_by_camera()
@@ -100,32 +118,35 @@ def solve_cameras(capture: Capture, head_file, embedding: LandmarkEmbedding | No
 
 
 class _Adjustment:
-    """The least-squares problem: camera turns ``turn`` (C,3), mesh turns ``head_turn`` and shifts
-    ``head_shift`` (T,3) about each timestep's landmark centroid."""
+    """The least-squares problem: camera turns ``turn`` (C,3), each shared by the poses ``owner``
+    gives it (a union's shifted cameras), mesh turns ``head_turn`` and shifts ``head_shift`` (T,3)
+    about each timestep's landmark centroid."""
 
-    def __init__(self, cameras: list[Camera], landmarks: torch.Tensor, observed: torch.Tensor):
-        self.rotation = _stacked([c.w2c[:3, :3] for c in cameras])
-        self.centre = _stacked([c.center for c in cameras])
-        self.focal = _stacked([[c.fx, c.fy] for c in cameras])
-        self.principal = _stacked([[c.cx, c.cy] for c in cameras])
-        self.knee = HUBER_FRACTION * float(np.mean([c.width for c in cameras]))
+    def __init__(self, poses: list[Camera], owner: list[int], landmarks: torch.Tensor, observed: torch.Tensor):
+        self.rotation = _stacked([c.w2c[:3, :3] for c in poses])
+        self.centre = _stacked([c.center for c in poses])
+        self.focal = _stacked([[c.fx, c.fy] for c in poses])
+        self.principal = _stacked([[c.cx, c.cy] for c in poses])
+        self.knee = HUBER_FRACTION * float(np.mean([c.width for c in poses]))
+        self.owner = torch.as_tensor(owner)
+        count = max(owner) + 1
         self.landmarks = landmarks
         self.centroid = landmarks.mean(1, keepdim=True)
         self.target = observed[..., :2]
         self.weight = observed[..., 2]
-        self.count = self.weight.sum((1, 2)).numpy()
-        self.weight = self.weight * torch.as_tensor(self.count >= MIN_LANDMARKS, dtype=torch.float64)[:, None, None]
-        count, steps = len(cameras), len(landmarks)
+        self.count = torch.zeros(count, dtype=torch.float64).index_add_(0, self.owner, self.weight.sum((1, 2))).numpy()
+        enough = torch.as_tensor(self.count >= MIN_LANDMARKS, dtype=torch.float64)[self.owner]
+        self.weight = self.weight * enough[:, None, None]
         self.turn = torch.zeros(count, 3, dtype=torch.float64, requires_grad=True)
-        self.head_turn = torch.zeros(steps, 3, dtype=torch.float64, requires_grad=True)
-        self.head_shift = torch.zeros(steps, 3, dtype=torch.float64, requires_grad=True)
+        self.head_turn = torch.zeros(len(landmarks), 3, dtype=torch.float64, requires_grad=True)
+        self.head_shift = torch.zeros(len(landmarks), 3, dtype=torch.float64, requires_grad=True)
 
     def residual(self) -> torch.Tensor:
         """(C,T,L,2) pixel residuals."""
         head = axis_angle_to_matrix(self.head_turn)
         points = (self.landmarks - self.centroid) @ head.transpose(1, 2) + self.centroid + self.head_shift[:, None]
         # a camera turned by exp(ω) about its centre sees X as the calibrated one sees exp(−ω)(X − c) + c
-        undo = axis_angle_to_matrix(-self.turn)
+        undo = axis_angle_to_matrix(-self.turn)[self.owner]
         relative = torch.einsum("cij,ctlj->ctli", undo, points[None] - self.centre[:, None, None])
         camera = torch.einsum("cij,ctlj->ctli", self.rotation, relative)
         pixels = camera[..., :2] / camera[..., 2:3] * self.focal[:, None, None] + self.principal[:, None, None]
@@ -159,10 +180,12 @@ class _Adjustment:
 
     @torch.no_grad()
     def rms_by_camera(self) -> list[float]:
-        squared = (self.residual() ** 2).sum(-1)
-        totals = self.weight.sum((1, 2))
-        return [float(torch.sqrt((squared[k] * self.weight[k]).sum() / totals[k])) if totals[k] > 0 else float("nan")
-                for k in range(len(totals))]
+        """RMS pixel residual of each camera (over all its poses)."""
+        count = len(self.turn)
+        squared = torch.zeros(count, dtype=torch.float64).index_add_(
+            0, self.owner, ((self.residual() ** 2).sum(-1) * self.weight).sum((1, 2)))
+        totals = torch.zeros(count, dtype=torch.float64).index_add_(0, self.owner, self.weight.sum((1, 2)))
+        return [float(torch.sqrt(squared[k] / totals[k])) if totals[k] > 0 else float("nan") for k in range(count)]
 
 
 def _stacked(rows) -> torch.Tensor:

@@ -157,7 +157,7 @@ class Trainer:
         self.comm.barrier()  # the other ranks read the head model rank 0 copied
         self.table = self.data.flame_table()
         self.avatar = Avatar.initial(head, self.config.densify.max_sh_degree, n_vertices=self.table.n_vertices)
-        self.camera_offsets = self._build_camera_offsets()
+        self.camera_offsets = self._build_camera_offsets(source)
         self._build_optimizer()
         self.mogaface = build_mogaface(self.config, self.data, self.table, self.avatar)
         self.strategy = DensifyStrategy(densify_schedule(self.config), len(self.avatar.gaussians),
@@ -175,7 +175,7 @@ class Trainer:
         with torch.no_grad():
             for name, value in self.table.trainable().items():
                 value.copy_(state["table"][name])
-        self.camera_offsets = self._build_camera_offsets(restoring=True)
+        self.camera_offsets = self._build_camera_offsets()
         if self.camera_offsets is not None:
             if "cameras" not in state:
                 raise InputError(self.run_folder.checkpoints, "cameras", "the checkpoint holds no camera offsets "
@@ -200,8 +200,10 @@ class Trainer:
         if self.comm.is_writer:
             write_text(self.run_folder.config, config_module.to_toml(self.config))  # e.g. a new --steps
 
-    def _build_camera_offsets(self, restoring: bool = False) -> CameraOffsets | None:
-        """The training cameras' offsets when ``[cameras] refine`` is on (each camera as first met)."""
+    def _build_camera_offsets(self, head_source: pathlib.Path | None = None) -> CameraOffsets | None:
+        """The training cameras' offsets when ``[cameras] refine`` is on (each camera as first met).
+        ``head_source``: the head model a fresh run starts from (its start is set here; a restored
+        run reloads its offsets from the checkpoint)."""
         if not self.config.cameras.refine:
             return None
         cameras = {}
@@ -209,22 +211,26 @@ class Trainer:
             cameras.setdefault(frame.camera_id, self.data.capture.camera(frame))
         offsets = CameraOffsets(cameras, self.config.cameras.gauge)
         start = self.config.cameras.start
-        if start and not restoring:  # a resumed run reloads its offsets from the checkpoint
-            offsets.start_from(self._start_cameras(start), start)
+        if start and head_source is not None:
+            offsets.start_from(self._start_cameras(start, head_source), start)
             offsets.fix_gauge()
         return offsets
 
-    def _start_cameras(self, start: str) -> dict:
+    def _start_cameras(self, start: str, head_source: pathlib.Path) -> dict:
         """The cameras a refining run starts from: a cameras file, or ``"landmarks"``: solved from the
-        capture's landmark files (written to ``RUN/cameras_landmarks.json``)."""
+        capture's landmark files (written to ``RUN/cameras_landmarks.json``) on ``head_source``, the
+        model file as the user gave it (an embedding file may lie beside it)."""
         if start != LANDMARKS_START:
             from ..evaluate.images import read_cameras
 
             return read_cameras(pathlib.Path(start))
         from ..data.writer import write_cameras
+        from ..flame.landmarks import read_embedding
         from .landmark_cameras import LANDMARK_CAMERAS_FILE, solve_cameras
 
-        solved = solve_cameras(self.data.capture, self.avatar.head_file, gauge=self.config.cameras.gauge).cameras
+        embedding = self.config.cameras.embedding
+        solved = solve_cameras(self.data.capture, head_source,
+                               read_embedding(embedding) if embedding else None, gauge=self.config.cameras.gauge).cameras
         if self.comm.is_writer:
             write_cameras(self.run_folder.root / LANDMARK_CAMERAS_FILE, solved)
         return solved
@@ -331,7 +337,7 @@ class Trainer:
         target = self.data.target(frame)
         correction = None
         offsets = self.camera_offsets
-        move = None if offsets is None else (lambda world: offsets.move_scene(world, frame.camera_id))
+        move = None if offsets is None else (lambda world: offsets.move_scene(world, frame.camera_id, camera.center))
         if self.mogaface is None:
             vertices = self._posed_vertices(frame.timestep_index)
             if move is None:
