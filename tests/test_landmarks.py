@@ -327,6 +327,23 @@ def test_a_union_of_sequences_takes_each_sequences_landmarks_and_its_shifted_cam
     assert max(pose_error(direct[c], result.cameras[c])[0] for c in direct) > 0.01  # a gauge and 51 points apart
 
 
+def test_a_monocular_export_keeps_its_camera(tmp_path):
+    """VHAP's monocular export, its landmarks in ``landmark2d/STAR.npz``. One camera's turn is a rigid
+    motion of every head, which the adjustment corrects per timestep anyway: any turn fits the
+    landmarks exactly, so none is made (a free solve turned this camera by 1.5°, fitting to 1e-6 px)."""
+    import vhap_fixture as V
+
+    scene = _VhapScene(tmp_path)
+    scene.true, scene.calibrated = scene.true[:1], scene.calibrated[:1]
+    folder = scene.export(tmp_path / "mono", V.tracking(scene.flame, 6, seed=0, translation=[0.0, 0.01, 0.0]))
+    (folder / "landmark2d" / "STAR" / f"{scene.true[0]['id']}.npz").rename(folder / "landmark2d" / "STAR.npz")
+    capture = Capture.open(folder)
+    result = solve_cameras(capture, scene.head)
+    (camera_id, row), = result.report.items()
+    assert row["landmarks"] > 100 and "only camera" in row["kept"] and row["rotation_deg"] == 0.0
+    assert np.allclose(result.cameras[camera_id].w2c, training_cameras(capture)[camera_id].w2c, atol=1e-6)
+
+
 def test_a_flame_model_takes_its_embedding_from_beside_it_or_from_the_option(tmp_path):
     import vhap_fixture as V
     from mogaface.core.cli import main

@@ -44,7 +44,7 @@ def run(args) -> int:
     print(f"{'camera':<12} {'landmarks':>9} {'rms px':>15} {'turned °':>8}" + ("  error ° (was)" if truth else ""))
     for cid, row in result.report.items():
         line = (f"{cid:<12} {row['landmarks']:>9} {row['rms_before_px']:>6.2f} → {row['rms_after_px']:<6.2f} "
-                f"{row['rotation_deg']:>8.3f}" + ("" if row["turned"] else "  (too few landmarks: kept)"))
+                f"{row['rotation_deg']:>8.3f}" + (f"  ({row['kept']}: kept)" if row["kept"] else ""))
         if cid in truth:
             line += f"  {pose_error(result.cameras[cid], truth[cid])[0]:.3f} ({pose_error(calibrated[cid], truth[cid])[0]:.3f})"
         print(line)

@@ -44,7 +44,7 @@ LANDMARK_CAMERAS_FILE = "cameras_landmarks.json"  # beside a run that started fr
 @dataclasses.dataclass
 class LandmarkCameras:
     cameras: dict[str, Camera]  # every training camera, turned (or kept) and the gauge applied
-    report: dict  # per camera: landmarks used, rotation (degrees), RMS before/after (pixels)
+    report: dict  # per camera: landmarks used, rotation (degrees), RMS before/after (pixels), why kept ('' if turned)
 
 
 def training_cameras(capture: Capture, split: str = "train") -> dict[str, Camera]:
@@ -102,8 +102,13 @@ def solve_cameras(capture: Capture, head_file, embedding: LandmarkEmbedding | No
         landmarks = embedding.positions(model(**table.params()).double(), model.faces)  # (T,L,3)
     problem = _Adjustment([poses[ids[k]][j] for k, j in views], [k for k, _ in views], landmarks,
                           torch.as_tensor(observed))
+    enough = problem.count >= MIN_LANDMARKS
+    # One camera's turn about its centre is a rigid motion of every timestep's head, which the
+    # adjustment corrects anyway: with fewer than two cameras it would fit any turn.
+    solved = int(enough.sum()) >= 2
     before = problem.rms_by_camera()
-    problem.solve()
+    if solved:
+        problem.solve()
     after = problem.rms_by_camera()
     offsets = CameraOffsets(cameras, gauge)
     with torch.no_grad():
@@ -111,7 +116,8 @@ def solve_cameras(capture: Capture, head_file, embedding: LandmarkEmbedding | No
             offsets.rotation[offsets.index[camera_id]].copy_(problem.turn[k].float())
     offsets.fix_gauge()
     report = {cid: {"landmarks": int(problem.count[k]), "rms_before_px": before[k], "rms_after_px": after[k],
-                    "turned": bool(problem.count[k] >= MIN_LANDMARKS),
+                    "kept": "" if solved and enough[k] else (
+                        "too few landmarks" if not enough[k] else "the only camera with landmarks: its turn is the head's"),
                     "rotation_deg": float(np.degrees(offsets.rotation[offsets.index[cid]].detach().norm()))}
               for k, cid in enumerate(ids)}
     return LandmarkCameras(offsets.refined_cameras(), report)
