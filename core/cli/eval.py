@@ -6,11 +6,11 @@ import pathlib
 
 
 def add_arguments(parser) -> None:
-    from ..evaluate.protocols import OPTIONAL_PROTOCOLS, PROTOCOLS
+    from ..evaluate.protocols import ALL_PROTOCOLS, PROTOCOLS
 
     parser.add_argument("run", type=pathlib.Path, metavar="RUN", help="run folder written by 'train'")
     parser.add_argument(
-        "--protocols", nargs="+", choices=PROTOCOLS + OPTIONAL_PROTOCOLS, default=list(PROTOCOLS),
+        "--protocols", nargs="+", choices=ALL_PROTOCOLS, default=list(PROTOCOLS),
         help=f"protocols to score (default: {' '.join(PROTOCOLS)}); novel_view_aligned scores half the novel "
              "view's frames after aligning the held-out camera to the avatar on the other half",
     )

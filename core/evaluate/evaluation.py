@@ -13,7 +13,7 @@ from . import report
 from .camera_alignment import split_frames
 from .images import ScoringCameras
 from .protocols import (
-    OPTIONAL_PROTOCOLS, PROTOCOLS, DrivenParams, ParamSource, TrackedParams, cross_identity, novel_view_aligned,
+    PROTOCOLS, DrivenParams, ParamSource, TrackedParams, check_protocol, cross_identity, novel_view_aligned,
     protocol_frames, protocol_unavailable, run_protocol, score,
 )
 from .run_folder import RunFolder
@@ -55,11 +55,7 @@ def evaluate_run(
     from ..progress import ProgressBar
 
     run = RunFolder(run_dir, capture)
-    protocols = list(protocols)
-    for name in protocols:
-        if name not in PROTOCOLS + OPTIONAL_PROTOCOLS:
-            raise InputError(None, "protocols", f"unknown protocol {name!r} "
-                                                f"(have {', '.join(PROTOCOLS + OPTIONAL_PROTOCOLS)})")
+    protocols = [check_protocol(name) for name in protocols]
     out = pathlib.Path(out_dir) if out_dir is not None else run.root
     cap = run.open_capture()
     if avatar is None and source is None:

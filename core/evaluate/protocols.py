@@ -31,7 +31,8 @@ from .sources.tracked import TrackedParams
 
 PROTOCOLS = ("novel_view", "self_reenactment")  # scored by default
 OPTIONAL_PROTOCOLS = ("novel_view_aligned",)  # scored when asked for
-__all__ = ["OPTIONAL_PROTOCOLS", "PROTOCOLS", "DrivenParams", "ParamSource", "Scored", "TrackedParams", "cross_identity",
+ALL_PROTOCOLS = PROTOCOLS + OPTIONAL_PROTOCOLS
+__all__ = ["ALL_PROTOCOLS", "OPTIONAL_PROTOCOLS", "PROTOCOLS", "check_protocol", "DrivenParams", "ParamSource", "Scored", "TrackedParams", "cross_identity",
            "novel_view", "novel_view_aligned", "protocol_frames", "render_frame", "run_protocol", "score",
            "self_reenactment", "target_image", "views_at"]
 
@@ -66,18 +67,22 @@ def protocol_unavailable(capture: Capture, protocol: str) -> str | None:
 
 def _protocol_candidates(capture: Capture, protocol: str) -> list[Frame]:
     info = capture_info(capture.root)
-    if protocol in ("novel_view", "novel_view_aligned"):
+    if check_protocol(protocol) in ("novel_view", "novel_view_aligned"):
         if "val" in capture.splits:
             return capture.frames("val")
         camera = info.get("val_camera")
         return [f for f in capture.frames("train") if camera is not None and f.camera_id == camera]
-    if protocol == "self_reenactment":
-        if "test" in capture.splits:
-            return capture.frames("test")
-        sequence = info.get("test_sequence")
-        return [f for f in capture.frames() if sequence is not None and f.sequence == sequence]
-    raise InputError(None, "protocol", f"unknown protocol {protocol!r} "
-                                       f"(have {', '.join(PROTOCOLS + OPTIONAL_PROTOCOLS)})")
+    if "test" in capture.splits:  # self_reenactment
+        return capture.frames("test")
+    sequence = info.get("test_sequence")
+    return [f for f in capture.frames() if sequence is not None and f.sequence == sequence]
+
+
+def check_protocol(name: str) -> str:
+    """``name``, or an error naming the protocols there are."""
+    if name not in ALL_PROTOCOLS:
+        raise InputError(None, "protocols", f"unknown protocol {name!r} (have {', '.join(ALL_PROTOCOLS)})")
+    return name
 
 
 def protocol_frames(capture: Capture, protocol: str, max_frames: int | None = None) -> list[Frame]:
