@@ -83,8 +83,12 @@ def test_embedding_files_of_vhap_and_flame_are_read_safely(tmp_path):
             return (print, ("executed",))
 
     np.save(tmp_path / "evil.npy", {"full_lmk_faces_idx": Payload()}, allow_pickle=True)
-    with pytest.raises(UnsafePickleError, match="builtins.print"):
+    with pytest.raises(UnsafePickleError, match="builtins.print") as refused:
         read_embedding(tmp_path / "evil.npy")
+    assert "evil.npy" in str(refused.value)  # the file as given (the pickle is read in place, after the header)
+    (tmp_path / "cut.npy").write_bytes((tmp_path / "vhap.npy").read_bytes()[:-40])
+    with pytest.raises(InputError, match="cut.npy.*not a readable pickle"):
+        read_embedding(tmp_path / "cut.npy")
     np.savez(tmp_path / "other.npz", faces=faces)
     with pytest.raises(InputError, match="full_lmk_faces_idx"):
         read_embedding(tmp_path / "other.npz")

@@ -220,8 +220,6 @@ _EMBEDDING_GLOBALS = {
 
 def _read_npy_dict(path: pathlib.Path) -> dict:
     """An ``np.save``d dict (a 0-d object array): the header by numpy, the pickle restricted."""
-    import tempfile
-
     with open(path, "rb") as handle:
         try:
             version = np.lib.format.read_magic(handle)
@@ -230,15 +228,12 @@ def _read_npy_dict(path: pathlib.Path) -> dict:
             raise InputError(path, None, f"not a .npy file ({error})") from None
         if dtype != np.dtype(object):
             raise InputError(path, None, f"expected a pickled dict in the .npy, found an array of {dtype}")
-        payload = handle.read()
-    with tempfile.NamedTemporaryFile(suffix=".pkl") as pickled:  # restricted_load reads whole files
-        pickled.write(payload)
-        pickled.flush()
-        try:
-            value = restricted_load(pickled.name, _EMBEDDING_GLOBALS, "a landmark embedding")
-        except UnsafePickleError as error:
-            raise UnsafePickleError(path, None, error.problem) from None
-        except Exception as error:  # a damaged pickle raises many different types
-            raise InputError(path, None, f"not a readable pickle ({type(error).__name__}: {error})") from None
+        offset = handle.tell()
+    try:
+        value = restricted_load(path, _EMBEDDING_GLOBALS, "a landmark embedding", offset)
+    except UnsafePickleError:
+        raise
+    except Exception as error:  # a damaged pickle raises many different types
+        raise InputError(path, None, f"not a readable pickle ({type(error).__name__}: {error})") from None
     array = np.asarray(value, dtype=object)
     return array.reshape(-1)[0] if array.size == 1 else value

@@ -40,16 +40,18 @@ def object_budget(file_bytes: int) -> int:
     return min(MAX_PICKLE_OBJECTS, PICKLE_OBJECTS_PER_BYTE * file_bytes + 4096)
 
 
-def scan_opcodes(handle, path, budget: int) -> None:
+def scan_opcodes(handle, path, budget: int, offset: int = 0) -> None:
     """Walk the pickle's opcodes (nothing is built) and refuse what the unpickler must not see.
 
     Refusals are :class:`UnsafePickleError`; a damaged pickle is ``pickle.UnpicklingError``.
-    ``handle`` is a file opened for binary reading; it is left at the start of the file.
+    ``handle`` is a file opened for binary reading whose pickle starts at byte ``offset`` (after a
+    ``.npy`` header, say); it is left there.
     """
     size = _file_size(handle)
-    if size == 0:
-        raise pickle.UnpicklingError("empty file")
+    if size <= offset:
+        raise pickle.UnpicklingError("empty file" if offset == 0 else f"nothing after byte {offset}")
     with mmap.mmap(handle.fileno(), 0, access=mmap.ACCESS_READ) as view:  # read(n) never allocates n
+        view.seek(offset)
         count = 0
         try:
             for opcode, arg, position in pickletools.genops(view):
@@ -67,7 +69,7 @@ def scan_opcodes(handle, path, budget: int) -> None:
             raise
         except ValueError as error:  # truncated data, unknown opcode, bad argument: for the caller to word
             raise pickle.UnpicklingError(str(error)) from None
-    handle.seek(0)
+    handle.seek(offset)
 
 
 def _file_size(handle) -> int:

@@ -159,14 +159,15 @@ class RestrictedUnpickler(pickle.Unpickler):
         raise UnsafePickleError(self._path, None, "refused a persistent reference in the pickle")
 
 
-def restricted_load(path: str | os.PathLike, allowed: Mapping[str, Resolver], what: str):
-    """Read one pickled object from ``path`` with :class:`RestrictedUnpickler`.
+def restricted_load(path: str | os.PathLike, allowed: Mapping[str, Resolver], what: str, offset: int = 0):
+    """Read one pickled object from ``path`` (starting at byte ``offset``: the pickle inside a
+    ``.npy`` file) with :class:`RestrictedUnpickler`.
 
     Only the unpickler's own refusals surface as :class:`UnsafePickleError`; opening and
     decoding errors propagate for the caller to turn into its own message.
     """
     check_regular_file(path)
     with open(path, "rb") as handle:
-        budget = object_budget(os.fstat(handle.fileno()).st_size)
-        scan_opcodes(handle, path, budget)
+        budget = object_budget(max(os.fstat(handle.fileno()).st_size - offset, 0))
+        scan_opcodes(handle, path, budget, offset)
         return RestrictedUnpickler(handle, path, allowed, what, budget).load()
