@@ -38,6 +38,10 @@ class MoGaFaceSceneSettings(bpy.types.PropertyGroup):
         name="Start from Landmarks", default=False,
         description="Refined cameras start from cameras solved from the capture's 2D landmarks (landmark2d/, as VHAP "
                     "writes them) instead of its calibration")
+    camera_delays: BoolProperty(
+        name="Unsynchronised Cameras", default=False,
+        description="Learn each camera's time offset against the tracking, for a rig whose cameras are not "
+                    "triggered together (writes camera_delays.json in the run folder)")
     viewport_resolution: IntProperty(
         name="Viewport Resolution", default=512, min=64, max=4096,
         description="Longest side in pixels of the avatar drawn in a still 3D view")

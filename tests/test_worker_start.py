@@ -67,6 +67,8 @@ def test_train_command_is_an_isolated_worker(tmp_path):
     assert "--cameras-start" not in train_command("/py", "cap", "run", camera_rounds=0, cameras_from_landmarks=True)
     assert "--cameras-start" not in train_command("/py", "cap", "run", resume=True, camera_rounds=3,
                                                   cameras_from_landmarks=True)
+    assert train_command("/py", "cap", "run", camera_delays=True)[-1] == "--camera-delays"
+    assert "--camera-delays" not in train_command("/py", "cap", "run", resume=True, camera_delays=True)
 
 
 def test_refine_cameras_on_the_command_line_sets_the_rounds():

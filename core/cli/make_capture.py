@@ -40,6 +40,12 @@ def add_arguments(parser):
         "the true ones go to cameras_gt.json (default %(default)s)",
     )
     parser.add_argument(
+        "--camera-delay", type=float, default=d.camera_delay,
+        help="unsynchronised cameras: std, in timesteps, of the moment each camera takes its images "
+        "(the held-out frontal camera keeps the tracking's; the true delays go to capture_info.json; "
+        "default %(default)s)",
+    )
+    parser.add_argument(
         "--landmark-noise", type=float, default=d.landmark_noise,
         help="pixels of the simulated landmark detector's error, new in every image (default %(default)s)",
     )
@@ -67,7 +73,7 @@ def run(args) -> int:
         noise.update(given)
     settings = CaptureSettings(
         subject=args.subject, views=args.views, timesteps=args.timesteps, size=args.size,
-        camera_noise=args.camera_noise, landmark_noise=args.landmark_noise, landmark_bias=args.landmark_bias,
+        camera_noise=args.camera_noise, camera_delay=args.camera_delay, landmark_noise=args.landmark_noise, landmark_bias=args.landmark_bias,
         seed=args.seed, **noise,
     )
     start = time.monotonic()

@@ -26,6 +26,9 @@ def add_arguments(parser):
                         help="start the cameras' refinement from this cameras file (solve-cameras' output, or a "
                              "run's cameras_refined.json), or 'landmarks': solve them from the capture's landmarks "
                              "first; turns refinement on (overrides the config)")
+    parser.add_argument("--camera-delays", action="store_true",
+                        help="learn each training camera's time offset against the tracking, for a rig whose "
+                             "cameras are not triggered together (docs/training.md; overrides the config)")
     parser.add_argument("--landmark-embedding", metavar="FILE", type=pathlib.Path,
                         help="with --cameras-start landmarks: where the landmarks lie on the head model (VHAP's "
                              "landmark_embedding_with_eyes.npy, FLAME's flame_static_embedding.pkl); default: the "
@@ -46,6 +49,8 @@ def _overrides(args) -> dict:
         start = args.cameras_start
         start = start if start == LANDMARKS_START else str(pathlib.Path(start).resolve())
         overrides.setdefault("cameras", {}).update(refine=True, start=start)
+    if args.camera_delays:
+        overrides.setdefault("cameras", {})["delays"] = True
     if args.landmark_embedding is not None:
         overrides.setdefault("cameras", {})["embedding"] = str(args.landmark_embedding.resolve())
     return overrides

@@ -58,6 +58,9 @@ class CaptureSettings:
     translation_correlation: float = 10.0
     translation_bias: float = 0.0006
     camera_noise: float = 0.0  # degrees of rotation error (and 5 mm of position error per degree)
+    # Unsynchronised cameras: the std, in timesteps, of the moment each camera takes its images,
+    # against the moment the tracking (and the held-out frontal camera, the rig's clock) describes.
+    camera_delay: float = 0.0
     # The landmark detector's error, pixels at the capture's size: new at every image, and a
     # constant per camera and landmark (a detector errs alike on alike views).
     landmark_noise: float = 0.5
@@ -71,7 +74,7 @@ class CaptureSettings:
             value = getattr(self, name)
             if not low <= value <= high:
                 raise InputError(None, name, f"must lie in [{low}, {high}], got {value}")
-        for name in ("camera_noise", "landmark_noise", "landmark_bias"):
+        for name in ("camera_noise", "camera_delay", "landmark_noise", "landmark_bias"):
             if not getattr(self, name) >= 0:
                 raise InputError(None, name, f"must be >= 0, got {getattr(self, name)}")
         self.tracking_noise().check()
@@ -155,12 +158,17 @@ class LandmarkDetector:
         self.bias = self.rng.normal(scale=settings.landmark_bias, size=shape)
         self.found: list[list[np.ndarray]] = [[] for _ in cameras]
 
-    def detect(self, vertices: np.ndarray, normals: np.ndarray) -> None:
+    def detect(self, vertices, normals) -> None:
+        """One timestep: ``vertices`` and ``normals`` of the mesh every camera sees, or a list of
+        them, one per camera (unsynchronised cameras each see their own moment)."""
         if self.embedding is None:
             return
-        points = self.embedding.positions(vertices, self.faces)
-        facing = self.embedding.positions(normals, self.faces)
+        count = len(self.cameras)
+        vertices = vertices if isinstance(vertices, list) else [vertices] * count
+        normals = normals if isinstance(normals, list) else [normals] * count
         for k, camera in enumerate(self.cameras):
+            points = self.embedding.positions(vertices[k], self.faces)
+            facing = self.embedding.positions(normals[k], self.faces)
             uv, _ = camera.project(points)
             to_camera = camera.center - points
             seen = np.sum(facing * to_camera, 1) > 0.1 * np.linalg.norm(facing, axis=1) * np.linalg.norm(to_camera, axis=1)
@@ -172,6 +180,26 @@ class LandmarkDetector:
             return
         for camera, rows in zip(self.cameras, self.found):
             write_landmark_file(root, camera.camera_id, np.stack(rows), camera.width, camera.height)
+
+
+def camera_delays(settings: CaptureSettings, views: int, frontal: int) -> list[float]:
+    """Each camera's time offset in timesteps (``camera_delay``; the frontal camera keeps 0), from a
+    generator of its own so the rest of the capture is the same with or without them."""
+    if settings.camera_delay == 0:
+        return [0.0] * views
+    delays = np.random.default_rng([settings.seed, settings.subject, 7]).normal(scale=settings.camera_delay, size=views)
+    delays[frontal] = 0.0
+    return [float(d) for d in delays]
+
+
+def params_at(params: dict[str, np.ndarray], moment: float) -> dict[str, np.ndarray]:
+    """A sequence's parameters at a fractional timestep (linear between its timesteps; its first or
+    last beyond its ends)."""
+    moment = float(np.clip(moment, 0, len(params["expr"]) - 1))
+    low = min(int(np.floor(moment)), len(params["expr"]) - 2) if len(params["expr"]) > 1 else 0
+    weight = np.float32(moment - low)
+    high = min(low + 1, len(params["expr"]) - 1)
+    return {k: (1 - weight) * v[low] + weight * v[high] for k, v in params.items()}
 
 
 def _write_gt_params(root: pathlib.Path, timestep: int, params: dict[str, np.ndarray]) -> None:
@@ -220,6 +248,7 @@ def make_capture(
     noise = settings.tracking_noise()
     biases = tracking_biases(sequences[0].params, noise, rng)  # one tracker, one bias per capture
 
+    delays = camera_delays(settings, len(cameras), frontal)
     detector = LandmarkDetector(settings, model, cameras)
     total = sum(s.length for s in sequences)
     bar = ProgressBar(total * len(cameras), "make-capture") if progress else None
@@ -233,11 +262,15 @@ def make_capture(
                 truth = {k: v[local] for k, v in sequence.params.items()}
                 writer.write_flame_params(timestep, {k: v[local] for k, v in tracked.items()})
                 _write_gt_params(out, timestep, truth)
-                with torch.no_grad():
-                    vertices = model(**{k: torch.from_numpy(v)[None] for k, v in truth.items()})[0].double().numpy()
-                normals = vertex_normals(vertices, arrays.faces)  # shared by every view of the timestep
-                detector.detect(vertices, normals)
+                seen = {}  # moment → (vertices, normals): shared by the views that see it
+                for delay in sorted(set(delays)):
+                    moment = truth if delay == 0 else params_at(sequence.params, local + delay)
+                    with torch.no_grad():
+                        posed = model(**{k: torch.from_numpy(v)[None] for k, v in moment.items()})[0].double().numpy()
+                    seen[delay] = (posed, vertex_normals(posed, arrays.faces))
+                detector.detect([seen[d][0] for d in delays], [seen[d][1] for d in delays])
                 for index, (camera, written) in enumerate(zip(cameras, reported)):
+                    vertices, normals = seen[delays[index]]
                     rgb, alpha = render_mesh(
                         vertices, arrays.faces, arrays.vt, arrays.ft, texture, camera, BACKGROUND,
                         supersample=settings.supersample, normals=normals,
@@ -265,6 +298,7 @@ def make_capture(
             "test_sequence": TEST_SEQUENCE,
             "sequences": ranges,
             "ground_truth": {"flame_param": GT_FLAME_DIR, "cameras": GT_CAMERAS_FILE},
+            **({"camera_delays": {c.camera_id: d for c, d in zip(cameras, delays)}} if any(delays) else {}),
         },
     )
     return out

@@ -119,13 +119,31 @@ def camera_summary(cameras: dict, truth: dict) -> dict:
             "position_aligned_mm": float(position_aligned.mean())}
 
 
+def delay_errors(true_delays: dict, learned: dict) -> dict:
+    """How far learned camera delays (timesteps) are from the true ones, against assuming none."""
+    ids = [cid for cid in learned if cid in true_delays]
+    truth = np.array([true_delays[cid] for cid in ids])
+    guess = np.array([learned[cid] for cid in ids])
+    return {"cameras": len(ids), "assumed_synchronised_mean_abs": float(np.abs(truth).mean()),
+            "learned_mean_abs_error": float(np.abs(guess - truth).mean()),
+            "correlation": float(np.corrcoef(guess, truth)[0, 1]) if len(ids) > 2 and guess.std() > 0 else None}
+
+
 def camera_errors(capture, run_dir: str | os.PathLike | None = None) -> dict:
-    """``{"calibrated": {...}, "refined": {...}, "calibrated_refined_cameras": {...}}`` mean errors;
-    ``{}`` for captures without true cameras."""
+    """``{"calibrated": {...}, "refined": {...}, "calibrated_refined_cameras": {...}, "delays": {...}}``
+    mean errors (each where the capture has the truth and the run an estimate); ``{}`` for captures
+    without true cameras."""
+    from ..train.camera_delays import DELAYS_FILE, read_delays
+    from .run_folder import capture_info
+
+    true_delays = capture_info(capture.root).get("camera_delays")
+    delays = pathlib.Path(run_dir) / DELAYS_FILE if run_dir is not None else None
+    timing = ({"delays": delay_errors(true_delays, read_delays(delays))}
+              if true_delays and delays is not None and delays.exists() else {})
     truth = ScoringCameras(capture).truth
     if not truth:
-        return {}
-    result = {"calibrated": camera_summary(capture.cameras, truth)}
+        return timing
+    result = {"calibrated": camera_summary(capture.cameras, truth), **timing}
     refined = pathlib.Path(run_dir) / REFINED_CAMERAS_FILE if run_dir is not None else None
     if refined is not None and refined.exists():
         cameras = read_cameras(refined)

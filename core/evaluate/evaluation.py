@@ -9,6 +9,7 @@ from collections.abc import Iterable
 import numpy as np
 
 from ..errors import InputError
+from ..train.camera_delays import DELAYS_FILE, delayed_views
 from . import report
 from .camera_alignment import split_frames
 from .images import ScoringCameras
@@ -65,6 +66,7 @@ def evaluate_run(
         avatar, source = _with_refiner(run, cap, avatar, source)
     avatar = run.load_avatar() if avatar is None else avatar
     source = TrackedParams(cap, run) if source is None else source
+    shift = delayed_views(cap, avatar, run.root / DELAYS_FILE)  # a run that learned its cameras' delays
     skipped = {name: reason for name in protocols if (reason := protocol_unavailable(cap, name)) is not None}
     if skipped and len(skipped) == len(protocols):
         raise InputError(cap.root, "protocols", "; ".join(f"{k}: {v}" for k, v in skipped.items()))
@@ -86,7 +88,7 @@ def evaluate_run(
         if name == "novel_view_aligned":
             items, alignment = novel_view_aligned(avatar, cap, source, run.background, frames)
         else:
-            items = run_protocol(avatar, cap, source, frames, run.background)
+            items = run_protocol(avatar, cap, source, frames, run.background, shift=shift)
         for index, item in enumerate(items):
             row = score(item, lpips)
             frame = item.frame

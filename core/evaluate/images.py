@@ -25,16 +25,18 @@ def target_image(capture: Capture, frame: Frame, background, capture_background=
 
 
 def render_frame(
-    avatar, params: dict[str, np.ndarray], camera, background, clamp: bool = True
+    avatar, params: dict[str, np.ndarray], camera, background, clamp: bool = True, vertex_shift=None
 ) -> tuple[np.ndarray, np.ndarray]:
     """``(rgb (H,W,3), alpha (H,W))`` of the avatar posed by ``params``, as numpy float32.
 
     ``clamp=False`` keeps colours outside [0, 1] (SH can overshoot) for compositing later.
+    ``vertex_shift``: a move of the posed mesh (a camera's delay along the motion), or None.
     """
     from ..avatar.avatar import flame_params_to_torch
 
     with torch.no_grad():
-        out = avatar.render(flame_params_to_torch(params), camera, background)
+        vertices = avatar.posed_vertices(flame_params_to_torch(params))
+        out = avatar.render_posed(vertices if vertex_shift is None else vertices + vertex_shift, camera, background)
     rgb = out.rgb.clamp(0.0, 1.0) if clamp else out.rgb
     return rgb.numpy().astype(np.float32), out.alpha.clamp(0.0, 1.0).numpy().astype(np.float32)
 

@@ -114,18 +114,20 @@ class Scored:
 
 
 def run_protocol(
-    avatar, capture: Capture, source: ParamSource, frames: Iterable[Frame], background, cameras=None
+    avatar, capture: Capture, source: ParamSource, frames: Iterable[Frame], background, cameras=None, shift=None
 ) -> Iterator[Scored]:
     """Render each frame from parameters that never saw its image, and pair it with the truth.
 
-    ``cameras``: frame → the camera it is rendered from (default :class:`~.images.ScoringCameras`)."""
+    ``cameras``: frame → the camera it is rendered from (default :class:`~.images.ScoringCameras`).
+    ``shift``: frame → the move of its posed mesh (a run's camera delays), or None."""
     recorded = capture_info(capture.root).get("background")
     cameras = ScoringCameras(capture) if cameras is None else cameras
     for frame in frames:
         start = time.perf_counter()
         params = source.params_for(frame, exclude_view=frame.camera_id)
         middle = time.perf_counter()
-        prediction, alpha = render_frame(avatar, params, cameras(frame), background)
+        prediction, alpha = render_frame(avatar, params, cameras(frame), background,
+                                         vertex_shift=None if shift is None else shift(frame))
         end = time.perf_counter()
         yield Scored(frame, prediction, alpha, target_image(capture, frame, background, recorded), params,
                      middle - start, end - middle)

@@ -107,6 +107,9 @@ class CamerasSection:
     embedding: str = _setting("", "for start = 'landmarks' (ignored otherwise): where the landmarks lie on the head model (VHAP's "
                                   "landmark_embedding_with_eyes.npy, FLAME's flame_static_embedding.pkl or an .npz); "
                                   "'': the procedural head's own, or such a file beside the head model")
+    delays: bool = _setting(False, "learn each training camera's time offset against the tracking (unsynchronised "
+                                   "cameras): its mesh moves along the tracked motion; writes RUN/camera_delays.json")
+    delay_lr: float = _setting(0.01, "learning rate of the camera delays (timesteps)")
     settle_at: int = _setting(0, "step at which a cameras-only phase starts: the avatar and the FLAME parameters "
                                  "hold still while the cameras align to it (0: no such phase)")
     settle_steps: int = _setting(0, "steps of the cameras-only phase")

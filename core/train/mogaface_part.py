@@ -34,14 +34,17 @@ def build_mogaface(config, data, table, avatar) -> CorrectionTraining | None:
 
 
 def mogaface_world(part: CorrectionTraining, avatar, table, frame, background, step: int, generator,
-                   move_scene=None):
-    """Posed vertices, world Gaussians and the step's correction for one training image."""
+                   move_scene=None, vertex_shift=None):
+    """Posed vertices, world Gaussians and the step's correction for one training image
+    (``vertex_shift``: the camera's delay along the tracked motion, or None)."""
     params = table.params(frame.timestep_index)
     correction = part.step(frame, params["expr"][0], step, generator)
     if part.settings.rendered_weight:
         correction.rendered = part.rendered_loss(avatar, params, correction.inputs, background, generator)
     params = {**params, "expr": params["expr"] + correction.expr_delta[None]}
     vertices = avatar.posed_vertices(params)
+    if vertex_shift is not None:
+        vertices = vertices + vertex_shift
     faces = avatar.flame.faces
     offsets = part.model.texture_offsets(avatar.gaussians, faces, params)  # the corrected code
     world = world_with_offsets(avatar.gaussians, vertices, faces, offsets)
@@ -49,11 +52,11 @@ def mogaface_world(part: CorrectionTraining, avatar, table, frame, background, s
 
 
 def mogaface_render(part: CorrectionTraining, avatar, table, frame, camera, background, step: int, generator,
-                    move_scene=None):
+                    move_scene=None, vertex_shift=None):
     """Posed vertices, the render and the step's correction for one training image (``move_scene``:
     the camera refinement's scene motion for that camera, or None)."""
     vertices, world, correction = mogaface_world(part, avatar, table, frame, background, step, generator,
-                                                 move_scene)
+                                                 move_scene, vertex_shift)
     return vertices, render_world(world, camera, background), correction
 
 

@@ -35,6 +35,7 @@ from .camera_refine import CameraOffsets, write_refined_cameras
 from .checkpoint import latest_checkpoint, newest_intact_checkpoint, save_checkpoint
 from .run_lock import resume_notes, take_run_folder
 from .config import LANDMARKS_START, TrainConfig
+from .camera_delays import DELAYS_FILE, CameraDelays
 from .data import TrainingData, capture_head_file
 from .distributed import Communicator
 from .events import EventLog, Listener
@@ -73,7 +74,8 @@ def camera_lrs(config: TrainConfig, step: int) -> dict[str, float]:
     """The camera offsets' rates at ``step``: constant unless ``cameras.final_ratio`` < 1."""
     cams = config.cameras
     return {f"cameras.{name}": decayed(rate, cams.final_ratio, step, config.train.steps)
-            for name, rate in (("rotation", cams.rotation_lr), ("translation", cams.translation_lr))}
+            for name, rate in (("rotation", cams.rotation_lr), ("translation", cams.translation_lr),
+                               ("delay", cams.delay_lr))}
 
 
 def hold_still(optimizer, holds) -> None:
@@ -158,6 +160,7 @@ class Trainer:
         self.table = self.data.flame_table()
         self.avatar = Avatar.initial(head, self.config.densify.max_sh_degree, n_vertices=self.table.n_vertices)
         self.camera_offsets = self._build_camera_offsets(source)
+        self.camera_delays = self._build_camera_delays()
         self._build_optimizer()
         self.mogaface = build_mogaface(self.config, self.data, self.table, self.avatar)
         self.strategy = DensifyStrategy(densify_schedule(self.config), len(self.avatar.gaussians),
@@ -176,6 +179,12 @@ class Trainer:
             for name, value in self.table.trainable().items():
                 value.copy_(state["table"][name])
         self.camera_offsets = self._build_camera_offsets()
+        self.camera_delays = self._build_camera_delays()
+        if self.camera_delays is not None:
+            if "delays" not in state:
+                raise InputError(self.run_folder.checkpoints, "delays", "the checkpoint holds no camera delays "
+                                                                        "(the run was started without [cameras] delays)")
+            self.camera_delays.load(state["delays"], self.run_folder.checkpoints)
         if self.camera_offsets is not None:
             if "cameras" not in state:
                 raise InputError(self.run_folder.checkpoints, "cameras", "the checkpoint holds no camera offsets "
@@ -215,6 +224,13 @@ class Trainer:
             offsets.start_from(self._start_cameras(start, head_source), start)
             offsets.fix_gauge()
         return offsets
+
+    def _build_camera_delays(self) -> CameraDelays | None:
+        """The training cameras' delays when ``[cameras] delays`` is on."""
+        if not self.config.cameras.delays:
+            return None
+        return CameraDelays({f.camera_id for f in self.data.frames}, self.table.timesteps,
+                            self.data.capture.sequences)
 
     def _start_cameras(self, start: str, head_source: pathlib.Path) -> dict:
         """The cameras a refining run starts from: a cameras file, or ``"landmarks"``: solved from the
@@ -257,6 +273,9 @@ class Trainer:
                            "name": "cameras.rotation"})
             groups.append({"params": list(self.camera_offsets.translation), "lr": self.config.cameras.translation_lr,
                            "name": "cameras.translation"})
+        if self.camera_delays is not None:
+            groups.append({"params": list(self.camera_delays.delay), "lr": self.config.cameras.delay_lr,
+                           "name": "cameras.delay"})
         self.optimizer = torch.optim.Adam(groups, lr=0.0, eps=1e-15, fused=True)  # one kernel per group
 
     # -- state ----------------------------------------------------------------------------------
@@ -275,6 +294,7 @@ class Trainer:
             "sampler": {"order": self._order.clone(), "position": self._position},
             **({"mogaface": self.mogaface.state_dict()} if self.mogaface is not None else {}),
             **({"cameras": self.camera_offsets.state()} if self.camera_offsets is not None else {}),
+            **({"delays": self.camera_delays.state()} if self.camera_delays is not None else {}),
         }
 
     def checkpoint(self) -> pathlib.Path | None:
@@ -338,15 +358,19 @@ class Trainer:
         correction = None
         offsets = self.camera_offsets
         move = None if offsets is None else (lambda world: offsets.move_scene(world, frame.camera_id, camera.center))
+        shift = None if self.camera_delays is None else self.camera_delays.shift(
+            frame.camera_id, frame.timestep_index, self._posed_vertices)
         if self.mogaface is None:
             vertices = self._posed_vertices(frame.timestep_index)
+            if shift is not None:
+                vertices = vertices + shift
             if move is None:
                 out = self.avatar.render_posed(vertices, camera, self.background)
             else:
                 out = render_world(move(gaussians.world(vertices, self.avatar.flame.faces)), camera, self.background)
         else:
             _, out, correction = mogaface_render(self.mogaface, self.avatar, self.table, frame, camera,
-                                                 self.background, self.step, self.view_generator(index), move)
+                                                 self.background, self.step, self.view_generator(index), move, shift)
         losses = image_loss(out.rgb, target, cfg.loss.ssim_weight)
         visible = out.visible
         losses["position"] = position_hinge(gaussians.local_position, cfg.loss.position_threshold, visible)
@@ -429,7 +453,8 @@ class Trainer:
                 self.strategy.observe(self.step + 1, None if grad is None else grad * batch, view["out"].radii,
                                       camera.width, camera.height)
         sums = comm.reduce_step(self._trainable(), sums)
-        if self.camera_offsets is not None and self.step < cfg.cameras.begin * cfg.train.steps:
+        cameras_move = self.camera_offsets is not None or self.camera_delays is not None
+        if cameras_move and self.step < cfg.cameras.begin * cfg.train.steps:
             hold_still(self.optimizer, lambda name: name.startswith("cameras."))
         if settling:  # only the cameras step
             hold_still(self.optimizer, lambda name: not name.startswith("cameras."))
@@ -606,6 +631,8 @@ class Trainer:
     def _write_refined_cameras(self) -> None:
         if self.camera_offsets is not None:
             write_refined_cameras(self.run_folder.root / REFINED_CAMERAS_FILE, self.camera_offsets)
+        if self.camera_delays is not None:
+            self.camera_delays.write(self.run_folder.root / DELAYS_FILE)
 
     def _write_run_json(self, complete: bool) -> None:
         write_json(self.run_folder.run_json, {

@@ -1,0 +1,142 @@
+"""Unsynchronised cameras: the generator renders each camera at its own moment, a known delay is
+recovered from the images through the tracked motion, and the delays survive checkpoints and
+reach the run folder."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from mogaface.core.avatar.avatar import Avatar
+from mogaface.core.data.capture import Capture
+from mogaface.core.data.generator import CaptureSettings, make_capture, params_at
+from mogaface.core.errors import InputError
+from mogaface.core.flame.model import FlameModel
+from mogaface.core.mogaface.avatar import render_world
+from mogaface.core.train import config as C
+from mogaface.core.train.camera_delays import DELAYS_FILE, CameraDelays, _neighbours, read_delays
+from mogaface.core.train.checkpoint import latest_checkpoint, load_checkpoint
+from mogaface.core.train.data import TrainingData
+from mogaface.core.train.trainer import Trainer
+
+
+@pytest.fixture(scope="module")
+def capture(tmp_path_factory):
+    root = tmp_path_factory.mktemp("delayed_capture")
+    make_capture(root, CaptureSettings(views=3, timesteps=16, size=48, supersample=1, camera_delay=0.4),
+                 progress=False)
+    return root
+
+
+def test_neighbours_stay_inside_a_sequence():
+    found = _neighbours([0, 1, 2, 5, 6, 9], {"A": [0, 1, 2], "B": [5, 6, 7], "C": [9]})
+    assert found == {0: (0, 1), 1: (0, 2), 2: (1, 2), 5: (5, 6), 6: (5, 6)}  # 9 has no neighbour
+    assert _neighbours([3, 4], {})[3] == (3, 4)  # no sequences: one
+
+
+def test_each_camera_is_rendered_at_its_own_moment(capture):
+    info = json.loads((capture / "capture_info.json").read_text())
+    delays = info["camera_delays"]
+    assert delays[info["val_camera"]] == 0.0 and sum(abs(d) > 0.05 for d in delays.values()) >= 1
+    # The generator's moment: the parameters between timesteps, linearly; clamped at the ends.
+    params = {"expr": np.array([[0.0], [1.0], [3.0]], np.float32)}
+    assert params_at(params, 1.25)["expr"][0] == pytest.approx(1.5)
+    assert params_at(params, -0.5)["expr"][0] == 0.0 and params_at(params, 2.7)["expr"][0] == 3.0
+    # A delayed camera's silhouette is the mesh of its moment, not of the timestep.
+    from mogaface.core.data.mesh_render import render_mesh
+
+    cap = Capture.open(capture)
+    model = FlameModel.load(capture / "head.pkl")
+    cid = max(delays, key=lambda c: abs(delays[c]))
+    frame = next(f for f in cap.frames() if f.camera_id == cid and f.timestep_index == 5)
+    sequence = next(name for name, (a, b) in info["sequences"].items() if a <= 5 < b)
+    start, end = info["sequences"][sequence]
+    truth = [dict(np.load(capture / "flame_param_gt" / f"{t:05d}.npz")) for t in range(start, end)]
+    stacked = {k: np.stack([p[k].reshape(-1) for p in truth]) for k in truth[0] if k != "static_offset"}
+    silhouettes = {}
+    for name, moment in (("own", params_at(stacked, 5 - start + delays[cid])), ("timestep", params_at(stacked, 5 - start))):
+        with torch.no_grad():
+            vertices = model(**{k: torch.from_numpy(v)[None] for k, v in moment.items()})[0].double().numpy()
+        arrays = model.arrays
+        silhouettes[name] = render_mesh(vertices, arrays.faces, arrays.vt, arrays.ft,
+                                        arrays.texture.astype(np.float32) / 255, cap.camera(frame), (1, 1, 1),
+                                        supersample=1)[1]
+    mask = cap.load_image(frame)[1]
+    own, other = (float(np.abs(silhouettes[k] - mask).mean()) for k in ("own", "timestep"))
+    assert own < 0.003 and other > 5 * own, (own, other)  # the mask is an 8-bit PNG
+
+
+def test_a_known_delay_is_recovered_through_the_tracked_motion(capture):
+    """A fixed avatar rendered at its mesh moved 0.3 timesteps along the motion is the target; the
+    delay alone, from zero, learns 0.3 back."""
+    data = TrainingData(capture)
+    table = data.flame_table()
+    avatar = Avatar.initial(capture / "head.pkl", 0)
+    with torch.no_grad():
+        avatar.gaussians.sh_dc.copy_(torch.rand(avatar.gaussians.sh_dc.shape,
+                                                generator=torch.Generator().manual_seed(1)) - 0.5)
+        avatar.gaussians.opacity_logit.fill_(3.0)
+    frame = next(f for f in data.frames if 0 < f.timestep_index < 4)
+    camera = data.capture.camera(frame)
+
+    def posed(t):
+        with torch.no_grad():
+            return avatar.posed_vertices(table.params(t))
+
+    delays = CameraDelays([frame.camera_id], table.timesteps, data.capture.sequences)
+
+    def image(shift):
+        world = avatar.gaussians.world(posed(frame.timestep_index) + shift, avatar.flame.faces)
+        return render_world({k: v.detach() if k != "means" else v for k, v in world.items()}, camera,
+                            data.background).rgb
+
+    with torch.no_grad():
+        delays.delay[0].fill_(0.3)
+        target = image(delays.shift(frame.camera_id, frame.timestep_index, posed))
+        delays.delay[0].fill_(0.0)
+    optimiser = torch.optim.Adam(delays.parameters(), lr=0.02)
+    for _ in range(60):
+        optimiser.zero_grad()
+        loss = (image(delays.shift(frame.camera_id, frame.timestep_index, posed)) - target).abs().mean()
+        loss.backward()
+        optimiser.step()
+    assert float(delays.delay[0]) == pytest.approx(0.3, abs=0.03)
+
+
+def _config(steps, **cameras):
+    return C.resolve(overrides={
+        "train": {"steps": steps, "threads": 1, "log_every": 1, "checkpoint_every": 4},
+        "densify": {"start": 100, "stop": 200, "interval": 50, "opacity_reset_interval": 0},
+        "eval": {"at_end": False, "lpips": False},
+        "cameras": {"delays": True, "begin": 0.0, **cameras},
+    })
+
+
+def test_delays_survive_a_checkpoint_and_reach_the_run_folder(capture, tmp_path):
+    straight = Trainer(capture, tmp_path / "straight", _config(8)).run()
+    assert straight["complete"]
+    written = read_delays(tmp_path / "straight" / DELAYS_FILE)
+    assert set(written) == {f.camera_id for f in TrainingData(capture).frames}
+    assert any(abs(v) > 1e-4 for v in written.values())  # they moved
+    state = load_checkpoint(latest_checkpoint(tmp_path / "straight" / "checkpoints"))
+    assert [round(float(v), 6) for v in state["delays"]["delay"]] == [round(written[c], 6) for c in sorted(written)]
+
+    assert Trainer(capture, tmp_path / "split", _config(8)).run(until=4)["step"] == 4
+    assert "delays" in load_checkpoint(latest_checkpoint(tmp_path / "split" / "checkpoints"))
+    resumed = Trainer(capture, tmp_path / "split", resume=True).run()
+    assert resumed["complete"]
+    again = read_delays(tmp_path / "split" / DELAYS_FILE)
+    assert again == pytest.approx(written, abs=1e-6)
+
+    from mogaface.core.evaluate.camera_error import camera_errors
+
+    true_delays = json.loads((capture / "capture_info.json").read_text())["camera_delays"]
+    report = camera_errors(Capture.open(capture), tmp_path / "straight")["delays"]
+    assert report["cameras"] == len(written)
+    assert report["assumed_synchronised_mean_abs"] == pytest.approx(np.mean([abs(true_delays[c]) for c in written]))
+    assert report["learned_mean_abs_error"] == pytest.approx(np.mean([abs(written[c] - true_delays[c]) for c in written]))
+
+    (tmp_path / "bad.json").write_text(json.dumps({"cam00": "late"}))
+    with pytest.raises(InputError, match="cam00"):
+        read_delays(tmp_path / "bad.json")
