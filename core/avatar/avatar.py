@@ -72,10 +72,12 @@ class Avatar(torch.nn.Module):
         return self.gaussians.world(vertices, self.flame.faces)
 
     def render(
-        self, flame_params: dict[str, torch.Tensor], camera: Camera, background=(1.0, 1.0, 1.0)
+        self, flame_params: dict[str, torch.Tensor], camera: Camera, background=(1.0, 1.0, 1.0), vertex_shift=None
     ) -> SplatOutput:
-        """Render the avatar posed by ``flame_params`` as ``camera`` sees it."""
-        return self.render_posed(self.posed_vertices(flame_params), camera, background)
+        """Render the avatar posed by ``flame_params`` as ``camera`` sees it (``vertex_shift``: a
+        move of the posed mesh, a camera's delay along the motion, or None)."""
+        vertices = self.posed_vertices(flame_params)
+        return self.render_posed(vertices if vertex_shift is None else vertices + vertex_shift, camera, background)
 
     def render_posed(self, vertices: torch.Tensor, camera: Camera, background=(1.0, 1.0, 1.0)) -> SplatOutput:
         """Render the Gaussians bound to an already posed mesh ``vertices (V,3)``."""

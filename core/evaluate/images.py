@@ -35,8 +35,7 @@ def render_frame(
     from ..avatar.avatar import flame_params_to_torch
 
     with torch.no_grad():
-        vertices = avatar.posed_vertices(flame_params_to_torch(params))
-        out = avatar.render_posed(vertices if vertex_shift is None else vertices + vertex_shift, camera, background)
+        out = avatar.render(flame_params_to_torch(params), camera, background, vertex_shift=vertex_shift)
     rgb = out.rgb.clamp(0.0, 1.0) if clamp else out.rgb
     return rgb.numpy().astype(np.float32), out.alpha.clamp(0.0, 1.0).numpy().astype(np.float32)
 

@@ -40,8 +40,11 @@ class ModulatedAvatar:
     def world_gaussians(self, flame_params: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
         return self.world_posed(self.avatar.posed_vertices(flame_params), flame_params)
 
-    def render(self, flame_params: dict[str, torch.Tensor], camera, background=(1.0, 1.0, 1.0)) -> SplatOutput:
-        return render_world(self.world_gaussians(flame_params), camera, background)
+    def render(self, flame_params: dict[str, torch.Tensor], camera, background=(1.0, 1.0, 1.0),
+               vertex_shift=None) -> SplatOutput:
+        vertices = self.avatar.posed_vertices(flame_params)
+        vertices = vertices if vertex_shift is None else vertices + vertex_shift
+        return render_world(self.world_posed(vertices, flame_params), camera, background)
 
 
 def render_world(world: dict[str, torch.Tensor], camera, background) -> SplatOutput:
