@@ -140,3 +140,31 @@ def test_delays_survive_a_checkpoint_and_reach_the_run_folder(capture, tmp_path)
     (tmp_path / "bad.json").write_text(json.dumps({"cam00": "late"}))
     with pytest.raises(InputError, match="cam00"):
         read_delays(tmp_path / "bad.json")
+
+
+def test_delays_train_beside_the_mogaface_modules_and_move_the_scored_views(capture, tmp_path):
+    """The MoGaFace path poses its mesh itself: the delay moves it there too, and `eval` renders a
+    delayed camera's views of the unseen sequence at its moment (a modulated avatar included)."""
+    from mogaface.core.evaluate.evaluation import evaluate_run
+
+    config = C.resolve(overrides={
+        "train": {"steps": 4, "threads": 1, "log_every": 1, "checkpoint_every": 100},
+        "densify": {"start": 100, "stop": 200, "interval": 50, "opacity_reset_interval": 0},
+        "eval": {"at_end": False, "lpips": False},
+        "mogaface": {**C.FULL_METHOD, "encoder_views": 2, "input_size": 32},
+        "cameras": {"delays": True, "begin": 0.0, "delay_lr": 0.2},
+    })
+    run = tmp_path / "run"
+    assert Trainer(capture, run, config).run()["complete"]
+    learned = read_delays(run / DELAYS_FILE)
+    assert any(abs(v) > 1e-3 for v in learned.values())
+
+    def scores(out):
+        result = evaluate_run(run, protocols=["self_reenactment"], max_frames=6, lpips=False, out_dir=out)
+        return {(r["timestep"], r["camera"]): r["psnr"] for r in result["protocols"]["self_reenactment"]["per_frame"]}
+
+    with_delays = scores(tmp_path / "a")
+    (run / DELAYS_FILE).rename(tmp_path / "kept.json")
+    without = scores(tmp_path / "b")
+    moved = {key for key in with_delays if abs(with_delays[key] - without[key]) > 1e-6}
+    assert moved and all(camera in learned for _, camera in moved)
