@@ -88,6 +88,13 @@ def test_union_of_three_sequences_loads_with_cameras_per_sequence(data, flame):
     assert summary.flame_sizes["static_offset"] == (5143, 3)
     cap = Capture.open(union)
     assert set(cap.splits) == {"train", "val", "test"}
+    # Each frame belongs to the sequence folder its image lies in: a timestep's neighbours (camera
+    # delays) stay inside its sequence.
+    assert cap.sequences == {f"306_SEQ-{i}_v16_DS4": [4 * i + k for k in range(4)] for i in range(3)}
+    from mogaface.core.train.camera_delays import CameraDelays
+
+    neighbours = CameraDelays(cap.cameras, cap.timesteps, cap.sequences).neighbours
+    assert neighbours[3] == (2, 3) and neighbours[4] == (4, 5)
     cam_id = cap.frames("train")[0].camera_id
     first = cap.camera_at(cam_id, 0).w2c
     second = cap.camera_at(cam_id, 4).w2c  # same camera, next sequence: moved by its own mean translation

@@ -264,6 +264,13 @@ def _camera_of(entry, doc, camera_id, index, source, where, cameras, parsed) -> 
     return camera
 
 
+def _union_sequence(file_path) -> str | None:
+    """The sequence of a union's frame: the sibling folder its image lies in (``../NAME/…``, as
+    VHAP's ``combine_nerf_datasets.py`` writes them), or None."""
+    parts = pathlib.PurePosixPath(file_path).parts if isinstance(file_path, str) else ()
+    return parts[1] if len(parts) > 2 and parts[0] == ".." else None
+
+
 class Capture:
     """An opened capture folder: splits, frames, cameras, timesteps, sequences, lazy images.
 
@@ -356,7 +363,7 @@ class Capture:
             c = _int_field(entry, "camera_index", source, where)
             camera_id = check_plain_name(str(entry.get("camera_id", c)), source, f"{where}.camera_id", CaptureError)
             timestep_id = str(entry.get("timestep_id", f"{t:05d}"))
-            sequence = entry.get("sequence")
+            sequence = entry.get("sequence", _union_sequence(entry.get("file_path")))
             if sequence is not None and not isinstance(sequence, str):
                 raise CaptureError(source, f"{where}.sequence", f"expected a string, got {sequence!r}")
             _check_frame_paths(root, entry, source, where)
