@@ -73,8 +73,8 @@ def run(args) -> int:
         noise.update(given)
     settings = CaptureSettings(
         subject=args.subject, views=args.views, timesteps=args.timesteps, size=args.size,
-        camera_noise=args.camera_noise, camera_delay=args.camera_delay, landmark_noise=args.landmark_noise, landmark_bias=args.landmark_bias,
-        seed=args.seed, **noise,
+        camera_noise=args.camera_noise, camera_delay=args.camera_delay, landmark_noise=args.landmark_noise,
+        landmark_bias=args.landmark_bias, seed=args.seed, **noise,
     )
     start = time.monotonic()
     make_capture(args.out, settings, model_path=args.model, progress=not args.quiet)

@@ -264,11 +264,11 @@ def _camera_of(entry, doc, camera_id, index, source, where, cameras, parsed) -> 
     return camera
 
 
-def _union_sequence(file_path) -> str | None:
-    """The sequence of a union's frame: the sibling folder its image lies in (``../NAME/…``, as
-    VHAP's ``combine_nerf_datasets.py`` writes them), or None."""
+def union_path(file_path) -> tuple[str, str] | None:
+    """``(sequence folder, path inside it)`` of a union's frame, whose image lies in a sibling
+    folder (``../NAME/…``, as VHAP's ``combine_nerf_datasets.py`` writes it), or None."""
     parts = pathlib.PurePosixPath(file_path).parts if isinstance(file_path, str) else ()
-    return parts[1] if len(parts) > 2 and parts[0] == ".." else None
+    return (parts[1], "/".join(parts[2:])) if len(parts) > 2 and parts[0] == ".." else None
 
 
 class Capture:
@@ -363,7 +363,8 @@ class Capture:
             c = _int_field(entry, "camera_index", source, where)
             camera_id = check_plain_name(str(entry.get("camera_id", c)), source, f"{where}.camera_id", CaptureError)
             timestep_id = str(entry.get("timestep_id", f"{t:05d}"))
-            sequence = entry.get("sequence", _union_sequence(entry.get("file_path")))
+            union = union_path(entry.get("file_path"))  # a union's frame: its sequence folder by default
+            sequence = entry.get("sequence", union[0] if union else None)
             if sequence is not None and not isinstance(sequence, str):
                 raise CaptureError(source, f"{where}.sequence", f"expected a string, got {sequence!r}")
             _check_frame_paths(root, entry, source, where)

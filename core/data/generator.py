@@ -195,10 +195,11 @@ def camera_delays(settings: CaptureSettings, views: int, frontal: int) -> list[f
 def params_at(params: dict[str, np.ndarray], moment: float) -> dict[str, np.ndarray]:
     """A sequence's parameters at a fractional timestep (linear between its timesteps; its first or
     last beyond its ends)."""
-    moment = float(np.clip(moment, 0, len(params["expr"]) - 1))
-    low = min(int(np.floor(moment)), len(params["expr"]) - 2) if len(params["expr"]) > 1 else 0
+    last = len(params["expr"]) - 1
+    moment = float(np.clip(moment, 0, last))
+    low = min(int(moment), max(last - 1, 0))
+    high = min(low + 1, last)
     weight = np.float32(moment - low)
-    high = min(low + 1, len(params["expr"]) - 1)
     return {k: (1 - weight) * v[low] + weight * v[high] for k, v in params.items()}
 
 

@@ -80,14 +80,19 @@ def capture_landmarks(capture, cameras: dict) -> dict[str, np.ndarray]:
     """Every camera's landmarks as rows of ``capture``'s timestep indices (rows of weight 0 where
     no file covers the frame): the capture's own ``landmark2d/``, or, for a union of sequences,
     each sequence folder's (see the module's docstring)."""
-    from .capture import Capture
+    from .capture import Capture, union_path
 
     steps = max(f.timestep_index for f in capture.frames()) + 1
     own = read_landmarks(capture.root, cameras, steps)
     if own:
         return own
+    sequences: dict[pathlib.Path, list] = {}  # a union's sequence folder → (frame, path inside it)
+    for frame in capture.frames():
+        if (where := union_path(frame.file_path)) is not None:
+            folder = pathlib.Path(os.path.normpath(capture.root / ".." / where[0]))
+            sequences.setdefault(folder, []).append((frame, where[1]))
     rows: dict[str, np.ndarray] = {}
-    for folder, frames in _sequence_folders(capture).items():
+    for folder, frames in sequences.items():
         if not (folder / LANDMARK_DIR).is_dir():
             continue
         local = {f.file_path: f.timestep_index for f in Capture.open(folder).frames()}
@@ -101,18 +106,6 @@ def capture_landmarks(capture, cameras: dict) -> dict[str, np.ndarray]:
             rows.setdefault(frame.camera_id, np.zeros((steps, IBUG_COUNT, 3)))[frame.timestep_index] = (
                 found[frame.camera_id][local[inside]])
     return rows
-
-
-def _sequence_folders(capture) -> dict[pathlib.Path, list]:
-    """A union's sequence folders (frames given as ``../SEQUENCE/…``): folder → ``(frame, path
-    inside the folder)`` of each frame there."""
-    folders: dict[pathlib.Path, list] = {}
-    for frame in capture.frames():
-        parts = pathlib.PurePosixPath(frame.file_path).parts
-        if len(parts) > 2 and parts[0] == "..":
-            folder = pathlib.Path(os.path.normpath(capture.root / ".." / parts[1]))
-            folders.setdefault(folder, []).append((frame, "/".join(parts[2:])))
-    return folders
 
 
 def write_landmark_file(root, camera_id: str, pixels: np.ndarray, width: int, height: int,

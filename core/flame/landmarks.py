@@ -171,12 +171,7 @@ def read_embedding(path: str | os.PathLike) -> LandmarkEmbedding:
     elif path.suffix == ".npy":
         entries = _read_npy_dict(path)
     else:
-        try:
-            entries = restricted_load(path, _EMBEDDING_GLOBALS, "a landmark embedding")
-        except UnsafePickleError:
-            raise
-        except Exception as error:
-            raise InputError(path, None, f"not a readable pickle ({type(error).__name__}: {error})") from None
+        entries = _unpickled(path)
     if not isinstance(entries, dict):
         raise InputError(path, None, f"expected a dict of arrays, found {type(entries).__name__}")
     return _from_entries(entries, path)
@@ -218,6 +213,16 @@ _EMBEDDING_GLOBALS = {
 }
 
 
+def _unpickled(path: pathlib.Path, offset: int = 0):
+    """The pickle in ``path`` from byte ``offset``, by the restricted unpickler."""
+    try:
+        return restricted_load(path, _EMBEDDING_GLOBALS, "a landmark embedding", offset)
+    except UnsafePickleError:
+        raise
+    except Exception as error:  # a damaged pickle raises many different types
+        raise InputError(path, None, f"not a readable pickle ({type(error).__name__}: {error})") from None
+
+
 def _read_npy_dict(path: pathlib.Path) -> dict:
     """An ``np.save``d dict (a 0-d object array): the header by numpy, the pickle restricted."""
     with open(path, "rb") as handle:
@@ -229,11 +234,6 @@ def _read_npy_dict(path: pathlib.Path) -> dict:
         if dtype != np.dtype(object):
             raise InputError(path, None, f"expected a pickled dict in the .npy, found an array of {dtype}")
         offset = handle.tell()
-    try:
-        value = restricted_load(path, _EMBEDDING_GLOBALS, "a landmark embedding", offset)
-    except UnsafePickleError:
-        raise
-    except Exception as error:  # a damaged pickle raises many different types
-        raise InputError(path, None, f"not a readable pickle ({type(error).__name__}: {error})") from None
+    value = _unpickled(path, offset)
     array = np.asarray(value, dtype=object)
     return array.reshape(-1)[0] if array.size == 1 else value

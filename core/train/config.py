@@ -104,9 +104,10 @@ class CamerasSection:
                               "refined (RUN/camera_rounds/<k>; train.steps each)")
     start: str = _setting("", "a cameras file in the layout of RUN/cameras_refined.json the offsets start from "
                               "(an earlier run's refined cameras: a new round with a fresh avatar); '': calibrated")
-    embedding: str = _setting("", "for start = 'landmarks' (ignored otherwise): where the landmarks lie on the head model (VHAP's "
-                                  "landmark_embedding_with_eyes.npy, FLAME's flame_static_embedding.pkl or an .npz); "
-                                  "'': the procedural head's own, or such a file beside the head model")
+    embedding: str = _setting("", "for start = 'landmarks' (ignored otherwise): where the landmarks lie on the "
+                                  "head model (VHAP's landmark_embedding_with_eyes.npy, FLAME's "
+                                  "flame_static_embedding.pkl or an .npz); '': the procedural head's own, or such a "
+                                  "file beside the head model")
     delays: bool = _setting(False, "learn each training camera's time offset against the tracking (unsynchronised "
                                    "cameras): its mesh moves along the tracked motion; writes RUN/camera_delays.json")
     delay_lr: float = _setting(0.01, "learning rate of the camera delays (timesteps)")
