@@ -11,7 +11,7 @@ import torch
 from scipy import ndimage
 
 from mogaface.core.data.capture import Capture
-from mogaface.core.data.generator import CaptureSettings, camera_dome, make_capture
+from mogaface.core.data.generator import CaptureSettings, camera_dome, make_capture, perturb_camera
 from mogaface.core.data.sequences import GroupNoise, TrackingNoise, add_tracking_noise, make_sequences, tracking_biases
 from mogaface.core.data.validate import validate_capture
 from mogaface.core.errors import InputError
@@ -186,11 +186,31 @@ def test_camera_noise_perturbs_only_the_written_cameras(tmp_path):
     assert 0.05 < angle < 5.0
 
 
+def test_camera_centre_noise_sets_the_centres_error_alone():
+    """The turn is drawn as before (same angles); only the centre's error follows the setting."""
+    head = np.random.default_rng(0).normal(scale=0.08, size=(100, 3))
+    true = camera_dome(6, 64, head, np.random.default_rng(1))[0]
+
+    def reported(centre_mm, seed=3):
+        rng = np.random.default_rng(seed)
+        return [perturb_camera(c, 1.0, rng, centre_mm) for c in true]
+
+    held, default, wide = reported(0.0), reported(None), reported(20.0)
+    for truth, h, d, w in zip(true, held, default, wide):
+        assert np.allclose(h.center, truth.center, atol=1e-9)
+        assert np.allclose(h.w2c[:3, :3], d.w2c[:3, :3]) and np.allclose(h.w2c[:3, :3], w.w2c[:3, :3])
+        assert np.allclose(w.center - truth.center, 4.0 * (d.center - truth.center))  # 20 mm against 5 mm
+    assert 0.002 < np.mean([np.linalg.norm(d.center - t.center) for d, t in zip(default, true)]) < 0.02
+    assert perturb_camera(true[0], 0.0, np.random.default_rng(0)) is true[0]
+
+
 def test_bad_settings_are_refused(tmp_path):
     with pytest.raises(InputError, match="views"):
         make_capture(tmp_path / "x", CaptureSettings(views=1), progress=False)
     with pytest.raises(InputError, match="expr_noise"):
         make_capture(tmp_path / "x", CaptureSettings(expr_noise=-1), progress=False)
+    with pytest.raises(InputError, match="camera_centre_noise"):
+        make_capture(tmp_path / "x", CaptureSettings(camera_centre_noise=-1.0), progress=False)
     with pytest.raises(InputError, match="pose_correlation"):
         make_capture(tmp_path / "x", CaptureSettings(pose_correlation=-2), progress=False)
 

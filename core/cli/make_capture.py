@@ -36,8 +36,13 @@ def add_arguments(parser):
     )
     parser.add_argument(
         "--camera-noise", type=float, default=d.camera_noise,
-        help="degrees of rotation error (plus 5 mm per degree) in the cameras written to the json; "
-        "the true ones go to cameras_gt.json (default %(default)s)",
+        help="degrees of rotation error (plus 5 mm per degree unless --camera-centre-noise) in the cameras "
+        "written to the json; the true ones go to cameras_gt.json (default %(default)s)",
+    )
+    parser.add_argument(
+        "--camera-centre-noise", type=float, metavar="MM",
+        help="millimetres of error (std per axis) in those cameras' centres (default: 5 per degree of "
+        "--camera-noise)",
     )
     parser.add_argument(
         "--camera-delay", type=float, default=d.camera_delay,
@@ -73,8 +78,9 @@ def run(args) -> int:
         noise.update(given)
     settings = CaptureSettings(
         subject=args.subject, views=args.views, timesteps=args.timesteps, size=args.size,
-        camera_noise=args.camera_noise, camera_delay=args.camera_delay, landmark_noise=args.landmark_noise,
-        landmark_bias=args.landmark_bias, seed=args.seed, **noise,
+        camera_noise=args.camera_noise, camera_centre_noise=args.camera_centre_noise,
+        camera_delay=args.camera_delay, landmark_noise=args.landmark_noise, landmark_bias=args.landmark_bias,
+        seed=args.seed, **noise,
     )
     start = time.monotonic()
     make_capture(args.out, settings, model_path=args.model, progress=not args.quiet)

@@ -57,7 +57,10 @@ class CaptureSettings:
     translation_noise: float = 0.0008  # metres
     translation_correlation: float = 10.0
     translation_bias: float = 0.0006
-    camera_noise: float = 0.0  # degrees of rotation error (and 5 mm of position error per degree)
+    camera_noise: float = 0.0  # degrees of rotation error
+    # Millimetres of centre error (std per axis); None: 5 mm per degree of camera_noise. A rig's
+    # centres are often measured better than its angles.
+    camera_centre_noise: float | None = None
     # Unsynchronised cameras: the std, in timesteps, of the moment each camera takes its images,
     # against the moment the tracking (and the held-out frontal camera, the rig's clock) describes.
     camera_delay: float = 0.0
@@ -74,8 +77,8 @@ class CaptureSettings:
             value = getattr(self, name)
             if not low <= value <= high:
                 raise InputError(None, name, f"must lie in [{low}, {high}], got {value}")
-        for name in ("camera_noise", "camera_delay", "landmark_noise", "landmark_bias"):
-            if not getattr(self, name) >= 0:
+        for name in ("camera_noise", "camera_centre_noise", "camera_delay", "landmark_noise", "landmark_bias"):
+            if getattr(self, name) is not None and not getattr(self, name) >= 0:
                 raise InputError(None, name, f"must be >= 0, got {getattr(self, name)}")
         self.tracking_noise().check()
 
@@ -131,14 +134,16 @@ def camera_dome(views: int, size: int, vertices: np.ndarray, rng) -> tuple[list[
     return cameras, frontal
 
 
-def perturb_camera(camera: Camera, degrees: float, rng) -> Camera:
-    """The camera a calibration with ``degrees`` of rotation error (and 5 mm/degree) would report."""
-    if degrees == 0:
+def perturb_camera(camera: Camera, degrees: float, rng, centre_mm: float | None = None) -> Camera:
+    """The camera a calibration with ``degrees`` of rotation error (std per axis, about the camera's
+    centre) and ``centre_mm`` of centre error (std per axis; default 5 mm per degree) would report."""
+    centre_mm = 5.0 * degrees if centre_mm is None else centre_mm
+    if degrees == 0 and centre_mm == 0:
         return camera
     delta = np.eye(4)
     rotvec = torch.tensor(rng.normal(scale=np.radians(degrees), size=3))
     delta[:3, :3] = axis_angle_to_matrix(rotvec).numpy()
-    delta[:3, 3] = rng.normal(scale=0.005 * degrees, size=3)
+    delta[:3, 3] = rng.normal(scale=0.001 * centre_mm, size=3)
     return dataclasses.replace(camera, w2c=delta @ camera.w2c)
 
 
@@ -243,7 +248,7 @@ def make_capture(
     with torch.no_grad():
         rest = model()[0].double().numpy()
     cameras, frontal = camera_dome(settings.views, settings.size, rest, rng)
-    reported = [perturb_camera(c, settings.camera_noise, rng) for c in cameras]
+    reported = [perturb_camera(c, settings.camera_noise, rng, settings.camera_centre_noise) for c in cameras]
     sequences = make_sequences(settings.timesteps, model.n_shape, model.n_expr, mouth_components(arrays),
                                seed=settings.seed + 7919 * settings.subject)
     noise = settings.tracking_noise()
