@@ -137,6 +137,14 @@ def test_delays_survive_a_checkpoint_and_reach_the_run_folder(capture, tmp_path)
     assert report["assumed_synchronised_mean_abs"] == pytest.approx(np.mean([abs(true_delays[c]) for c in written]))
     assert report["learned_mean_abs_error"] == pytest.approx(np.mean([abs(written[c] - true_delays[c]) for c in written]))
 
+    # A run (a camera round) that starts from another's cameras starts from its delays as well.
+    assert Trainer(capture, tmp_path / "round1", _config(4, refine=True)).run()["complete"]
+    learned = read_delays(tmp_path / "round1" / DELAYS_FILE)
+    start = str(tmp_path / "round1" / "cameras_refined.json")
+    assert Trainer(capture, tmp_path / "round2", _config(4, refine=True, start=start)).camera_delays.values() == \
+        pytest.approx(learned, abs=1e-7)
+    assert not any(Trainer(capture, tmp_path / "fresh", _config(4, refine=True)).camera_delays.values().values())
+
     (tmp_path / "bad.json").write_text(json.dumps({"cam00": "late"}))
     with pytest.raises(InputError, match="cam00"):
         read_delays(tmp_path / "bad.json")

@@ -52,6 +52,14 @@ class CameraDelays(nn.Module):
         return {"ids": list(self.ids), "delay": torch.stack([p.detach() for p in self.delay]).clone()}
 
     @torch.no_grad()
+    def start_from(self, values: dict[str, float]) -> None:
+        """Set the delays of the cameras ``values`` names (e.g. a ``camera_delays.json``); the
+        others keep theirs."""
+        for camera_id, value in values.items():
+            if camera_id in self.index:
+                self.delay[self.index[camera_id]].fill_(value)
+
+    @torch.no_grad()
     def load(self, state: dict, source=None) -> None:
         if list(state.get("ids", [])) != self.ids:
             raise InputError(source, "delays.ids", "the checkpoint's camera delays are for other cameras")
@@ -72,9 +80,7 @@ def delayed_views(capture, avatar, path: pathlib.Path) -> Callable | None:
         return None
     values = read_delays(path)
     delays = CameraDelays(values, capture.timesteps, capture.sequences)
-    with torch.no_grad():
-        for camera_id, value in values.items():
-            delays.delay[delays.index[camera_id]].fill_(value)
+    delays.start_from(values)
     meshes: dict[int, torch.Tensor] = {}
 
     def posed(timestep: int) -> torch.Tensor:

@@ -35,7 +35,7 @@ from .camera_refine import CameraOffsets, write_refined_cameras
 from .checkpoint import latest_checkpoint, newest_intact_checkpoint, save_checkpoint
 from .run_lock import resume_notes, take_run_folder
 from .config import LANDMARKS_START, TrainConfig
-from .camera_delays import DELAYS_FILE, CameraDelays
+from .camera_delays import DELAYS_FILE, CameraDelays, read_delays
 from .data import TrainingData, capture_head_file
 from .distributed import Communicator
 from .events import EventLog, Listener
@@ -160,7 +160,7 @@ class Trainer:
         self.table = self.data.flame_table()
         self.avatar = Avatar.initial(head, self.config.densify.max_sh_degree, n_vertices=self.table.n_vertices)
         self.camera_offsets = self._build_camera_offsets(source)
-        self.camera_delays = self._build_camera_delays()
+        self.camera_delays = self._build_camera_delays(fresh=True)
         self._build_optimizer()
         self.mogaface = build_mogaface(self.config, self.data, self.table, self.avatar)
         self.strategy = DensifyStrategy(densify_schedule(self.config), len(self.avatar.gaussians),
@@ -225,12 +225,20 @@ class Trainer:
             offsets.fix_gauge()
         return offsets
 
-    def _build_camera_delays(self) -> CameraDelays | None:
-        """The training cameras' delays when ``[cameras] delays`` is on."""
+    def _build_camera_delays(self, fresh: bool = False) -> CameraDelays | None:
+        """The training cameras' delays when ``[cameras] delays`` is on. A fresh run whose cameras
+        start from a file (an earlier round's, or run's) starts from the delays beside it: a new
+        round keeps what the last one learned, as its cameras do."""
         if not self.config.cameras.delays:
             return None
-        return CameraDelays({f.camera_id for f in self.data.frames}, self.table.timesteps,
-                            self.data.capture.sequences)
+        delays = CameraDelays({f.camera_id for f in self.data.frames}, self.table.timesteps,
+                              self.data.capture.sequences)
+        start = self.config.cameras.start
+        if fresh and start and start != LANDMARKS_START:
+            beside = pathlib.Path(start).parent / DELAYS_FILE
+            if beside.exists():
+                delays.start_from(read_delays(beside))
+        return delays
 
     def _start_cameras(self, start: str, head_source: pathlib.Path) -> dict:
         """The cameras a refining run starts from: a cameras file, or ``"landmarks"``: solved from the
