@@ -141,6 +141,7 @@ class MOGAFACE_PT_training(_SubPanel, bpy.types.Panel):
         layout.prop(settings, "camera_rounds")
         if settings.camera_rounds > 0:
             layout.prop(settings, "cameras_from_landmarks")
+            layout.prop(settings, "camera_centres_measured")
         layout.prop(settings, "camera_delays")
         from ..operators.train import current_worker, last_progress
 

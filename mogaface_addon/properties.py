@@ -38,6 +38,11 @@ class MoGaFaceSceneSettings(bpy.types.PropertyGroup):
         name="Start from Landmarks", default=False,
         description="Refined cameras start from cameras solved from the capture's 2D landmarks (landmark2d/, as VHAP "
                     "writes them) instead of its calibration")
+    camera_centres_measured: BoolProperty(
+        name="Centres Measured", default=False,
+        description="The rig's camera positions are measured (to a couple of millimetres): refinement turns each "
+                    "camera about its centre and lets the centres hold the rig, instead of keeping the rig's "
+                    "overall pose as calibrated")
     camera_delays: BoolProperty(
         name="Unsynchronised Cameras", default=False,
         description="Learn each camera's time offset against the tracking, for a rig whose cameras are not "

@@ -122,7 +122,8 @@ class MOGAFACE_OT_train(FollowsChildJob, bpy.types.Operator):
             python, capture, run, preset=self.preset, steps=steps,
             seed=settings.seed if self.seed < 0 else self.seed, threads=preferred_threads(context), resume=resume,
             camera_rounds=settings.camera_rounds if self.camera_rounds < 0 else self.camera_rounds,
-            cameras_from_landmarks=settings.cameras_from_landmarks, camera_delays=settings.camera_delays,
+            cameras_from_landmarks=settings.cameras_from_landmarks,
+            centres_measured=settings.camera_centres_measured, camera_delays=settings.camera_delays,
             paths=worker_paths(python),
         )
         from ..core.launcher import with_launcher

@@ -567,6 +567,7 @@ def test_the_train_operator_asks_for_the_scenes_camera_rounds(scenario, tmp_path
     try:
         for rounds, landmarks, delays in ((-1, False, False), (0, True, True), (-1, True, False)):
             settings.cameras_from_landmarks = landmarks
+            settings.camera_centres_measured = landmarks
             settings.camera_delays = delays
             with pytest.raises(RuntimeError, match="Cannot start"):
                 bpy.ops.mogaface.train(capture=str(scenario["capture"]), run=str(tmp_path / "run"), resume="NEW",
@@ -574,12 +575,15 @@ def test_the_train_operator_asks_for_the_scenes_camera_rounds(scenario, tmp_path
     finally:
         settings.camera_rounds = 0
         settings.cameras_from_landmarks = False
+        settings.camera_centres_measured = False
         settings.camera_delays = False
     scene_rounds, none, from_landmarks = started
     assert scene_rounds[scene_rounds.index("--refine-cameras") + 1] == "3" and "--refine-cameras" not in none
     assert "--cameras-start" not in scene_rounds + none
     assert from_landmarks[from_landmarks.index("--cameras-start") + 1] == "landmarks"
     assert "--camera-delays" in none and "--camera-delays" not in scene_rounds + from_landmarks
+    assert from_landmarks[from_landmarks.index("--camera-gauge") + 1] == "none"
+    assert "--camera-gauge" not in scene_rounds + none  # not asked for; no refinement
 
 
 FACTORY_STARTUP_SCRIPT = """

@@ -67,6 +67,9 @@ def test_train_command_is_an_isolated_worker(tmp_path):
     assert "--cameras-start" not in train_command("/py", "cap", "run", camera_rounds=0, cameras_from_landmarks=True)
     assert "--cameras-start" not in train_command("/py", "cap", "run", resume=True, camera_rounds=3,
                                                   cameras_from_landmarks=True)
+    measured = train_command("/py", "cap", "run", camera_rounds=3, centres_measured=True)
+    assert measured[-4:] == ["--refine-cameras", "3", "--camera-gauge", "none"]
+    assert "--camera-gauge" not in train_command("/py", "cap", "run", centres_measured=True)  # no refinement
     assert train_command("/py", "cap", "run", camera_delays=True)[-1] == "--camera-delays"
     assert "--camera-delays" not in train_command("/py", "cap", "run", resume=True, camera_delays=True)
 
@@ -83,6 +86,9 @@ def test_refine_cameras_on_the_command_line_sets_the_rounds():
         config = C.resolve("quick", overrides=train_cli._overrides(parser.parse_args(["cap", "--out", "r", *flags])))
         assert config.cameras.refine and config.cameras.rounds == rounds
     assert not C.resolve(overrides=train_cli._overrides(parser.parse_args(["cap", "--out", "r"]))).cameras.refine
+    gauge = train_cli._overrides(parser.parse_args(["cap", "--out", "r", "--refine-cameras", "--camera-gauge", "none"]))
+    assert C.resolve(overrides=gauge).cameras.gauge == "none"
+    assert C.resolve(overrides=train_cli._overrides(parser.parse_args(["cap", "--out", "r"]))).cameras.gauge == "rigid"
 
 
 def test_python_dash_m_drops_the_working_directory(tmp_path):

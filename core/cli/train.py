@@ -7,7 +7,7 @@ import sys
 
 
 def add_arguments(parser):
-    from ..train.config import PRESETS
+    from ..train.config import CAMERA_GAUGES, PRESETS
 
     parser.add_argument("capture", type=pathlib.Path, help="capture folder (GaussianAvatars/VHAP layout)")
     parser.add_argument("--out", type=pathlib.Path, required=True, help="run folder (created)")
@@ -26,6 +26,10 @@ def add_arguments(parser):
                         help="start the cameras' refinement from this cameras file (solve-cameras' output, or a "
                              "run's cameras_refined.json), or 'landmarks': solve them from the capture's landmarks "
                              "first; turns refinement on (overrides the config)")
+    parser.add_argument("--camera-gauge", choices=CAMERA_GAUGES,
+                        help="the rig's motion the camera refinement removes ([cameras] gauge): 'none' for a rig "
+                             "whose camera centres are measured, which then hold the rig while the cameras turn "
+                             "(docs/training.md; overrides the config)")
     parser.add_argument("--camera-delays", action="store_true",
                         help="learn each training camera's time offset against the tracking, for a rig whose "
                              "cameras are not triggered together (docs/training.md; overrides the config)")
@@ -49,6 +53,8 @@ def _overrides(args) -> dict:
         start = args.cameras_start
         start = start if start == LANDMARKS_START else str(pathlib.Path(start).resolve())
         overrides.setdefault("cameras", {}).update(refine=True, start=start)
+    if args.camera_gauge is not None:
+        overrides.setdefault("cameras", {})["gauge"] = args.camera_gauge
     if args.camera_delays:
         overrides.setdefault("cameras", {})["delays"] = True
     if args.landmark_embedding is not None:
