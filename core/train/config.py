@@ -99,7 +99,7 @@ class CamerasSection:
                                        "decay; 1: constant)")
     gauge: str = _setting("rigid", "'rigid': the offsets hold no rigid motion of the whole rig (the rig as a whole "
                                    "keeps its calibrated pose); 'mean': their mean rotation and mean centre shift stay "
-                                   "zero; 'none': free")
+                                   "zero; 'none': free (a rig whose centres are measured: they hold it)")
     rounds: int = _setting(1, "train this many times, each round a fresh avatar from the cameras the last one "
                               "refined (RUN/camera_rounds/<k>; train.steps each)")
     start: str = _setting("", "a cameras file in the layout of RUN/cameras_refined.json the offsets start from "
