@@ -227,6 +227,12 @@ def test_by_default_only_the_rotations_are_stepped_and_the_centres_move_with_the
     shifts = state["translation"].double().numpy().reshape(-1)
     fitted = basis @ np.linalg.lstsq(basis, shifts, rcond=None)[0]
     assert np.abs(shifts - fitted).max() < 1e-6
+    assert np.abs(shifts).max() > 1e-6  # the rigid gauge moves even measured centres
+    # gauge none (measured centres): the cameras only turn, every centre stays where it was measured
+    config.cameras.gauge = "none"
+    Trainer(capture, tmp_path / "measured", config).run()
+    state = load_checkpoint(latest_checkpoint(tmp_path / "measured" / "checkpoints"))["cameras"]
+    assert state["rotation"].abs().max() > 1e-4 and not state["translation"].any()
 
 
 def test_camera_rates_decay_to_their_final_ratio(capture, tmp_path):
