@@ -409,3 +409,20 @@ def test_a_refining_run_can_solve_its_start_from_the_landmarks(calibrated, tmp_p
         assert main(["train", str(calibrated), "--out", str(run), "--resume", "--steps", "3", "--quiet"]) == 0
     finally:
         (tmp_path / "away").rename(calibrated / "landmark2d")
+
+
+def test_measured_centres_hold_the_rig_from_the_solve_through_refinement(calibrated, tmp_path):
+    """``--camera-gauge none`` (a rig whose centres are measured): the solve and the refinement turn
+    each camera about its calibrated centre and move no centre; the rigid gauge moves them all."""
+    from mogaface.core.cli import main
+
+    run = tmp_path / "run"
+    assert main(["train", str(calibrated), "--out", str(run), "--preset", "quick", "--steps", "2", "--quiet",
+                 "--refine-cameras", "1", "--cameras-start", "landmarks", "--camera-gauge", "none"]) == 0
+    calibration = training_cameras(Capture.open(calibrated))
+    solved, refined = read_cameras(run / "cameras_landmarks.json"), read_cameras(run / "cameras_refined.json")
+    for cameras in (solved, refined):
+        assert max(np.abs(cameras[c].center - calibration[c].center).max() for c in calibration) < 1e-6
+        assert min(pose_error(cameras[c], calibration[c])[0] for c in calibration) > 0.01  # every one turned
+    rigid = solve_cameras(Capture.open(calibrated), calibrated / "head.pkl").cameras
+    assert max(np.abs(rigid[c].center - calibration[c].center).max() for c in calibration) > 1e-4
