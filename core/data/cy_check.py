@@ -24,6 +24,7 @@ MARGIN = 0.003  # the smallest difference in mean mask coverage that decides
 SIGNIFICANCE = 3.0  # ... and it must be this many standard errors of the per-frame differences
 FRAMES = 24  # frames compared, spread over the capture
 
+
 @dataclasses.dataclass
 class CyReport:
     declared: str  # "bottom" or "top": how the reader reads the files

@@ -33,8 +33,8 @@ PROTOCOLS = ("novel_view", "self_reenactment")  # scored by default
 OPTIONAL_PROTOCOLS = ("novel_view_aligned",)  # scored when asked for
 ALL_PROTOCOLS = PROTOCOLS + OPTIONAL_PROTOCOLS
 __all__ = ["ALL_PROTOCOLS", "OPTIONAL_PROTOCOLS", "PROTOCOLS", "check_protocol", "DrivenParams", "ParamSource",
-           "Scored", "TrackedParams", "cross_identity", "novel_view", "novel_view_aligned", "protocol_frames", "render_frame", "run_protocol", "score",
-           "self_reenactment", "target_image", "views_at"]
+           "Scored", "TrackedParams", "cross_identity", "novel_view", "novel_view_aligned", "protocol_frames",
+           "render_frame", "run_protocol", "score", "self_reenactment", "target_image", "views_at"]
 
 
 # -- which frames a protocol scores --------------------------------------------------------------

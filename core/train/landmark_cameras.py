@@ -64,7 +64,8 @@ def camera_poses(capture: Capture, split: str = "train") -> tuple[dict[str, list
         known = poses.setdefault(frame.camera_id, [camera])
         index = next((i for i, pose in enumerate(known) if np.allclose(pose.w2c, camera.w2c, atol=1e-9)), None)
         if index is None:
-            if not (np.allclose(known[0].w2c[:3, :3], camera.w2c[:3, :3], atol=1e-9) and np.allclose(known[0].K, camera.K)):
+            same_turn = np.allclose(known[0].w2c[:3, :3], camera.w2c[:3, :3], atol=1e-9)
+            if not (same_turn and np.allclose(known[0].K, camera.K)):
                 raise InputError(capture.root, frame.camera_id, "the camera turns or changes its intrinsics between "
                                                                 "frames; cameras from landmarks need fixed cameras")
             index = len(known)
@@ -116,8 +117,8 @@ def solve_cameras(capture: Capture, head_file, embedding: LandmarkEmbedding | No
             offsets.rotation[offsets.index[camera_id]].copy_(problem.turn[k].float())
     offsets.fix_gauge()
     report = {cid: {"landmarks": int(problem.count[k]), "rms_before_px": before[k], "rms_after_px": after[k],
-                    "kept": "" if solved and enough[k] else (
-                        "too few landmarks" if not enough[k] else "the only camera with landmarks: its turn is the head's"),
+                    "kept": "" if solved and enough[k] else ("too few landmarks" if not enough[k] else
+                                                             "the only camera with landmarks: its turn is the head's"),
                     "rotation_deg": float(np.degrees(offsets.rotation[offsets.index[cid]].detach().norm()))}
               for k, cid in enumerate(ids)}
     return LandmarkCameras(offsets.refined_cameras(), report)

@@ -182,8 +182,8 @@ class Trainer:
         self.camera_delays = self._build_camera_delays()
         if self.camera_delays is not None:
             if "delays" not in state:
-                raise InputError(self.run_folder.checkpoints, "delays", "the checkpoint holds no camera delays "
-                                                                        "(the run was started without [cameras] delays)")
+                raise InputError(self.run_folder.checkpoints, "delays",
+                                 "the checkpoint holds no camera delays (the run was started without [cameras] delays)")
             self.camera_delays.load(state["delays"], self.run_folder.checkpoints)
         if self.camera_offsets is not None:
             if "cameras" not in state:
@@ -253,8 +253,8 @@ class Trainer:
         from .landmark_cameras import LANDMARK_CAMERAS_FILE, solve_cameras
 
         embedding = self.config.cameras.embedding
-        solved = solve_cameras(self.data.capture, head_source,
-                               read_embedding(embedding) if embedding else None, gauge=self.config.cameras.gauge).cameras
+        solved = solve_cameras(self.data.capture, head_source, read_embedding(embedding) if embedding else None,
+                               gauge=self.config.cameras.gauge).cameras
         if self.comm.is_writer:
             write_cameras(self.run_folder.root / LANDMARK_CAMERAS_FILE, solved)
         return solved
