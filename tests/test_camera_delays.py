@@ -35,6 +35,25 @@ def test_neighbours_stay_inside_a_sequence():
     assert _neighbours([3, 4], {})[3] == (3, 4)  # no sequences: one
 
 
+def test_the_move_follows_a_bending_motion_exactly_to_second_order():
+    """Inside a sequence the move is exact for a motion that is a parabola in time (the velocity
+    alone would miss ``δ²/2·a``); at a sequence's end it is the line to the one neighbour."""
+    generator = torch.Generator().manual_seed(3)
+    a, b, c = (torch.randn(5, 3, generator=generator, dtype=torch.float64) for _ in range(3))
+
+    def posed(t):
+        return c + b * t + a * t * t
+
+    delays = CameraDelays(["cam"], range(5), {"S": list(range(5))})
+    for delay in (0.35, -0.6):
+        delays.start_from({"cam": delay})
+        moved = delays.shift("cam", 2, posed).to(torch.float64)
+        assert torch.allclose(moved, posed(2 + delay) - posed(2), atol=1e-6)
+        assert not torch.allclose(delay * (posed(3) - posed(1)) / 2, posed(2 + delay) - posed(2), atol=1e-3)
+        at_end = delays.shift("cam", 4, posed).to(torch.float64)
+        assert torch.allclose(at_end, delay * (posed(4) - posed(3)), atol=1e-6)
+
+
 def test_each_camera_is_rendered_at_its_own_moment(capture):
     info = json.loads((capture / "capture_info.json").read_text())
     delays = info["camera_delays"]

@@ -2,11 +2,13 @@
 
 A rig whose cameras are not triggered together sees the head at a slightly different moment in
 each view, while the tracking gives one mesh per timestep. A camera that takes its images ``δ``
-timesteps late sees the head about where the tracked motion puts it ``δ`` timesteps on, so its
-mesh is moved by ``δ`` times the mesh's velocity (the central difference of the neighbouring
-timesteps of the same sequence; one-sided at a sequence's ends). One number per camera, shared by
-every timestep: it carries over to frames no training step saw, which a free correction per
-image would not. The velocity is held fixed (no gradient): only ``δ`` learns from it.
+timesteps late sees the head about where the tracked motion puts it ``δ`` timesteps on: its mesh
+is moved along the parabola through the meshes of the timestep and its two neighbours in the same
+sequence, ``δ·v + δ²/2·a`` (``v``, ``a``: their central first and second differences; a straight
+line to the one neighbour at a sequence's ends). The parabola follows a motion that bends between
+timesteps, where the velocity alone overshoots by ``δ²/2·a``. One number per camera, shared by
+every timestep: it carries over to frames no training step saw, which a free correction per image
+would not. The motion is held fixed (no gradient): only ``δ`` learns from it.
 """
 
 from __future__ import annotations
@@ -42,8 +44,13 @@ class CameraDelays(nn.Module):
         if camera_id not in self.index or timestep not in self.neighbours:
             return None
         before, after = self.neighbours[timestep]
-        velocity = (posed(after) - posed(before)).detach() / float(after - before)
-        return self.delay[self.index[camera_id]] * velocity
+        delay = self.delay[self.index[camera_id]]
+        ahead, behind = posed(after).detach(), posed(before).detach()
+        velocity = (ahead - behind) / float(after - before)
+        if after - before == 1:  # one neighbour: the line to it
+            return delay * velocity
+        bend = ahead - 2.0 * posed(timestep).detach() + behind
+        return delay * velocity + 0.5 * delay * delay * bend
 
     def values(self) -> dict[str, float]:
         return {cid: float(self.delay[i].detach()) for cid, i in self.index.items()}
