@@ -6,7 +6,7 @@ timesteps late sees the head about where the tracked motion puts it ``δ`` times
 is moved along the parabola through the meshes of the timestep and its two neighbours in the same
 sequence, ``δ·v + δ²/2·a`` (``v``, ``a``: their central first and second differences; a straight
 line to the one neighbour at a sequence's ends). The parabola follows a motion that bends between
-timesteps, where the velocity alone overshoots by ``δ²/2·a``. One number per camera, shared by
+timesteps, which the velocity alone misses by ``δ²/2·a``. One number per camera, shared by
 every timestep: it carries over to frames no training step saw, which a free correction per image
 would not. The motion is held fixed (no gradient): only ``δ`` learns from it.
 """
