@@ -128,7 +128,7 @@ def _config(steps, **cameras):
         "train": {"steps": steps, "threads": 1, "log_every": 1, "checkpoint_every": 4},
         "densify": {"start": 100, "stop": 200, "interval": 50, "opacity_reset_interval": 0},
         "eval": {"at_end": False, "lpips": False},
-        "cameras": {"delays": True, "begin": 0.0, **cameras},
+        "cameras": {"delays": True, "delay_begin": 0.0, **cameras},
     })
 
 
@@ -169,6 +169,19 @@ def test_delays_survive_a_checkpoint_and_reach_the_run_folder(capture, tmp_path)
         read_delays(tmp_path / "bad.json")
 
 
+def test_the_delays_and_the_camera_offsets_begin_each_at_their_own_step(capture, tmp_path):
+    def moved(config, name):
+        trainer = Trainer(capture, tmp_path / name, config)
+        assert trainer.run()["complete"]
+        offsets = max(float(p.detach().abs().max()) for p in trainer.camera_offsets.rotation)
+        return offsets, max(abs(v) for v in trainer.camera_delays.values().values())
+
+    offsets, delays = moved(_config(4, refine=True, begin=0.9, delay_lr=0.2), "delays_first")
+    assert offsets == 0.0 and delays > 1e-3
+    offsets, delays = moved(_config(4, refine=True, begin=0.0, delay_begin=0.9, rotation_lr=1e-2), "offsets_first")
+    assert offsets > 0.0 and delays == 0.0
+
+
 def test_delays_train_beside_the_mogaface_modules_and_move_the_scored_views(capture, tmp_path):
     """The MoGaFace path poses its mesh itself: the delay moves it there too, and `eval` renders a
     delayed camera's views of the unseen sequence at its moment (a modulated avatar included)."""
@@ -179,7 +192,7 @@ def test_delays_train_beside_the_mogaface_modules_and_move_the_scored_views(capt
         "densify": {"start": 100, "stop": 200, "interval": 50, "opacity_reset_interval": 0},
         "eval": {"at_end": False, "lpips": False},
         "mogaface": {**C.FULL_METHOD, "encoder_views": 2, "input_size": 32},
-        "cameras": {"delays": True, "begin": 0.0, "delay_lr": 0.2},
+        "cameras": {"delays": True, "delay_begin": 0.0, "delay_lr": 0.2},
     })
     run = tmp_path / "run"
     assert Trainer(capture, run, config).run()["complete"]

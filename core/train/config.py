@@ -111,6 +111,10 @@ class CamerasSection:
     delays: bool = _setting(False, "learn each training camera's time offset against the tracking (unsynchronised "
                                    "cameras): its mesh moves along the tracked motion; writes RUN/camera_delays.json")
     delay_lr: float = _setting(0.01, "learning rate of the camera delays (timesteps)")
+    delay_begin: float = _setting(0.2, "fraction of the last round's steps after which the delays move (earlier "
+                                       "rounds move them from the first step); sooner than the offsets, so the "
+                                       "per-timestep FLAME fine-tuning and the Gaussians form on views at their "
+                                       "own moments")
     settle_at: int = _setting(0, "step at which a cameras-only phase starts: the avatar and the FLAME parameters "
                                  "hold still while the cameras align to it (0: no such phase)")
     settle_steps: int = _setting(0, "steps of the cameras-only phase")

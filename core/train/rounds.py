@@ -29,9 +29,9 @@ def round_folder(run, k: int) -> pathlib.Path:
 
 def round_config(config: TrainConfig, start: str) -> TrainConfig:
     """An earlier round's settings: one round, from ``start``, the cameras moving from the first
-    step (``begin`` is the last round's), no evaluation at its end."""
-    return dataclasses.replace(config, cameras=dataclasses.replace(config.cameras, rounds=1, start=start, begin=0),
-                               eval=dataclasses.replace(config.eval, at_end=False, every=0))
+    step (``begin`` and ``delay_begin`` are the last round's), no evaluation at its end."""
+    cameras = dataclasses.replace(config.cameras, rounds=1, start=start, begin=0, delay_begin=0)
+    return dataclasses.replace(config, cameras=cameras, eval=dataclasses.replace(config.eval, at_end=False, every=0))
 
 
 def train_earlier_rounds(run, config: TrainConfig, trainer_for) -> tuple[int | None, TrainConfig]:

@@ -461,9 +461,10 @@ class Trainer:
                 self.strategy.observe(self.step + 1, None if grad is None else grad * batch, view["out"].radii,
                                       camera.width, camera.height)
         sums = comm.reduce_step(self._trainable(), sums)
-        cameras_move = self.camera_offsets is not None or self.camera_delays is not None
-        if cameras_move and self.step < cfg.cameras.begin * cfg.train.steps:
-            hold_still(self.optimizer, lambda name: name.startswith("cameras."))
+        if self.camera_offsets is not None and self.step < cfg.cameras.begin * cfg.train.steps:
+            hold_still(self.optimizer, lambda name: name in ("cameras.rotation", "cameras.translation"))
+        if self.camera_delays is not None and self.step < cfg.cameras.delay_begin * cfg.train.steps:
+            hold_still(self.optimizer, lambda name: name == "cameras.delay")
         if settling:  # only the cameras step
             hold_still(self.optimizer, lambda name: not name.startswith("cameras."))
         self.optimizer.step()
