@@ -3,10 +3,12 @@
 Blender-free: the add-on's *Install Dependencies* operator starts an :class:`InstallJob` and polls
 it from a timer, so Blender stays responsive; headless code calls :meth:`InstallJob.wait`.
 
-The job never installs what the interpreter already has (Blender's own numpy above all) and
-chooses versions that have wheels for that interpreter's Python:
+The job never installs what the interpreter already has (Blender's own numpy above all, and a
+torch of at least :data:`MIN_TORCH`, such as a distribution's ``python3-torch``) and chooses
+versions that have wheels for that interpreter's Python:
 
-1. *torch* (only with a torch index, the CPU build's by default): ``pip install --dry-run``
+1. *torch* (only when the interpreter has none, and only with a torch index, the CPU build's by
+   default): ``pip install --dry-run``
    against that index alone gives the exact build, e.g. ``torch==2.13.0+cpu``. An unreachable
    index is an error here, instead of a silent fall-back to PyPI's torch, which on Linux is the
    CUDA build (≈ 3 GB).
@@ -51,7 +53,20 @@ NUMPY_BY_PYTHON = (((3, 13), "2.3.5"), ((3, 0), "1.26.4"))
 #: Where the CPU-only torch build comes from by default (PyPI's Linux torch is the CUDA build).
 DEFAULT_TORCH_INDEX = "https://download.pytorch.org/whl/cpu"
 
-PROBE = "import importlib.util, sys; print(*sys.version_info[:2], importlib.util.find_spec('numpy') is not None)"
+#: The oldest torch the core is checked with (Debian trixie's python3-torch; pyproject.toml agrees).
+#: An interpreter's own torch is used when at least this; an older one is an error, since the
+#: extension's folder comes after the interpreter's own on ``sys.path`` and could not replace it.
+MIN_TORCH = (2, 6)
+
+#: ``major minor has-numpy torch-version`` ("-": no torch), without importing anything heavy.
+PROBE = """import importlib.metadata as metadata, importlib.util as util, sys
+torch = "-"
+if util.find_spec("torch") is not None:
+    try:
+        torch = metadata.version("torch")
+    except metadata.PackageNotFoundError:
+        torch = "?"
+print(*sys.version_info[:2], util.find_spec("numpy") is not None, torch)"""
 
 CANCEL_GRACE_S = 10.0
 
@@ -63,9 +78,18 @@ def numpy_pin(python_version: tuple[int, int]) -> str:
     return next(version for since, version in NUMPY_BY_PYTHON if tuple(python_version) >= since)
 
 
-def requirements(python_version: tuple[int, int], has_numpy: bool, torch_version: str | None = None) -> list[str]:
-    """The requirement lines for an interpreter: the pins, numpy only when it lacks one."""
+def torch_is_supported(version: str) -> bool:
+    """Whether an interpreter's own torch (e.g. ``2.6.0+debian``; "?" = unknown) is recent enough."""
+    numbers = re.match(r"(\d+)\.(\d+)", version)
+    return numbers is None or tuple(map(int, numbers.groups())) >= MIN_TORCH
+
+
+def requirements(python_version: tuple[int, int], has_numpy: bool, torch_version: str | None = None,
+                 has_torch: bool = False) -> list[str]:
+    """The requirement lines for an interpreter: the pins, numpy and torch only when it lacks them."""
     pins = dict(PINNED, torch=torch_version or PINNED["torch"])
+    if has_torch:
+        del pins["torch"]
     lines = [f"{name}=={version}" for name, version in pins.items()]
     if not has_numpy:
         lines.append(f"numpy=={numpy_pin(python_version)}")
@@ -121,7 +145,9 @@ def explain_failure(output: str, python_version: tuple[int, int], torch_index: s
     if "CERTIFICATE_VERIFY_FAILED" in output or "SSLError" in output:
         return "The package index's certificate was refused (SSL): check the system's CA certificates or proxy"
     if "No space left on device" in output:
-        return "The disk is full: free space for the packages (about 1 GB for the CPU build of torch)"
+        return ("The disk is full: free space for the packages (about "
+                + ("1.5 GB with the CPU build of torch)" if torch_index
+                   else "8 GB with PyPI's torch, the CUDA build on Linux, and its download)"))
     missing = re.search(r"No matching distribution found for ([^\s;]+)", output)
     if any(marker in output for marker in _NETWORK):
         host = re.search(r"host='([^']+)'", output) or re.search(r"https?://([^/\s]+)", output)
@@ -170,6 +196,7 @@ class InstallJob:
                  timeout: float = 3600.0):
         self.python, self.target = str(python), os.fspath(target)
         self.python_version, self.has_numpy = (0, 0), False
+        self.own_torch: str | None = None  # the interpreter's own torch version, if it has one
         self.torch_index, self.timeout = torch_index.strip(), timeout
         self.env = env
         self.progress = InstallProgress()
@@ -220,14 +247,18 @@ class InstallJob:
         staging = self.target + ".new"
         try:
             self._set("resolving", 0.01, "Asking the Python what it has")
-            self.python_version, self.has_numpy = self._probe()
+            self.python_version, self.has_numpy, self.own_torch = self._probe()
+            if self.own_torch is not None and not torch_is_supported(self.own_torch):
+                raise _Failure(f"This Python has torch {self.own_torch}, older than the "
+                               f"{'.'.join(map(str, MIN_TORCH))} MoGaFace needs: update or remove it")
             self._set("resolving", 0.02, f"Choosing versions for Python {self.python_version[0]}."
                       f"{self.python_version[1]}")
             torch_version = None
-            if self.torch_index:
+            if self.torch_index and self.own_torch is None:
                 report = self._report(torch_command(self.python, self.torch_index))
                 torch_version = next(p.split("==")[1] for p in planned(report) if p.split("==")[0].lower() == "torch")
-            lines = requirements(self.python_version, self.has_numpy, torch_version)
+            lines = requirements(self.python_version, self.has_numpy, torch_version,
+                                 has_torch=self.own_torch is not None)
             pins = planned(self._report(resolve_command(self.python, lines, self.torch_index)))
             if self.has_numpy and any(p.split("==")[0].lower() == "numpy" for p in pins):
                 raise _Failure("Blender's numpy is too old or too new for these packages "
@@ -239,8 +270,9 @@ class InstallJob:
             else:
                 os.makedirs(staging, exist_ok=True)
             self._replace(staging)
-            self._set("done", 1.0, f"Installed {len(pins)} packages into {self.target}"
-                      if pins else "Nothing to install: this Python has every package")
+            own = f" (torch: this Python's own {self.own_torch})" if self.own_torch else ""
+            self._set("done", 1.0, (f"Installed {len(pins)} packages into {self.target}" if pins
+                                    else "Nothing to install: this Python has every package") + own)
         except _Cancelled:
             shutil.rmtree(staging, ignore_errors=True)
             self._set("cancelled", self.progress.fraction, "Installation cancelled; nothing was changed")
@@ -268,15 +300,16 @@ class InstallJob:
                 raise _Failure(f"Cannot run {self.python}: {error.strerror or error}") from None
             return self._process
 
-    def _probe(self) -> tuple[tuple[int, int], bool]:
-        """The interpreter's ``(major, minor)`` and whether it imports numpy, isolated like the workers."""
+    def _probe(self) -> tuple[tuple[int, int], bool, str | None]:
+        """The interpreter's ``(major, minor)``, whether it has numpy, and its torch's version (or
+        None), isolated like the workers."""
         process = self._start([self.python, "-I", "-c", PROBE], merge_stderr=True)
         out, _ = process.communicate(timeout=120)
         if self._cancelled:
             raise _Cancelled()
         try:
-            major, minor, numpy = out.split()[-3:]
-            return (int(major), int(minor)), numpy == "True"
+            major, minor, numpy, torch = out.split()[-4:]
+            return (int(major), int(minor)), numpy == "True", None if torch == "-" else torch
         except ValueError:
             raise _Failure(f"{self.python} is not a working Python: {out.strip()[-300:]}") from None
 

@@ -36,7 +36,8 @@ class MoGaFacePreferences(bpy.types.AddonPreferences):
         name="Torch Index",
         default=DEFAULT_TORCH_INDEX,
         description="Package index of the torch build Install Dependencies downloads (default: the CPU-only "
-        "build; e.g. https://download.pytorch.org/whl/cu126 for CUDA, a mirror, or empty for PyPI's torch)",
+        "build; e.g. https://download.pytorch.org/whl/cu126 for CUDA, a mirror, or empty for PyPI's torch). "
+        "A torch 2.6 or newer that Blender's Python already has is used instead",
     )
 
     def draw(self, context):

@@ -12,8 +12,10 @@
 # animation, export a PLY; headless: scripts/mogaface_blend.py with --factory-startup and with a
 # .blend; then disable and remove the extension (its user folder must be gone).
 #
-# Environment: MOGAFACE_CHECK_TORCH_INDEX (default: the CPU build's index when it can be reached,
-# else "" = PyPI's torch, said in the log),
+# Environment: MOGAFACE_CHECK_TORCH_INDEX: the torch index the add-on installs from ("" = PyPI's
+# torch, the CUDA build: ≈ 8 GB of disk). By default, the CPU build's index when it can be reached;
+# else Blender's Python gets Debian's python3-torch, the add-on uses it and installs the rest
+# (said in the log).
 # MOGAFACE_CHECK_WORK (default: a fresh folder under /var/cache/mogaface), MOGAFACE_PIP_CACHE
 # (default /var/cache/mogaface/pip-cache: pip's cache folder, kept between runs).
 set -euo pipefail
@@ -40,15 +42,17 @@ cleanup() { [ "$keep" = 1 ] || rm -rf "$work"; }
 trap cleanup EXIT
 
 say "work folder $work (load $(cut -d' ' -f1-3 /proc/loadavg))"
+system_torch=no
 if [ -n "${MOGAFACE_CHECK_TORCH_INDEX+set}" ]; then
     torch_index="$MOGAFACE_CHECK_TORCH_INDEX"
 elif "$python" -c "import urllib.request; urllib.request.urlopen('$cpu_index/', timeout=15)" 2>/dev/null; then
     torch_index="$cpu_index"
-else  # the product never falls back silently; the check says so and tests with PyPI's torch
-    torch_index=""
-    say "$cpu_index cannot be reached from here: checking with PyPI's torch (the CUDA build on Linux)"
+else  # the product never falls back silently; the check says so and tests with the system's torch
+    torch_index="$cpu_index" system_torch=yes
+    say "$cpu_index cannot be reached from here: Blender's Python gets Debian's python3-torch (and numpy)"
 fi
 bash "$chroot_sh" ensure
+bash "$chroot_sh" system-torch "$system_torch"
 mkdir -p "$work/dist" "$work/images" "$pip_cache"
 
 say "the pins resolve to binary wheels for Python 3.11 and 3.13"
@@ -77,7 +81,8 @@ test -f /work/user/extensions/user_default/mogaface/__init__.py
 say "the extension in a window: dependencies, import, train, render, export"
 xvfb-run -a -s "-screen 0 1600x1000x24" blender --enable-event-simulate --python /src/tests/real_blender/ui_check.py -- \
     '{"work": "/work", "images": "/work/images", "capture": "/work/capture", "head": "/work/head.npz",
-      "torch_index": "$torch_index", "steps": 600}'
+      "torch_index": "$torch_index", "system_torch": $([ "$system_torch" = yes ] && echo true || echo false),
+      "steps": 600}'
 python3 -c "import json, sys; r = json.load(open('/work/results.json')); print(json.dumps(r, indent=1)); sys.exit(0 if r.get('ok') else 1)"
 say "headless: --factory-startup, then a .blend"
 blender -b --factory-startup --python /src/scripts/mogaface_blend.py -- /work/capture --run /work/run \

@@ -2,6 +2,8 @@
 # The real Blender program (Debian trixie's Blender 4.3.2, Python 3.13) in a cached chroot.
 #
 #   scripts/real_blender_chroot.sh ensure              build the chroot if missing (idempotent)
+#   scripts/real_blender_chroot.sh system-torch yes|no Debian's python3-torch (with its numpy) in the
+#                                                      chroot's Python, or not (idempotent)
 #   [MOGAFACE_EXTRA_BIND=HOST:INSIDE] scripts/real_blender_chroot.sh run CHECKOUT WORK -- CMD...
 #                                                      run CMD inside it with CHECKOUT bind-mounted
 #                                                      read-only at /src and WORK read-write at /work;
@@ -47,6 +49,19 @@ ensure() {
     echo "${PACKAGES[*]}" > "$CHROOT/.mogaface-ready"
 }
 
+system_torch() {  # the system Python's torch, as a Debian user with python3-torch has it
+    ensure
+    case "${1:-}" in
+        yes) in_chroot_plain bash -c "dpkg -s python3-torch >/dev/null 2>&1 || {
+                 export DEBIAN_FRONTEND=noninteractive
+                 apt-get update -qq && apt-get install -y -qq --no-install-recommends python3-torch >/dev/null
+                 apt-get clean; }" ;;
+        no) in_chroot_plain bash -c "! dpkg -s python3-torch >/dev/null 2>&1 ||
+                 DEBIAN_FRONTEND=noninteractive apt-get purge -y -qq --autoremove python3-torch >/dev/null" ;;
+        *) die "usage: system-torch yes|no" ;;
+    esac
+}
+
 MOUNTED=()
 unmount_all() {
     local i
@@ -68,6 +83,7 @@ mount_system() {
     mountpoint -q "$CHROOT/proc" || mount_into "$CHROOT/proc" -t proc proc
     mountpoint -q "$CHROOT/dev" || mount_into "$CHROOT/dev" --bind /dev
     mountpoint -q "$CHROOT/dev/shm" || mount_into "$CHROOT/dev/shm" -t tmpfs tmpfs
+    mountpoint -q "$CHROOT/dev/pts" || mount_into "$CHROOT/dev/pts" --bind /dev/pts  # apt's log
 }
 
 in_chroot_plain() {
@@ -100,6 +116,7 @@ run() {
 
 case "${1:-}" in
     ensure) ensure ;;
+    system-torch) system_torch "${2:-}" ;;
     run) shift; run "$@" ;;
-    *) die "usage: $0 ensure | run CHECKOUT WORK -- CMD..." ;;
+    *) die "usage: $0 ensure | system-torch yes|no | run CHECKOUT WORK -- CMD..." ;;
 esac

@@ -414,7 +414,7 @@ args = sys.argv[1:]
 with open({log!r}, "a") as log:
     log.write(json.dumps(args) + "\\n")
 if args[:2] == ["-I", "-c"]:  # the probe: Python 3.13 without numpy
-    print("3 13 False")
+    print("3 13 False -")
     sys.exit()
 if {fail!r}:
     print("Collecting torch==2.13.0", file=sys.stderr)

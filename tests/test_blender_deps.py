@@ -58,7 +58,7 @@ PIP_TIMEOUT = "Retrying (Retry(total=0)) after connection broken by 'NewConnecti
     ("ERROR: Could not find a version that satisfies the requirement numpy==1.26.4 (from versions: 2.3.0)\n"
      "ERROR: No matching distribution found for numpy==1.26.4", "No wheel of numpy==1.26.4 for Python 3.13"),
     ("ERROR: Could not install packages due to an OSError: [Errno 28] No space left on device\nnoise",
-     "The disk is full"),
+     "about 1.5 GB with the CPU build"),
     ("Collecting x\nERROR: first real cause\nERROR: a consequence\nlast line", "first real cause"),
 ])
 def test_failures_are_explained_by_their_cause(output, expected):
@@ -71,7 +71,7 @@ args = sys.argv[1:]
 with open({log!r}, "a") as log:
     log.write(json.dumps(args) + "\\n")
 if args[:2] == ["-I", "-c"]:
-    print("3 13 False")
+    print({probe!r})
     sys.exit()
 pins = [a for a in args if "==" in a]
 if "--dry-run" in args:
@@ -89,9 +89,10 @@ print("Installing collected packages: ...")
 """
 
 
-def fake_python(folder: pathlib.Path, delay: float = 0.0) -> tuple[str, pathlib.Path]:
+def fake_python(folder: pathlib.Path, delay: float = 0.0, probe: str = "3 13 False -") -> tuple[str, pathlib.Path]:
+    """A Python whose pip logs its arguments; ``probe``: what it answers :data:`dependencies.PROBE`."""
     log, script = folder / "argv.jsonl", folder / "fake-python"
-    script.write_text(FAKE_PIP.format(python=sys.executable, log=str(log), delay=delay))
+    script.write_text(FAKE_PIP.format(python=sys.executable, log=str(log), delay=delay, probe=probe))
     script.chmod(0o755)
     return str(script), log
 
@@ -133,10 +134,9 @@ def test_a_job_with_a_missing_interpreter_fails_with_its_name(tmp_path):
 
 def test_blenders_own_numpy_is_never_replaced(tmp_path):
     """With numpy present, numpy is not asked for; if the other pins still need another one, say so."""
-    python, log = fake_python(tmp_path)
+    python, log = fake_python(tmp_path, probe="3 11 True -")
     script = pathlib.Path(python)
-    text = script.read_text().replace('print("3 13 False")', 'print("3 11 True")')
-    script.write_text(text)
+    text = script.read_text()
     target = tmp_path / "site-packages"
     progress = dependencies.InstallJob(python, target, torch_index="").start().wait(interval=0.05)
     assert progress.state == "done", progress.message
@@ -147,3 +147,53 @@ def test_blenders_own_numpy_is_never_replaced(tmp_path):
                                    'pins = [a for a in args if "==" in a] + ["numpy==2.4.0"]'))
     progress = dependencies.InstallJob(python, target, torch_index="").start().wait(interval=0.05)
     assert progress.state == "failed" and "Blender's numpy" in progress.message and "numpy==2.4.0" in progress.message
+
+
+def test_the_disk_full_message_names_the_torch_build_being_installed():
+    message = dependencies.explain_failure("OSError: [Errno 28] No space left on device", (3, 13), torch_index="")
+    assert "The disk is full" in message and "8 GB with PyPI's torch" in message
+
+
+def test_the_probe_reports_this_pythons_numpy_and_torch_versions():
+    """The probe's answer against importlib.metadata read here, in this (non-isolated) process."""
+    import importlib.metadata
+    import subprocess
+
+    out = subprocess.run([sys.executable, "-I", "-c", dependencies.PROBE], capture_output=True, text=True,
+                         check=True).stdout.split()
+    assert out == [str(sys.version_info[0]), str(sys.version_info[1]), "True", importlib.metadata.version("torch")]
+
+
+@pytest.mark.parametrize("version, supported", [
+    ("2.6.0+debian", True), ("2.13.0+cpu", True), ("3.0.0", True), ("2.5.1", False), ("1.13.1", False),
+    ("?", True)])
+def test_an_interpreters_torch_is_supported_from_the_minimum_version(version, supported):
+    assert dependencies.torch_is_supported(version) is supported
+
+
+def test_the_minimum_torch_is_the_one_pyproject_declares():
+    text = (ROOT / "pyproject.toml").read_text()
+    assert '"torch>=' + ".".join(map(str, dependencies.MIN_TORCH)) + '"' in text
+
+
+def test_an_interpreters_own_torch_is_used_and_no_torch_build_is_asked_for(tmp_path):
+    """A distribution's python3-torch (with its numpy): neither is installed, the torch index is not asked."""
+    python, log = fake_python(tmp_path, probe="3 13 True 2.6.0+debian")
+    target = tmp_path / "site-packages"
+    progress = dependencies.InstallJob(python, target).start().wait(interval=0.05)
+    assert progress.state == "done", progress.message
+    calls = [json.loads(line) for line in log.read_text().splitlines()]
+    assert len(calls) == 3 and not any("--index-url" in call for call in calls)  # probe, resolve, install
+    assert not any(arg.startswith(("torch", "numpy")) for call in calls for arg in call)
+    installed = (target / "installed.txt").read_text().splitlines()
+    assert "numba==" + dependencies.PINNED["numba"] in installed
+    assert "this Python's own 2.6.0+debian" in progress.message
+
+
+def test_an_interpreters_torch_older_than_the_minimum_is_refused_by_name(tmp_path):
+    python, log = fake_python(tmp_path, probe="3 13 True 2.3.1")
+    target = tmp_path / "site-packages"
+    (target / "old").mkdir(parents=True)
+    progress = dependencies.InstallJob(python, target).start().wait(interval=0.05)
+    assert progress.state == "failed" and "torch 2.3.1, older than the 2.6" in progress.message
+    assert len(log.read_text().splitlines()) == 1 and (target / "old").is_dir()  # only the probe ran

@@ -106,7 +106,10 @@ def stages():
 
 
 def install_stages(deps, install, prefs, missing):
-    check("torch" in missing, f"torch should be missing in a fresh Blender, found missing={missing}")
+    if ARGS.get("system_torch"):  # Debian's python3-torch (with numpy): the install leaves both alone
+        check(missing == ["numba"], f"only numba should be missing beside the system's torch: missing={missing}")
+    else:
+        check("torch" in missing, f"torch should be missing in a fresh Blender, found missing={missing}")
     shot("1-missing-packages")
     stage("panel offers Install Dependencies")
 
@@ -136,10 +139,13 @@ def install_stages(deps, install, prefs, missing):
     check(progress.state == "done", f"install {progress.state}: {progress.message}")
     size = sum(f.stat().st_size for f in pathlib.Path(site).rglob("*") if f.is_file())
     RESULTS["install"] = {"seconds": round(time.monotonic() - started, 1), "disk_mb": round(size / 1e6),
+                          "message": progress.message,
                           "packages": progress.packages}
     check(deps.missing_modules() == [], f"still missing after the install: {deps.missing_modules()}")
     check(not any(p.lower().startswith("numpy") for p in progress.packages) or "numpy" in missing,
           "numpy installed although Blender has one")
+    check(not any(p.lower().startswith("torch") for p in progress.packages) or "torch" in missing,
+          f"torch installed although Blender's Python has one: {progress.packages}")
     yield from show_panel()
     yield 1.0
     shot("3-packages-ready")
