@@ -54,7 +54,7 @@ system_torch() {  # the system Python's torch, as a Debian user with python3-tor
     case "${1:-}" in
         yes) in_chroot_plain bash -c "dpkg -s python3-torch >/dev/null 2>&1 || {
                  export DEBIAN_FRONTEND=noninteractive
-                 apt-get update -qq && apt-get install -y -qq --no-install-recommends python3-torch >/dev/null
+                 apt-get update -qq && apt-get install -y -qq --no-install-recommends python3-torch >/dev/null &&
                  apt-get clean; }" ;;
         no) in_chroot_plain bash -c "! dpkg -s python3-torch >/dev/null 2>&1 ||
                  DEBIAN_FRONTEND=noninteractive apt-get purge -y -qq --autoremove python3-torch >/dev/null" ;;
