@@ -135,8 +135,10 @@ _NETWORK = ("NewConnectionError", "Name or service not known", "Temporary failur
             "ReadTimeoutError", "Connection refused")
 
 
-def explain_failure(output: str, python_version: tuple[int, int], torch_index: str = "") -> str:
-    """One sentence naming why pip failed, from its whole output (the cause is rarely the last line)."""
+def explain_failure(output: str, python_version: tuple[int, int], torch_index: str = "",
+                    own_torch: bool = False) -> str:
+    """One sentence naming why pip failed, from its whole output (the cause is rarely the last line).
+    ``own_torch``: the interpreter's own torch is used (none is being installed)."""
     python = f"Python {python_version[0]}.{python_version[1]}"
     if re.search(r"No module named pip\b", output):
         return (f"This Blender's Python ({python}) has no pip. Install it with the system's package manager "
@@ -145,9 +147,10 @@ def explain_failure(output: str, python_version: tuple[int, int], torch_index: s
     if "CERTIFICATE_VERIFY_FAILED" in output or "SSLError" in output:
         return "The package index's certificate was refused (SSL): check the system's CA certificates or proxy"
     if "No space left on device" in output:
-        return ("The disk is full: free space for the packages (about "
-                + ("1.5 GB with the CPU build of torch)" if torch_index
-                   else "8 GB with PyPI's torch, the CUDA build on Linux, and its download)"))
+        need = ("0.5 GB beside this Python's own torch" if own_torch
+                else "1.5 GB with the CPU build of torch" if torch_index
+                else "8 GB with PyPI's torch, the CUDA build on Linux, and its download")
+        return f"The disk is full: free space for the packages (about {need})"
     missing = re.search(r"No matching distribution found for ([^\s;]+)", output)
     if any(marker in output for marker in _NETWORK):
         host = re.search(r"host='([^']+)'", output) or re.search(r"https?://([^/\s]+)", output)
@@ -206,6 +209,11 @@ class InstallJob:
         self._lock = threading.Lock()
         self._thread: threading.Thread | None = None
 
+    @property
+    def index(self) -> str:
+        """The torch index pip is given: none once the interpreter's own torch is known to be used."""
+        return "" if self.own_torch is not None else self.torch_index
+
     def start(self) -> "InstallJob":
         self._thread = threading.Thread(target=self._run, name="mogaface-install", daemon=True)
         self._thread.start()
@@ -254,12 +262,12 @@ class InstallJob:
             self._set("resolving", 0.02, f"Choosing versions for Python {self.python_version[0]}."
                       f"{self.python_version[1]}")
             torch_version = None
-            if self.torch_index and self.own_torch is None:
-                report = self._report(torch_command(self.python, self.torch_index))
+            if self.index:
+                report = self._report(torch_command(self.python, self.index))
                 torch_version = next(p.split("==")[1] for p in planned(report) if p.split("==")[0].lower() == "torch")
             lines = requirements(self.python_version, self.has_numpy, torch_version,
                                  has_torch=self.own_torch is not None)
-            pins = planned(self._report(resolve_command(self.python, lines, self.torch_index)))
+            pins = planned(self._report(resolve_command(self.python, lines, self.index)))
             if self.has_numpy and any(p.split("==")[0].lower() == "numpy" for p in pins):
                 raise _Failure("Blender's numpy is too old or too new for these packages "
                                f"({', '.join(p for p in pins if p.lower().startswith('numpy'))} would be needed)")
@@ -324,14 +332,14 @@ class InstallJob:
         if self._cancelled:
             raise _Cancelled()
         if process.returncode != 0:
-            raise _Failure(explain_failure(err + "\n" + out, self.python_version, self.torch_index))
+            raise _Failure(self._explain(err + "\n" + out))
         try:
             return json.loads(out)
         except ValueError:
             raise _Failure(f"pip gave no report (is {self.python} a Python with pip ≥ 22.2?)") from None
 
     def _install(self, pins: list[str], staging: str) -> None:
-        process = self._start(install_command(self.python, staging, pins, self.torch_index), merge_stderr=True)
+        process = self._start(install_command(self.python, staging, pins, self.index), merge_stderr=True)
         done, total, start = 0, len(pins), time.monotonic()
         for line in process.stdout:
             self.log.append(line.rstrip())
@@ -347,7 +355,10 @@ class InstallJob:
         if self._cancelled:
             raise _Cancelled()
         if process.returncode != 0:
-            raise _Failure(explain_failure("\n".join(self.log), self.python_version, self.torch_index))
+            raise _Failure(self._explain("\n".join(self.log)))
+
+    def _explain(self, output: str) -> str:
+        return explain_failure(output, self.python_version, self.index, own_torch=self.own_torch is not None)
 
     def _replace(self, staging: str) -> None:
         """``staging`` becomes the target folder; the old one is removed."""

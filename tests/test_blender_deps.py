@@ -152,6 +152,8 @@ def test_blenders_own_numpy_is_never_replaced(tmp_path):
 def test_the_disk_full_message_names_the_torch_build_being_installed():
     message = dependencies.explain_failure("OSError: [Errno 28] No space left on device", (3, 13), torch_index="")
     assert "The disk is full" in message and "8 GB with PyPI's torch" in message
+    message = dependencies.explain_failure("No space left on device", (3, 13), torch_index="", own_torch=True)
+    assert "The disk is full" in message and "0.5 GB beside this Python's own torch" in message
 
 
 def test_the_probe_reports_this_pythons_numpy_and_torch_versions():
@@ -183,7 +185,8 @@ def test_an_interpreters_own_torch_is_used_and_no_torch_build_is_asked_for(tmp_p
     progress = dependencies.InstallJob(python, target).start().wait(interval=0.05)
     assert progress.state == "done", progress.message
     calls = [json.loads(line) for line in log.read_text().splitlines()]
-    assert len(calls) == 3 and not any("--index-url" in call for call in calls)  # probe, resolve, install
+    assert len(calls) == 3  # probe, resolve, install
+    assert not any(flag in call for call in calls for flag in ("--index-url", "--extra-index-url"))
     assert not any(arg.startswith(("torch", "numpy")) for call in calls for arg in call)
     installed = (target / "installed.txt").read_text().splitlines()
     assert "numba==" + dependencies.PINNED["numba"] in installed
