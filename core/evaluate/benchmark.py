@@ -10,20 +10,45 @@ fitting at two step counts, the method's own image-assisted inference and the tr
 
 from __future__ import annotations
 
+import hashlib
 import math
+import pathlib
 
 import numpy as np
 
 from ..errors import InputError
 from .expression_error import frame_errors
 from .protocols import PROTOCOLS, protocol_frames, run_protocol, score
-from .run_folder import RunFolder
+from ..run.folder import RunFolder
 from .sources.base import ParamSource
 
 FIT_STEPS = (10, 30)
 REFINER_PASSES = (1, 3)
 IMAGE_METRICS = ("psnr", "ssim", "lpips")
 PARAMETER_METRICS = ("expr_rmse", "expr_vertex_mm", "vertex_mm")
+# The code that decides a score, relative to the package's core/: the protocols, metrics, the
+# scoring cameras and images, every parameter source and the refiner's inference. Scores kept on
+# disk are stale once any of these files changes (:func:`scoring_code_hash`).
+SCORING_CODE = ("evaluate/benchmark.py", "evaluate/protocols.py", "evaluate/metrics.py", "evaluate/lpips_alex.py",
+                "evaluate/images.py", "evaluate/expression_error.py", "evaluate/camera_error.py",
+                "evaluate/sources/*.py", "refiner/*.py")
+CORE = pathlib.Path(__file__).resolve().parents[1]
+
+
+def scoring_code_hash(patterns=None, root: pathlib.Path | None = None) -> str:
+    """SHA-256 over the names and bytes of the scoring code's files (:data:`SCORING_CODE` under
+    :data:`CORE`): a cache of scores keyed by it is invalidated by any edit of the code that
+    computed them."""
+    patterns = SCORING_CODE if patterns is None else patterns
+    root = CORE if root is None else pathlib.Path(root)
+    digest = hashlib.sha256()
+    for pattern in patterns:
+        files = sorted(root.glob(pattern))
+        if not files:
+            raise FileNotFoundError(f"no scoring code matches {root / pattern}")
+        for path in files:
+            digest.update(path.relative_to(root).as_posix().encode() + b"\0" + path.read_bytes() + b"\0")
+    return digest.hexdigest()
 
 
 def standard_sources(run: RunFolder, capture, avatar, fit_steps=FIT_STEPS,
@@ -39,7 +64,7 @@ def standard_sources(run: RunFolder, capture, avatar, fit_steps=FIT_STEPS,
     from .sources.refined import RefinedParams, RefinerInference, run_refiner
     from .sources.smoothed import SmoothedParams, choose_sigmas
     from .sources.tracked import AlignedTrackedParams, TrackedParams
-    from .run_folder import capture_info
+    from ..run.folder import capture_info
     from .sources.true import TrueParams, truth_dir
 
     tracked = TrackedParams(capture, run)
@@ -102,12 +127,11 @@ def score_source(avatar, capture, source: ParamSource, frames, background, lpips
 def benchmark_run(run_dir, protocols=PROTOCOLS, max_frames: int | None = None, lpips: bool = True,
                   fit_steps=FIT_STEPS, sources: dict[str, ParamSource] | None = None, avatar=None) -> dict:
     """``{"protocols": {protocol: {source: scores}}, "sources": {name: description}, "cameras": …}``."""
-    from ..mogaface.avatar import load_run_avatar
     from .camera_error import camera_errors
 
     run = RunFolder(run_dir)
     capture = run.open_capture()
-    avatar = load_run_avatar(run.root) if avatar is None else avatar
+    avatar = run.load_avatar() if avatar is None else avatar
     sources = standard_sources(run, capture, avatar, fit_steps) if sources is None else sources
     result = {"sources": {name: getattr(s, "description", type(s).__name__) for name, s in sources.items()},
               "protocols": {}, "cameras": camera_errors(capture, run.root)}

@@ -87,7 +87,8 @@ def train_variant(capture, run_dir: pathlib.Path, name: str, preset, config_path
         trainer.events.close()
 
 
-SCORES_FILE = "ablation_scores.json"  # a run's scores, reused while the run and the scoring options are unchanged
+# a run's scores, reused while the run, the scoring options and the scoring code are unchanged
+SCORES_FILE = "ablation_scores.json"
 
 
 def run_folder(out: pathlib.Path, name: str, seed: int) -> pathlib.Path:
@@ -96,14 +97,14 @@ def run_folder(out: pathlib.Path, name: str, seed: int) -> pathlib.Path:
 
 def image_source(run_dir):
     """``(avatar, source)``: the run's own inference, image-assisted where it has modules."""
-    from ..evaluate.run_folder import RunFolder
+    from ..run.folder import RunFolder
     from ..evaluate.sources.mogaface import MoGaFaceParams
     from ..evaluate.sources.tracked import TrackedParams
-    from .avatar import ModulatedAvatar, load_run_avatar
+    from .avatar import ModulatedAvatar
 
     run = RunFolder(run_dir)
     capture = run.open_capture()
-    avatar = load_run_avatar(run_dir)
+    avatar = run.load_avatar()
     if not isinstance(avatar, ModulatedAvatar):
         return avatar, TrackedParams(capture, run)
     return avatar, MoGaFaceParams(capture, run, avatar.model, True)
@@ -112,13 +113,15 @@ def image_source(run_dir):
 def score_variant(run_dir: pathlib.Path, max_frames, lpips: bool, fit_steps) -> dict:
     """Every parameter source on both protocols (:mod:`..evaluate.benchmark`), and the expression
     error of the training timesteps (tracked → as training left them). Kept in the run folder, so
-    scoring several runs can go on side by side and the table be written again without rescoring."""
+    scoring several runs can go on side by side and the table be written again without rescoring;
+    kept scores are used again only under the same options and the same scoring code (a hash of its
+    files, :func:`..evaluate.benchmark.scoring_code_hash`)."""
     from ..errors import InputError
-    from ..evaluate.benchmark import benchmark_run
+    from ..evaluate.benchmark import benchmark_run, scoring_code_hash
     from ..evaluate.expression_error import expression_errors
     from ..io.atomic import write_json
 
-    from ..evaluate.camera_error import REFINED_CAMERAS_FILE
+    from ..run.names import REFINED_CAMERAS_FILE
     from ..evaluate.sources.fitted import fitting_settings
     from ..refiner.files import REFINER_FILE
 
@@ -127,7 +130,8 @@ def score_variant(run_dir: pathlib.Path, max_frames, lpips: bool, fit_steps) -> 
         return path.stat().st_mtime_ns if path.exists() else None
 
     options = {"max_frames": max_frames, "lpips": lpips, "fit_steps": list(fit_steps), "fitting": fitting_settings(),
-               "refiner": changed(REFINER_FILE), "refined_cameras": changed(REFINED_CAMERAS_FILE)}
+               "refiner": changed(REFINER_FILE), "refined_cameras": changed(REFINED_CAMERAS_FILE),
+               "scoring_code": scoring_code_hash()}
     cached = run_dir / SCORES_FILE
     if cached.exists() and cached.stat().st_mtime >= (run_dir / "run.json").stat().st_mtime:
         try:
@@ -157,7 +161,7 @@ def write_figure(path: pathlib.Path, run_dirs: dict[str, pathlib.Path]) -> None:
     from PIL import Image, ImageDraw
 
     from ..evaluate.protocols import protocol_frames, render_frame, target_image
-    from ..evaluate.run_folder import RunFolder
+    from ..run.folder import RunFolder
     from ..io.atomic import atomic_path
 
     first = RunFolder(next(iter(run_dirs.values())))

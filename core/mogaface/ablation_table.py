@@ -84,7 +84,8 @@ def markdown(results: dict) -> str:
     """Three tables (unseen frames, held-out camera, training) and how to read them."""
     seeds = "; ".join(f"{e['label']} {', '.join(e['seeds'])}" for e in results["variants"].values())
     lines = [f"Seeds: {seeds}. Cells: mean ± std over seeds. Δ: paired by seed; "
-             "* beyond noise (paired t-test, 5 %), (n.s.) within it.", "",
+             "* beyond noise (paired t-test, 5 %), (n.s.) within it, (n/a) the test cannot tell (one seed, or no "
+             "spread between seeds).", "",
              "**Unseen frames** (self-reenactment of the held-out sequence, every camera; scored view never a "
              "source's input):", ""]
     lines += _table(results, "self_reenactment", FREE_COLUMNS, against_freeze=True)
