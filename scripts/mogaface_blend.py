@@ -18,6 +18,7 @@ save the ``.blend`` with the images packed. Exit code 0 on success, 1 on any rep
 from __future__ import annotations
 
 import argparse
+import importlib
 import os
 import pathlib
 import sys
@@ -108,6 +109,15 @@ def _call(operator, **kwargs) -> None:
         raise SystemExit(f"error: {operator.idname_py()} did not finish ({', '.join(result)})")
 
 
+def _check_output(path: pathlib.Path) -> None:
+    """The core's output check (a device, FIFO, socket or folder is never replaced) as a clean exit."""
+    atomic = importlib.import_module(f"{_mogaface_module().__name__}.core.io.atomic")
+    try:
+        atomic.check_output_target(path)
+    except ValueError as error:
+        raise SystemExit(f"error: {error}") from None
+
+
 def _default_camera(capture: pathlib.Path) -> str:
     mogaface = _mogaface_module()
     core_capture = __import__(f"{mogaface.__name__}.core.data.capture", fromlist=["Capture"])
@@ -126,6 +136,7 @@ def build_scene(args, log=print) -> dict:
         bpy.ops.wm.read_homefile(use_empty=True)
     mogaface = _mogaface_module()
     ops = bpy.ops.mogaface
+    _check_output(args.blend)
     run = args.run.resolve()
     _call(ops.import_capture, filepath=str(args.capture.resolve()))
     log(f"[blend] imported the capture's cameras from {args.capture}")
@@ -160,9 +171,10 @@ def build_scene(args, log=print) -> dict:
     log(f"[blend] rendered frames {first}..{last} from {camera.name} ({len(images)} images)")
     scene.frame_set(first)
     args.blend.parent.mkdir(parents=True, exist_ok=True)
-    blend = args.blend.resolve()
+    blend = args.blend.absolute()  # not resolved: a link named as the output is replaced, never followed
     tmp = blend.with_name(blend.stem + ".tmp.blend")
     bpy.ops.wm.save_as_mainfile(filepath=str(tmp), compress=True)
+    _check_output(blend)
     os.replace(tmp, blend)
     log(f"[blend] saved {blend} in {time.monotonic() - start:.1f} s")
     return {"blend": str(blend), "camera": camera.name, "frames": [first, last], "images": images,

@@ -23,7 +23,7 @@ from ..flame.lbs import axis_angle_to_matrix
 from ..flame.expression_roles import mouth_components
 from ..flame.model import FlameModel
 from ..flame.model_file import write_model_file
-from ..io.atomic import write_json
+from ..io.atomic import atomic_path, write_json
 from ..io.npz import save_npz
 from ..progress import ProgressBar
 from . import layout
@@ -218,7 +218,8 @@ def _model_for(settings: CaptureSettings, out: pathlib.Path, model_path) -> path
     if model_path is not None:
         model_path = pathlib.Path(model_path)
         target = out / f"head{model_path.suffix}"
-        shutil.copyfile(model_path, target)
+        with atomic_path(target) as tmp:
+            shutil.copyfile(model_path, tmp)
         return target
     from ..flame.procedural import build_head
 

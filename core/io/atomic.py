@@ -1,12 +1,23 @@
-"""Write files so that a crash never leaves a half-written file at the final path."""
+"""Write files so that a crash never leaves a half-written file at the final path, and an output
+never replaces what is not a file.
+
+Every output the project writes goes through here. A target that exists must be a regular file
+(it is replaced) or a symbolic link to one (the link itself is replaced by the new file; the file
+it pointed to is left as it was, so a link planted in a folder never redirects a write elsewhere).
+A device, FIFO, socket or folder at the target, or a link to one, is refused: renaming over it
+would replace a device node as root, and writing into it is not what an output path means.
+"""
 
 from __future__ import annotations
 
 import contextlib
 import os
 import pathlib
+import stat
 import tempfile
 import threading
+
+from ..errors import InputError
 
 _umask_lock = threading.Lock()
 
@@ -24,20 +35,61 @@ def _usual_permissions(path) -> None:
     os.chmod(path, 0o666 & ~current_umask())
 
 
+def kind_of(mode: int) -> str:
+    """What a file of ``st_mode`` is, in words (for messages)."""
+    for test, name in ((stat.S_ISREG, "a regular file"), (stat.S_ISDIR, "a folder"), (stat.S_ISFIFO, "a FIFO"),
+                       (stat.S_ISSOCK, "a socket"), (stat.S_ISCHR, "a character device"),
+                       (stat.S_ISBLK, "a block device"), (stat.S_ISLNK, "a symbolic link")):
+        if test(mode):
+            return name
+    return "not a regular file"
+
+
+def check_output_target(path: str | os.PathLike) -> None:
+    """Refuse an output path where something other than a regular file (or a link to one) exists.
+
+    Absent targets and dangling links are fine (a dangling link is replaced, never followed).
+    """
+    try:
+        mode = os.lstat(path).st_mode
+    except FileNotFoundError:
+        return
+    except OSError as problem:
+        raise InputError(path, None, f"cannot be written ({problem.strerror})") from None
+    if stat.S_ISREG(mode):
+        return
+    if stat.S_ISLNK(mode):
+        try:
+            target = os.stat(path).st_mode
+        except OSError:  # dangling or looping: the link alone is replaced
+            return
+        if stat.S_ISREG(target):
+            return
+        raise InputError(path, None, f"is a symbolic link to {kind_of(target)} ({os.readlink(path)}); an output "
+                                     f"replaces a regular file only: choose another output path")
+    raise InputError(path, None, f"is {kind_of(mode)}; an output replaces a regular file only: "
+                                 f"choose another output path")
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike):
     """Yield a temporary path beside ``path``; rename it onto ``path`` only on success.
 
     The temporary name keeps the final suffix, so writers that pick a format by
-    extension (PIL, OpenEXR, numpy) behave as they would for ``path`` itself.
+    extension (PIL, OpenEXR, numpy) behave as they would for ``path`` itself. The target is
+    checked before anything is written and again just before the rename.
     """
     path = pathlib.Path(path)
+    check_output_target(path)
+    if path.parent.exists() and not path.parent.is_dir():
+        raise InputError(path.parent, None, "expected a folder for the output, found a file")
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f".partial{path.suffix}", dir=path.parent)
     os.close(fd)
     try:
         _usual_permissions(tmp)
         yield pathlib.Path(tmp)
+        check_output_target(path)
         os.replace(tmp, path)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
@@ -53,6 +105,26 @@ def atomic_open(path: str | os.PathLike, mode: str = "wb", **kwargs):
             yield handle
             handle.flush()
             os.fsync(handle.fileno())
+
+
+def open_for_append(path: str | os.PathLike, encoding: str = "utf-8"):
+    """Open a log for appending (a log grows, so it cannot be written atomically): the target must be
+    absent or a regular file, and a link is never followed (a planted link could append elsewhere)."""
+    flags = os.O_WRONLY | os.O_APPEND | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0)
+    check_output_target(path)
+    try:
+        fd = os.open(path, flags, 0o666)
+    except OSError as problem:
+        if os.path.islink(path):
+            raise InputError(path, None, "is a symbolic link; a log is appended to a regular file only") from None
+        raise InputError(path, None, f"cannot be written ({problem.strerror})") from None
+    mode = os.fstat(fd).st_mode
+    if not stat.S_ISREG(mode):
+        os.close(fd)
+        raise InputError(path, None, f"is {kind_of(mode)}; a log is appended to a regular file only")
+    if hasattr(os, "set_blocking"):
+        os.set_blocking(fd, True)
+    return open(fd, "a", encoding=encoding)
 
 
 def write_text(path: str | os.PathLike, text: str) -> None:

@@ -12,6 +12,7 @@ import os
 import time
 from typing import Callable
 
+from ..io.atomic import open_for_append
 from ..progress import emit_event
 
 Listener = Callable[[dict], None]
@@ -34,7 +35,7 @@ class EventLog:
     def __init__(self, path: str | os.PathLike | None, listeners: list[Listener] | None = None):
         self.path = path
         self.listeners = list(listeners or [])
-        self._handle = open(path, "a", encoding="utf-8") if path is not None else None
+        self._handle = open_for_append(path) if path is not None else None
 
     def emit(self, event: str, **fields) -> dict:
         record = {"event": event, "time": round(time.time(), 3), **_plain(fields)}
