@@ -25,8 +25,7 @@ def run(threads: int = 2, quick: bool = False, avatar: str | None = None,
     from mogaface.core.errors import InputError
     from mogaface.core.evaluate.benchmark import score_source, standard_sources
     from mogaface.core.evaluate.protocols import protocol_frames
-    from mogaface.core.evaluate.run_folder import RunFolder
-    from mogaface.core.mogaface.avatar import load_run_avatar
+    from mogaface.core.run.folder import RunFolder
     from mogaface.core.refiner.files import REFINER_FILE
 
     torch.set_num_threads(threads)
@@ -34,7 +33,7 @@ def run(threads: int = 2, quick: bool = False, avatar: str | None = None,
     if not (folder.root / REFINER_FILE).exists():
         raise InputError(folder.root / REFINER_FILE, None, "no refiner: run 'train-refiner RUN' first")
     capture = folder.open_capture()
-    trained = load_run_avatar(folder.root)
+    trained = folder.load_avatar()
     sources = standard_sources(folder, capture, trained, fit_steps=fit_steps, refiner_passes=PASSES)
     names = ["tracked", "tracked_aligned", *(f"refined_{k}" for k in PASSES), *(f"fit_{n}" for n in fit_steps),
              f"refined_fit_{fit_steps[0]}"]

@@ -565,52 +565,34 @@ def render_image_name(camera_name: str, frame: int) -> str:
 
 
 def avatar_location(path) -> tuple[pathlib.Path, tuple[float, float, float]]:
-    """A run folder or an ``avatar.pt`` → the avatar file and the background it was trained on.
+    """A run folder or an avatar file → the avatar file and the background it was trained on.
 
-    The background comes from the run's ``run.json`` beside the avatar (white without one).
+    Read by :class:`~.run.folder.RunFolder` (``run.json`` checked: a bad background is an error;
+    white without one).
     """
-    import json
+    from .run.folder import RunFolder
 
-    path = pathlib.Path(path).expanduser()
-    avatar = path / "avatar.pt" if path.is_dir() else path
-    if not avatar.is_file():
-        raise InputError(avatar, None, "avatar file not found (is training finished?)")
-    background = (1.0, 1.0, 1.0)
-    run_json = avatar.parent / "run.json"
-    if run_json.is_file():
-        try:
-            value = json.loads(run_json.read_text(encoding="utf-8")).get("background", background)
-            if len(value) == 3 and all(isinstance(v, int | float) for v in value):
-                background = tuple(float(v) for v in value)
-        except (ValueError, TypeError, AttributeError):
-            pass
-    return avatar.resolve(), background
+    run = RunFolder.of_avatar(path)
+    return run.avatar_path.resolve(), run.background
 
 
 _avatar_cache: dict = {}
 
 
 def load_avatar(path):
-    """The avatar in ``path``, cached per file and its mtime.
+    """The avatar of a run folder or avatar file, as :meth:`RunFolder.load_avatar
+    <.run.folder.RunFolder.load_avatar>` loads it (with the run's MoGaFace modules when it has
+    them), cached while neither the avatar nor the modules file changes."""
+    from .run.folder import RunFolder
 
-    With the run's MoGaFace modules beside it (``mogaface.pt``) the avatar renders with them,
-    driven by parameters alone (the learned default texture feature), as ``render`` does.
-    """
-    from .avatar.avatar import Avatar
-
-    path, key = _file_version(path, "avatar")
+    run = RunFolder.of_avatar(path)
+    path, key = _file_version(run.avatar_path, "avatar")
+    if run.has_modules():
+        key = key + _file_version(run.modules_path, "MoGaFace modules")[1]
     with _model_cache_lock:
         avatar = _avatar_cache.get(key)
         if avatar is None:
-            if (path.parent / "mogaface.pt").exists() and path.name == "avatar.pt":
-                from .mogaface.avatar import load_run_avatar
-
-                try:
-                    avatar = load_run_avatar(path.parent)
-                except (RuntimeError, KeyError, ValueError, TypeError) as error:  # modules of another version
-                    raise InputError(path.parent / "mogaface.pt", None, f"cannot load the modules ({error})") from None
-            else:
-                avatar = Avatar.load(path)
+            avatar = run.load_avatar()
             _avatar_cache.clear()
             _avatar_cache[key] = avatar
     return avatar

@@ -25,6 +25,7 @@ import threading
 import time
 
 from .errors import InputError
+from .run import names as run_names
 
 #: The package's import name; the child runs ``python -m mogaface train``.
 PACKAGE = "mogaface"
@@ -185,7 +186,7 @@ class TrainWorker:
     whose ``events.jsonl`` is read. Events written before the start (a resumed run) are skipped.
     """
 
-    EVENTS_FILE = "events.jsonl"
+    EVENTS_FILE = run_names.EVENTS_FILE
     JOB = "training"
     CANCELLED = "checkpoint written"  # what a cancelled job leaves
     DONE = "finished at step {step}"

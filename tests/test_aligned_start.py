@@ -11,7 +11,7 @@ import pytest
 from mogaface.core.data import layout
 from mogaface.core.data.capture import Capture
 from mogaface.core.evaluate.expression_error import tracking_errors, truth_folder
-from mogaface.core.evaluate.run_folder import MOTION_KEYS, RunFolder, load_flame_file
+from mogaface.core.run.folder import MOTION_KEYS, RunFolder, load_flame_file
 from mogaface.core.evaluate.sources.tracked import AlignedTrackedParams, TrackedParams, mean_finetuning_offset
 from mogaface.core.io.npz import save_npz
 from test_evaluate_fixtures import make_fake_run, tiny_capture

@@ -26,7 +26,7 @@ from mogaface.core.flame.model_file import write_model_file  # noqa: E402
 from mogaface.core.avatar.avatar import Avatar  # noqa: E402
 from mogaface.core.data.capture import Capture  # noqa: E402
 from mogaface.core.data.generator import CaptureSettings, make_capture  # noqa: E402
-from mogaface.core.evaluate.run_folder import RunFolder  # noqa: E402
+from mogaface.core.run.folder import RunFolder  # noqa: E402
 from mogaface.core.worker import TrainWorker, train_command  # noqa: E402
 
 MODULE = addon_test.MODULE
@@ -188,7 +188,7 @@ def test_render_frame_equals_the_core_render(scene):
 
 def test_a_mogaface_run_renders_with_its_modules(scene):
     """A run with MoGaFace modules: keyed with its corrected tracking, rendered as the core renders it."""
-    from mogaface.core.mogaface.avatar import ModulatedAvatar, load_run_avatar
+    from mogaface.core.mogaface.avatar import ModulatedAvatar
 
     run = scene["root"] / "run_mogaface"
     command = train_command(sys.executable, scene["capture"], run, preset="mogaface-demo", steps=5)
@@ -198,7 +198,7 @@ def test_a_mogaface_run_renders_with_its_modules(scene):
                                             target=head.name) == {"FINISHED"}
     assert bpy.ops.mogaface.load_avatar(filepath=str(run), target=head.name) == {"FINISHED"}
     try:
-        avatar = load_run_avatar(run)
+        avatar = RunFolder(run).load_avatar()
         assert isinstance(avatar, ModulatedAvatar) and isinstance(sc.load_avatar(run / "avatar.pt"), ModulatedAvatar)
         timestep = RunFolder(run).trained_timesteps[0]
         frame = sc.timestep_to_frame(timestep)

@@ -16,7 +16,7 @@ from mogaface.core.evaluate.camera_alignment import align_camera, split_frames
 from mogaface.core.evaluate.camera_error import pose_error
 from mogaface.core.evaluate.evaluation import evaluate_run
 from mogaface.core.evaluate.protocols import TrackedParams, protocol_frames
-from mogaface.core.evaluate.run_folder import RunFolder
+from mogaface.core.run.folder import RunFolder
 from test_evaluate_fixtures import fake_run, render_np, tiny_capture
 
 

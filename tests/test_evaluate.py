@@ -18,7 +18,7 @@ from mogaface.core.evaluate.protocols import (
     views_at,
 )
 from mogaface.core.evaluate.evaluation import evaluate_run
-from mogaface.core.evaluate.run_folder import RunFolder
+from mogaface.core.run.folder import RunFolder
 from test_evaluate_fixtures import EXPR_NUDGE, driver_capture, fake_run, render_np, tiny_capture
 
 

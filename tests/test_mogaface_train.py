@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from mogaface.core.data.capture import Capture
-from mogaface.core.evaluate.run_folder import load_flame_file
+from mogaface.core.run.folder import load_flame_file
 from mogaface.core.mogaface.model import MoGaFace
 from mogaface.core.train import config as C
 from mogaface.core.train.checkpoint import latest_checkpoint, load_checkpoint
@@ -117,12 +117,11 @@ def test_resume_is_exact_with_modules_and_bank(tiny_capture, tmp_path):
 def test_evaluation_never_feeds_the_scored_view(full_run, tiny_capture, monkeypatch):
     from mogaface.core.evaluate.sources.mogaface import MoGaFaceParams
     from mogaface.core.evaluate.evaluation import evaluate_run
-    from mogaface.core.evaluate.run_folder import RunFolder
-    from mogaface.core.mogaface.avatar import load_run_avatar
+    from mogaface.core.run.folder import RunFolder
     from mogaface.core.mogaface.views import ViewImages
 
     run = RunFolder(full_run)
-    avatar = load_run_avatar(full_run)
+    avatar = run.load_avatar()
     source = MoGaFaceParams(run.open_capture(), run, avatar.model, image_assisted=True)
     seen = []
     original = ViewImages.batch

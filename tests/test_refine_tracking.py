@@ -16,7 +16,7 @@ import pytest
 
 from mogaface.core.data.capture import Capture
 from mogaface.core.errors import InputError
-from mogaface.core.evaluate.run_folder import RunFolder
+from mogaface.core.run.folder import RunFolder
 from mogaface.core.evaluate.sources.base import InputCameras
 from mogaface.core.evaluate.sources.refined import RefinedParams, run_refiner
 from mogaface.core.evaluate.sources.tracked import AlignedTrackedParams, TrackedParams
@@ -78,7 +78,7 @@ def test_fitting_from_the_refiners_answer_lowers_the_image_error_on_unseen_times
 
     from mogaface.core.avatar.avatar import flame_params_to_torch
     from mogaface.core.evaluate.images import target_image
-    from mogaface.core.evaluate.run_folder import capture_info, load_flame_file
+    from mogaface.core.run.folder import capture_info, load_flame_file
     from mogaface.core.evaluate.sources.fitted import FittedParams
 
     refine_tracking(run_root, out=tmp_path / "refined", passes=1, views=2, fit_steps=0, threads=1)
@@ -129,7 +129,7 @@ def test_fitting_from_the_refiners_answer_lowers_the_image_error_on_unseen_times
 
 def test_a_run_that_kept_the_tracking_gets_every_timestep_fitted(run_root, tmp_path, monkeypatch):
     import mogaface.core.evaluate.sources.tracked as tracked_module
-    from mogaface.core.evaluate.run_folder import load_flame_file
+    from mogaface.core.run.folder import load_flame_file
 
     monkeypatch.setattr(tracked_module, "mean_finetuning_offset", lambda run, capture: {})  # as Freeze
     refine_tracking(run_root, out=tmp_path / "fitted", passes=1, views=2, fit_steps=2, threads=1)
@@ -271,7 +271,7 @@ def test_the_command_and_its_worker(run_root, tmp_path):
 
 def test_errors_against_the_truth_are_zero_for_the_truth_and_its_gauge(run_root, tmp_path):
     from mogaface.core.evaluate.expression_error import frame_errors, tracking_errors, truth_folder
-    from mogaface.core.evaluate.run_folder import MOTION_KEYS, load_flame_file
+    from mogaface.core.run.folder import MOTION_KEYS, load_flame_file
     from mogaface.core.flame.model import FlameModel
 
     run = RunFolder(run_root)

@@ -15,7 +15,7 @@ import torch
 
 from mogaface.core.data.capture import Capture
 from mogaface.core.errors import InputError
-from mogaface.core.evaluate.run_folder import RunFolder
+from mogaface.core.run.folder import RunFolder
 from mogaface.core.refiner.files import load_refiner, save_refiner
 from mogaface.core.refiner.groups import GROUPS, add_offset, flatten, group_sizes, scale_vector
 from mogaface.core.refiner.inference import refine

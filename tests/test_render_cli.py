@@ -8,7 +8,7 @@ from mogaface.core.cli.render import parse_timesteps
 from mogaface.core.data.capture import Capture
 from mogaface.core.errors import InputError
 from mogaface.core.evaluate.protocols import TrackedParams
-from mogaface.core.evaluate.run_folder import RunFolder, load_flame_file
+from mogaface.core.run.folder import RunFolder, load_flame_file
 from mogaface.core.io.image import linear_to_srgb, read_image
 from test_evaluate_fixtures import fake_run, render_np, tiny_capture
 

@@ -13,7 +13,7 @@ from mogaface.core.evaluate.benchmark import benchmark_run, standard_sources
 from mogaface.core.evaluate.expression_error import frame_errors
 from mogaface.core.evaluate.images import ScoringCameras, render_frame
 from mogaface.core.evaluate.protocols import protocol_frames, run_protocol
-from mogaface.core.evaluate.run_folder import MOTION_KEYS, RunFolder
+from mogaface.core.run.folder import MOTION_KEYS, RunFolder
 from mogaface.core.evaluate.sources import smoothed as smoothed_module
 from mogaface.core.evaluate.sources.fitted import PRIOR_WEIGHT, FittedParams
 from mogaface.core.evaluate.sources.smoothed import SmoothedParams, choose_sigmas, sequence_timesteps

@@ -310,7 +310,7 @@ def test_binding_ply_writes_the_motion_file_gaussianavatars_opens(data, head, tm
 
     cap = Capture.open(data["dynamic"])
     avatar = Avatar.initial(head, 0, n_vertices=5143)
-    motion = [cap.flame_params(t) for t in cap.timesteps]
+    motion = {t: cap.flame_params(t) for t in cap.timesteps}
     written = export_binding_ply(avatar, tmp_path / "point_cloud.ply", motion[0], motion=motion)
     ga = np.load(tmp_path / "flame_param.npz")  # GaussianAvatars: Path(ply).parent / "flame_param.npz"
     assert tmp_path / "flame_param.npz" in written

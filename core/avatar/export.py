@@ -6,9 +6,15 @@
 - **Binding space**: the trained, triangle-local parameters plus ``binding_0`` (GaussianAvatars'
   layout) and, beside the file, ``FILE.flame_param.npz`` with the FLAME parameters that pose it
   (GaussianAvatars' layout: a leading time axis of one on every parameter but ``shape``).
-  :func:`import_binding_ply` turns such a file and its head model back into an Avatar.
+  GaussianAvatars poses them as we do (``binding.bound_to_world``): world rotation
+  ``face_orien_quat ⊗ rotation`` (its ``get_rotation``), position ``face_scaling · R·xyz + centre``,
+  scale ``face_scaling · exp(scaling)``. An avatar with MoGaFace texture offsets gets the offsets of
+  the exported timestep baked in (they follow the expression; a PLY holds one set), so that
+  timestep poses exactly; other timesteps pose the same Gaussians without their own offsets.
+  :func:`import_binding_ply` turns such a file and its head model back into an Avatar (a head
+  model with FLAME's 5023 vertices gains its teeth when the face ids reach them).
   Also ``flame_param.npz`` (that exact name, in the PLY's folder): the motion in the form
-  GaussianAvatars' viewer opens beside a PLY (:func:`gaussian_avatars_motion`).
+  GaussianAvatars' viewer opens beside a PLY, one row per timestep (:func:`gaussian_avatars_motion`).
 
 SH bands above the active degree are written as zeros (they take no part in a render), so a
 file always has degree-``max_sh_degree`` columns, as the 3DGS loader expects, and an imported
@@ -80,9 +86,12 @@ def export_world_ply(avatar: Avatar, flame_params: dict[str, np.ndarray], path: 
     return pathlib.Path(path)
 
 
-def gaussian_avatars_motion(frames: list[dict[str, np.ndarray]], n_vertices: int) -> dict[str, np.ndarray]:
+def gaussian_avatars_motion(frames: dict[int, dict[str, np.ndarray]], n_vertices: int) -> dict[str, np.ndarray]:
     """Per-timestep FLAME parameters as GaussianAvatars keeps them (and saves as ``flame_param.npz``).
 
+    ``frames``: timestep → parameters. Row ``t`` is timestep ``t`` (GaussianAvatars selects a
+    mesh by ``flame_param[key][timestep]`` over ``max(timestep) + 1`` rows, train and test
+    together); a timestep missing from ``frames`` keeps a zero row, as GaussianAvatars leaves it.
     ``shape (300,)``, ``expr (T,100)``, ``rotation``/``neck_pose``/``jaw_pose``/``translation (T,3)``,
     ``eyes_pose (T,6)``, ``static_offset (1,V,3)``, ``dynamic_offset (T,V,3)``, float32, with
     ``V`` its FLAME with teeth (5143): fewer components are padded with zeros, and offsets of a
@@ -92,7 +101,11 @@ def gaussian_avatars_motion(frames: list[dict[str, np.ndarray]], n_vertices: int
 
     if not frames:
         raise InputError(None, "frames", "no timesteps to write")
+    if min(frames) < 0:
+        raise InputError(None, "timestep", f"timesteps must be non-negative, got {min(frames)}")
     rows = n_vertices + TEETH_VERTEX_COUNT if n_vertices == FLAME_VERTEX_COUNT else n_vertices
+    count = max(frames) + 1
+    first = frames[min(frames)]
 
     def padded(value, count):
         value = np.asarray(value, np.float32)
@@ -102,35 +115,56 @@ def gaussian_avatars_motion(frames: list[dict[str, np.ndarray]], n_vertices: int
         value = np.asarray(params.get(name, np.zeros((n_vertices, 3))), np.float32).reshape(-1, 3)
         return np.pad(value, [(0, rows - len(value)), (0, 0)])
 
-    out = {
-        "shape": padded(frames[0]["shape"], GA_SHAPE_COUNT),
-        "expr": np.stack([padded(f["expr"], GA_EXPR_COUNT) for f in frames]),
-        **{k: np.stack([np.asarray(f[k], np.float32) for f in frames])
-           for k in ("rotation", "neck_pose", "jaw_pose", "eyes_pose", "translation")},
-        "static_offset": offset(frames[0], "static_offset")[None],
-        "dynamic_offset": np.stack([offset(f, "dynamic_offset") for f in frames]),
-    }
+    sizes = {"expr": GA_EXPR_COUNT, "rotation": 3, "neck_pose": 3, "jaw_pose": 3, "eyes_pose": 6, "translation": 3}
+    out = {key: np.zeros((count, size), np.float32) for key, size in sizes.items()}
+    out["dynamic_offset"] = np.zeros((count, rows, 3), np.float32)
+    for t, params in frames.items():
+        out["expr"][t] = padded(params["expr"], GA_EXPR_COUNT)
+        for key in ("rotation", "neck_pose", "jaw_pose", "eyes_pose", "translation"):
+            out[key][t] = np.asarray(params[key], np.float32)
+        out["dynamic_offset"][t] = offset(params, "dynamic_offset")
+    out["shape"] = padded(first["shape"], GA_SHAPE_COUNT)
+    out["static_offset"] = offset(first, "static_offset")[None]
     return out
+
+
+def bound_parameters(avatar: Avatar, flame_params: dict[str, np.ndarray] | None, source=None) -> dict[str, torch.Tensor]:
+    """The triangle-local Gaussians a binding-space PLY holds: the avatar's own, plus the texture
+    offsets of ``flame_params`` for an avatar with MoGaFace texture attention (added as its render
+    adds them, before the binding poses them)."""
+    g = avatar.gaussians
+    local = {"means": g.local_position, "scales_log": g.local_log_scale, "quats": g.local_rotation,
+             "opacity_logit": g.opacity_logit}
+    model = getattr(avatar, "model", None)
+    if model is not None and model.texture is not None:
+        if flame_params is None:
+            raise InputError(source, "timestep", "an avatar with MoGaFace texture offsets needs the timestep whose "
+                                                 "offsets the binding-space file holds")
+        with torch.no_grad():
+            offsets = model.texture_offsets(g, avatar.flame.faces, flame_params_to_torch(flame_params))
+        local = {"means": local["means"] + offsets["position"], "scales_log": local["scales_log"] + offsets["log_scale"],
+                 "quats": local["quats"] + offsets["rotation"],
+                 "opacity_logit": local["opacity_logit"] + offsets["opacity"][:, 0]}
+    return {k: v.detach() for k, v in local.items()}
 
 
 def export_binding_ply(
     avatar: Avatar, path: str | os.PathLike, flame_params: dict[str, np.ndarray] | None = None,
-    motion: list[dict[str, np.ndarray]] | None = None,
+    motion: dict[int, dict[str, np.ndarray]] | None = None, timestep: int = 0,
 ) -> list[pathlib.Path]:
-    """Write the triangle-bound Gaussians (GaussianAvatars' layout) and, given parameters, the
-    ``FILE.flame_param.npz`` beside it; given ``motion`` (parameters per timestep, or else the
-    one timestep), GaussianAvatars' ``flame_param.npz`` too. Returns the files written."""
+    """Write the triangle-bound Gaussians (GaussianAvatars' layout; texture offsets of
+    ``flame_params`` baked in, see :func:`bound_parameters`) and, given parameters, the
+    ``FILE.flame_param.npz`` beside it; given ``motion`` (timestep → parameters, or else
+    ``flame_params`` as ``timestep``), GaussianAvatars' ``flame_param.npz`` too. Returns the files written."""
     g = avatar.gaussians
-    write_gaussian_ply(
-        path, g.local_position, g.local_log_scale, g.local_rotation, g.opacity_logit, rendered_sh(g), binding=g.binding
-    )
+    write_gaussian_ply(path, **bound_parameters(avatar, flame_params, path), sh=rendered_sh(g), binding=g.binding)
     written = [pathlib.Path(path)]
     if flame_params is not None:
         params = layout.normalize_flame_params(flame_params, path)
         npz = flame_param_path(path)
         save_npz(npz, layout.batched_flame_params(params))
         written.append(npz)
-        motion = [params] if motion is None else motion
+        motion = {timestep: params} if motion is None else motion
     if motion:
         ga = pathlib.Path(path).with_name(GA_MOTION_FILE)
         save_npz(ga, gaussian_avatars_motion(motion, avatar.flame.n_vertices))
@@ -138,15 +172,29 @@ def export_binding_ply(
     return written
 
 
+def bound_head(head_file: str | os.PathLike, max_face: int, source=None) -> FlameModel:
+    """The head model whose faces ``binding_0`` ids up to ``max_face`` refer to: the model as it is,
+    or, for FLAME's 5023 vertices and ids beyond its faces, FLAME with the teeth VHAP and
+    GaussianAvatars add (:mod:`..flame.teeth`, 10144 faces)."""
+    from ..flame.teeth import FLAME_VERTEX_COUNT, TEETH_VERTEX_COUNT
+
+    flame = FlameModel.load(head_file)
+    if max_face >= len(flame.faces) and flame.n_vertices == FLAME_VERTEX_COUNT:
+        flame = FlameModel.load(head_file, n_vertices=FLAME_VERTEX_COUNT + TEETH_VERTEX_COUNT)
+    if max_face >= len(flame.faces):
+        problem = f"face ids reach {max_face}, the head model has {len(flame.faces)} faces"
+        if flame.n_vertices == FLAME_VERTEX_COUNT + TEETH_VERTEX_COUNT:
+            problem += " (with FLAME's teeth)"
+        raise InputError(source, "binding_0", problem)
+    return flame
+
+
 def import_binding_ply(path: str | os.PathLike, head_file: str | os.PathLike) -> Avatar:
     """An Avatar from a binding-space PLY and the head model its ``binding_0`` ids refer to."""
     data = read_gaussian_ply(path)
     if data["binding"] is None:
         raise InputError(path, "binding_0", "missing: a world-space PLY cannot be bound to a head model")
-    flame = FlameModel.load(head_file)
-    if len(data["binding"]) and int(data["binding"].max()) >= len(flame.faces):
-        problem = f"face ids reach {int(data['binding'].max())}, the head model has {len(flame.faces)} faces"
-        raise InputError(path, "binding_0", problem)
+    flame = bound_head(head_file, int(data["binding"].max()) if len(data["binding"]) else -1, path)
     if data["sh_degree"] > 3:
         raise InputError(path, "f_rest", f"SH degree {data['sh_degree']} is above 3")
     sh = torch.from_numpy(data["sh"])

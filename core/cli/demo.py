@@ -9,7 +9,6 @@ on subject 0's avatar, builds a Blender scene with the headless script, and writ
 from __future__ import annotations
 
 import dataclasses
-import json
 import os
 import pathlib
 import shutil
@@ -119,12 +118,11 @@ def val_camera(capture: pathlib.Path) -> str:
 
 def export_ply(run: pathlib.Path, out: pathlib.Path) -> pathlib.Path:
     from ..avatar.export import export_world_ply
-    from ..evaluate.run_folder import RunFolder
-    from ..scene_conversion import load_avatar
+    from ..run.folder import RunFolder
 
     folder = RunFolder(run)
     timestep = folder.trained_timesteps[0]
-    return export_world_ply(load_avatar(run / "avatar.pt"), folder.flame_params(timestep),
+    return export_world_ply(folder.load_avatar(), folder.flame_params(timestep),
                             out / f"avatar_world_t{timestep:05d}.ply")
 
 
@@ -217,6 +215,7 @@ def run(args) -> int:
     from ..flame.procedural import build_head
     from ..io.atomic import write_json
     from ..io.image import read_image, write_png
+    from ..run.folder import RunFolder
 
     plan = TINY if args.tiny else DemoPlan()
     out = args.out.resolve()
@@ -270,7 +269,7 @@ def run(args) -> int:
         write_png(out / "frames_strip.png", strip_image([[read_image(p)[..., :3] for p in frames]]))
     clock.stage("Blender scene", began, str(blend.name) if blend else f"not built: {problem}")
 
-    run_info = json.loads((run_dir / "run.json").read_text(encoding="utf-8"))
+    run_info = RunFolder(run_dir).info
     images = [("The procedural head (subject 0)", "preview/contact_sheet.png")]
     for protocol in ("novel_view", "self_reenactment"):
         for p in sorted((out / "eval").glob(f"{protocol}_*.png"))[:1]:

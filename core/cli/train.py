@@ -96,10 +96,11 @@ def _listeners(args):
 def _round_trainer(args, comm, rounds: int):
     """Builds an earlier round's trainer; its events also go to ``RUN/events.jsonl``, marked with
     the round (``stage``), so a reader of the run (Blender) follows every round."""
+    from ..run.names import EVENTS_FILE
     from ..train.events import EventLog
     from ..train.trainer import Trainer
 
-    log = EventLog(args.out / "events.jsonl") if comm.is_writer else None
+    log = EventLog(args.out / EVENTS_FILE) if comm.is_writer else None
 
     def trainer_for(folder, config, resume: bool, k: int):
         listeners = list(_listeners(args)) if comm.is_writer else None

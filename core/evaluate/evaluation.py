@@ -9,7 +9,8 @@ from collections.abc import Iterable
 import numpy as np
 
 from ..errors import InputError
-from ..train.camera_delays import DELAYS_FILE, delayed_views
+from ..run.names import DELAYS_FILE
+from ..train.camera_delays import delayed_views
 from . import report
 from .camera_alignment import split_frames
 from .images import ScoringCameras
@@ -17,7 +18,7 @@ from .protocols import (
     PROTOCOLS, DrivenParams, ParamSource, TrackedParams, check_protocol, cross_identity, novel_view_aligned,
     protocol_frames, protocol_unavailable, run_protocol, score,
 )
-from .run_folder import RunFolder
+from ..run.folder import RunFolder
 
 
 def _mean(values: list[float]) -> float | None:

@@ -19,7 +19,7 @@ from ..data import layout
 from ..errors import InputError
 from ..io.files import file_inside
 from ..flame.model import FlameModel
-from .run_folder import MOTION_KEYS, RunFolder, capture_info, load_flame_file
+from ..run.folder import MOTION_KEYS, RunFolder, capture_info, load_flame_file
 
 
 def _mesh(model: FlameModel, params: dict[str, np.ndarray]) -> np.ndarray:

@@ -11,7 +11,7 @@ import torch
 from ..data.capture import Capture, Frame
 from ..data.capture import _frame_camera as camera_from_entry
 from ..errors import InputError
-from .run_folder import capture_info
+from ..run.folder import capture_info
 
 
 def target_image(capture: Capture, frame: Frame, background, capture_background=None) -> np.ndarray:

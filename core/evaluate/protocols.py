@@ -24,7 +24,7 @@ import numpy as np
 from ..data.capture import Capture, Frame
 from ..errors import InputError
 from .images import ScoringCameras, render_frame, target_image
-from .run_folder import capture_info
+from ..run.folder import capture_info
 from .sources.base import ParamSource, views_at
 from .sources.driven import DrivenParams
 from .sources.tracked import TrackedParams

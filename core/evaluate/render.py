@@ -15,7 +15,7 @@ from ..errors import InputError
 from ..io.image import srgb_to_linear, write_exr, write_png
 from .sources.mogaface import run_inference
 from .protocols import TrackedParams, render_frame
-from .run_folder import RunFolder, capture_info, load_flame_file
+from ..run.folder import RunFolder, capture_info, load_flame_file
 
 RENDER_DIR = "renders"
 

@@ -2,13 +2,12 @@
 
 Evaluation, rendering and Blender call ``render(flame_params, camera, background)``; the texture
 attention reads the same parameters (expression, jaw, neck, eyes), so the avatar's appearance
-follows whichever parameters drive it (tracked, smoothed, fitted, keyed in Blender).
+follows whichever parameters drive it (tracked, smoothed, fitted, keyed in Blender). A run's
+avatar is loaded by :meth:`~..run.folder.RunFolder.load_avatar`, which wraps it whenever the run
+has modules.
 """
 
 from __future__ import annotations
-
-import os
-import pathlib
 
 import torch
 
@@ -16,8 +15,6 @@ from ..avatar.avatar import Avatar, camera_tensors
 from ..splat import SplatOutput, rasterize
 from .model import MoGaFace
 from .posing import world_with_offsets
-
-MODULES_FILE = "mogaface.pt"
 
 
 class ModulatedAvatar:
@@ -55,12 +52,3 @@ def render_world(world: dict[str, torch.Tensor], camera, background) -> SplatOut
         viewmat, K, camera.width, camera.height, background=torch.as_tensor(background, dtype=torch.float32),
     )
 
-
-def load_run_avatar(run_dir: str | os.PathLike):
-    """A run's avatar: modulated when the run has MoGaFace modules (``RUN/mogaface.pt``), else plain."""
-    run_dir = pathlib.Path(run_dir)
-    avatar = Avatar.load(run_dir / "avatar.pt")
-    modules = run_dir / MODULES_FILE
-    if not modules.exists():
-        return avatar
-    return ModulatedAvatar(avatar, MoGaFace.load(modules))

@@ -20,7 +20,7 @@ import time
 from ..data import layout
 from ..errors import InputError
 from ..evaluate.expression_error import tracking_errors
-from ..evaluate.run_folder import RunFolder
+from ..run.folder import RunFolder
 from ..evaluate.sources.base import InputCameras
 from ..evaluate.sources.refined import RefinerInference, run_refiner
 from ..evaluate.sources.tracked import TrackedParams

@@ -27,9 +27,8 @@ import torch
 
 from ..errors import InputError
 from ..evaluate.images import target_image
-from ..evaluate.run_folder import MOTION_KEYS, RunFolder, capture_info
+from ..run.folder import MOTION_KEYS, RunFolder, capture_info
 from ..evaluate.sources.base import InputCameras
-from ..mogaface.avatar import load_run_avatar
 from .files import REFINER_FILE, save_refiner
 from .groups import add_offset, scale_vector
 from .model import LinearRefiner
@@ -64,7 +63,7 @@ class RefinerSettings:
 
 
 def frozen_avatar(run_dir):
-    avatar = load_run_avatar(run_dir)
+    avatar = RunFolder(run_dir).load_avatar()
     for module in (avatar, getattr(avatar, "avatar", None), getattr(avatar, "model", None)):
         if isinstance(module, torch.nn.Module):
             module.requires_grad_(False)

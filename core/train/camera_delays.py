@@ -24,7 +24,6 @@ from ..errors import InputError
 from ..io.atomic import write_json
 from ..io.jsonfile import read_json_object
 
-DELAYS_FILE = "camera_delays.json"  # beside the run: camera id → delay in timesteps
 
 
 class CameraDelays(nn.Module):

@@ -38,7 +38,6 @@ from .data import FlameTable
 
 HUBER_FRACTION = 0.01  # the Huber loss's knee, as a fraction of the image width (1.3 px at 128²)
 MIN_LANDMARKS = 20  # weighted observations a camera needs to be turned
-LANDMARK_CAMERAS_FILE = "cameras_landmarks.json"  # beside a run that started from them
 
 
 @dataclasses.dataclass

@@ -16,7 +16,7 @@ from __future__ import annotations
 import dataclasses
 import pathlib
 
-from ..evaluate.camera_error import REFINED_CAMERAS_FILE
+from ..run.names import AVATAR_FILE, CHECKPOINT_DIR, REFINED_CAMERAS_FILE
 from .checkpoint import latest_checkpoint
 from .config import TrainConfig
 
@@ -41,8 +41,8 @@ def train_earlier_rounds(run, config: TrainConfig, trainer_for) -> tuple[int | N
     start = config.cameras.start
     for k in range(1, config.cameras.rounds):
         folder = round_folder(run, k)
-        if not (folder / "avatar.pt").exists():
-            resume = latest_checkpoint(folder / "checkpoints") is not None
+        if not (folder / AVATAR_FILE).exists():
+            resume = latest_checkpoint(folder / CHECKPOINT_DIR) is not None
             trainer = trainer_for(folder, None if resume else round_config(config, start), resume, k)
             result = trainer.run()
             if result["stopped"] is not None:

@@ -25,7 +25,8 @@ from ..avatar.binding import triangle_frames
 from ..avatar.densify import DensifySchedule, DensifyStrategy
 from ..data import layout
 from ..errors import InputError, MogafaceError
-from ..evaluate.camera_error import REFINED_CAMERAS_FILE
+from ..run.folder import RunFolder
+from ..run.names import DELAYS_FILE, LANDMARK_CAMERAS_FILE, REFINED_CAMERAS_FILE, RUN_FORMAT, RUN_VERSION
 from ..io.atomic import atomic_path, write_json, write_text
 from ..io.npz import save_npz
 from ..splat import cancel
@@ -35,14 +36,13 @@ from .camera_refine import CameraOffsets, write_refined_cameras
 from .checkpoint import latest_checkpoint, newest_intact_checkpoint, save_checkpoint
 from .run_lock import resume_notes, take_run_folder
 from .config import LANDMARKS_START, TrainConfig
-from .camera_delays import DELAYS_FILE, CameraDelays, read_delays
+from .camera_delays import CameraDelays, read_delays
 from .data import TrainingData, capture_head_file
 from .distributed import Communicator
 from .events import EventLog, Listener
 from .losses import image_loss, position_hinge, psnr, scaling_hinge
 from .mogaface_part import build_mogaface, finish_mogaface, mogaface_render
 from ..mogaface.avatar import render_world
-from .run_folder import RUN_FORMAT, RUN_VERSION, RunFolder
 
 GAUSSIAN_GROUPS = ("local_position", "local_log_scale", "local_rotation", "opacity_logit", "sh_dc", "sh_rest")
 
@@ -115,12 +115,12 @@ class Trainer:
         self.lock = take_run_folder(self.run_folder.root) if self.comm.is_writer else None
         checkpoint, self._notes = None, []
         if resume:
-            path, checkpoint, skipped = newest_intact_checkpoint(self.run_folder.checkpoints)
+            path, checkpoint, skipped = newest_intact_checkpoint(self.run_folder.checkpoint_dir)
             if self.lock is not None:
-                self._notes = resume_notes(self.run_folder.checkpoints, path, skipped, self.lock)
+                self._notes = resume_notes(self.run_folder.checkpoint_dir, path, skipped, self.lock)
             if config is None:
-                config = config_module.load(self.run_folder.config)
-        elif latest_checkpoint(self.run_folder.checkpoints) is not None or self.run_folder.avatar.exists():
+                config = config_module.load(self.run_folder.config_path)
+        elif latest_checkpoint(self.run_folder.checkpoint_dir) is not None or self.run_folder.avatar_path.exists():
             raise InputError(self.run_folder.root, None, "already holds a run (resume it with --resume, "
                                                          "or choose another folder)")
         self.config = (config or TrainConfig()).check()
@@ -144,18 +144,18 @@ class Trainer:
             self._start_fresh(head_file)
         else:
             self._restore(checkpoint)
-        self.events = EventLog(self.run_folder.events if writer else None, listeners if writer else None)
+        self.events = EventLog(self.run_folder.events_path if writer else None, listeners if writer else None)
         for note in self._notes:
             self.events.emit("warning", message=note)
 
     # -- setting up ----------------------------------------------------------------------------
     def _start_fresh(self, head_file) -> None:
         source = pathlib.Path(head_file) if head_file is not None else capture_head_file(self.data.root)
-        head = self.run_folder.head(source.suffix or ".pkl")
+        head = self.run_folder.head_path(source.suffix or ".pkl")
         if self.comm.is_writer:
             with atomic_path(head) as tmp:
                 shutil.copyfile(source, tmp)
-            write_text(self.run_folder.config, config_module.to_toml(self.config))
+            write_text(self.run_folder.config_path, config_module.to_toml(self.config))
         self.comm.barrier()  # the other ranks read the head model rank 0 copied
         self.table = self.data.flame_table()
         self.avatar = Avatar.initial(head, self.config.densify.max_sh_degree, n_vertices=self.table.n_vertices)
@@ -170,10 +170,10 @@ class Trainer:
             self._notes.extend(principal_point_notes(self.data.capture, head))
 
     def _restore(self, state: dict) -> None:
-        self.avatar = Avatar.from_state(state["avatar"], self.run_folder.root, source=self.run_folder.checkpoints)
+        self.avatar = Avatar.from_state(state["avatar"], self.run_folder.root, source=self.run_folder.checkpoint_dir)
         self.table = self.data.flame_table()
         if state["table"]["timesteps"] != self.table.timesteps:
-            raise InputError(self.run_folder.checkpoints, "table.timesteps",
+            raise InputError(self.run_folder.checkpoint_dir, "table.timesteps",
                              "the capture's training timesteps differ from the checkpoint's")
         with torch.no_grad():
             for name, value in self.table.trainable().items():
@@ -182,20 +182,20 @@ class Trainer:
         self.camera_delays = self._build_camera_delays()
         if self.camera_delays is not None:
             if "delays" not in state:
-                raise InputError(self.run_folder.checkpoints, "delays",
+                raise InputError(self.run_folder.checkpoint_dir, "delays",
                                  "the checkpoint holds no camera delays (the run was started without [cameras] delays)")
-            self.camera_delays.load(state["delays"], self.run_folder.checkpoints)
+            self.camera_delays.load(state["delays"], self.run_folder.checkpoint_dir)
         if self.camera_offsets is not None:
             if "cameras" not in state:
-                raise InputError(self.run_folder.checkpoints, "cameras", "the checkpoint holds no camera offsets "
+                raise InputError(self.run_folder.checkpoint_dir, "cameras", "the checkpoint holds no camera offsets "
                                                                         "(the run was started without [cameras] refine)")
-            self.camera_offsets.load(state["cameras"], self.run_folder.checkpoints)
+            self.camera_offsets.load(state["cameras"], self.run_folder.checkpoint_dir)
         self._build_optimizer()
         self.optimizer.load_state_dict(state["optimizer"])
         self.mogaface = build_mogaface(self.config, self.data, self.table, self.avatar)
         if self.mogaface is not None:
             if "mogaface" not in state:
-                raise InputError(self.run_folder.checkpoints, "mogaface", "the checkpoint holds no MoGaFace modules")
+                raise InputError(self.run_folder.checkpoint_dir, "mogaface", "the checkpoint holds no MoGaFace modules")
             self.mogaface.load_state_dict(state["mogaface"])
         self.strategy = DensifyStrategy(densify_schedule(self.config), len(self.avatar.gaussians),
                                         len(self.avatar.flame.faces))
@@ -207,7 +207,7 @@ class Trainer:
         self.step = int(state["step"])
         self.elapsed = float(state["elapsed_s"])
         if self.comm.is_writer:
-            write_text(self.run_folder.config, config_module.to_toml(self.config))  # e.g. a new --steps
+            write_text(self.run_folder.config_path, config_module.to_toml(self.config))  # e.g. a new --steps
 
     def _build_camera_offsets(self, head_source: pathlib.Path | None = None) -> CameraOffsets | None:
         """The training cameras' offsets when ``[cameras] refine`` is on (each camera as first met).
@@ -250,7 +250,7 @@ class Trainer:
             return read_cameras(pathlib.Path(start))
         from ..data.writer import write_cameras
         from ..flame.landmarks import read_embedding
-        from .landmark_cameras import LANDMARK_CAMERAS_FILE, solve_cameras
+        from .landmark_cameras import solve_cameras
 
         embedding = self.config.cameras.embedding
         solved = solve_cameras(self.data.capture, head_source, read_embedding(embedding) if embedding else None,
@@ -310,7 +310,7 @@ class Trainer:
         self.comm.reduce_statistics(self.strategy)
         path = None
         if self.comm.is_writer:
-            path = save_checkpoint(self.run_folder.checkpoints, self.step, self.state(),
+            path = save_checkpoint(self.run_folder.checkpoint_dir, self.step, self.state(),
                                    keep=self.config.train.keep_checkpoints)
             self._write_refined_cameras()
             self.events.emit("checkpoint", step=self.step, path=str(path.relative_to(self.run_folder.root)))
@@ -617,7 +617,7 @@ class Trainer:
     def finish(self) -> None:
         """Write the final avatar, the FLAME parameters used, run.json and the quick val metrics."""
         self.avatar.gaussians.active_sh_degree = self.strategy.schedule.sh_degree(self.step)
-        self.avatar.save(self.run_folder.avatar)
+        self.avatar.save(self.run_folder.avatar_path)
         self._write_refined_cameras()
         table, avatar = self.table, self.avatar
         if self.mogaface is not None:  # the corrected expressions and the modules
@@ -632,7 +632,7 @@ class Trainer:
             metrics = evaluate_val(avatar, self.data, table, self.config.eval)
             metrics["step"] = self.step
             metrics["seconds"] = round(time.monotonic() - start, 3)
-            write_json(self.run_folder.metrics, metrics)
+            write_json(self.run_folder.metrics_path, metrics)
         self._write_run_json(complete=True)
         self.events.emit("done", step=self.step, gaussians=len(self.avatar.gaussians), elapsed_s=self.elapsed,
                          metrics=metrics)
@@ -644,7 +644,7 @@ class Trainer:
             self.camera_delays.write(self.run_folder.root / DELAYS_FILE)
 
     def _write_run_json(self, complete: bool) -> None:
-        write_json(self.run_folder.run_json, {
+        write_json(self.run_folder.run_json_path, {
             "format": RUN_FORMAT,
             "version": RUN_VERSION,
             "capture": str(self.data.root),

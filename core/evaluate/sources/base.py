@@ -46,7 +46,7 @@ class InputCameras:
 
     @classmethod
     def of_run(cls, capture: Capture, run_root) -> "InputCameras":
-        from ..camera_error import REFINED_CAMERAS_FILE
+        from ...run.names import REFINED_CAMERAS_FILE
         from ..images import read_cameras
 
         path = pathlib.Path(run_root) / REFINED_CAMERAS_FILE

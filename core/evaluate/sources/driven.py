@@ -6,7 +6,7 @@ import numpy as np
 
 from ...data.capture import Capture, Frame
 from ...errors import InputError
-from ..run_folder import IDENTITY_KEYS, MOTION_KEYS
+from ...run.folder import IDENTITY_KEYS, MOTION_KEYS
 from .base import timestep_of
 
 

@@ -12,7 +12,7 @@ import torch
 
 from ...data.capture import Capture, Frame
 from ..images import target_image
-from ..run_folder import capture_info
+from ...run.folder import capture_info
 from .base import InputCameras, ParamSource, timestep_of, views_at
 
 # The width of the prior toward the start per parameter (make-capture's default tracker error for

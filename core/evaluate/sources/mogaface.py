@@ -19,10 +19,9 @@ import numpy as np
 import torch
 
 from ...data.capture import Capture, Frame
-from ...mogaface.avatar import MODULES_FILE, load_run_avatar
 from ...mogaface.model import MoGaFace
 from ...mogaface.views import ViewImages
-from ..run_folder import RunFolder
+from ...run.folder import RunFolder
 from .base import timestep_of, views_at
 from .tracked import TrackedParams
 
@@ -65,7 +64,7 @@ class MoGaFaceParams:
 
 def run_inference(run: RunFolder, capture: Capture, image_assisted: bool = True):
     """``(avatar, source)`` of a MoGaFace run (``RUN/mogaface.pt``), or ``(None, None)`` for a plain run."""
-    if not (run.root / MODULES_FILE).exists():
+    if not run.has_modules():
         return None, None
-    avatar = load_run_avatar(run.root)
+    avatar = run.load_avatar()
     return avatar, MoGaFaceParams(capture, run, avatar.model, image_assisted=image_assisted)

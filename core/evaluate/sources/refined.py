@@ -14,7 +14,7 @@ import numpy as np
 from ...data.capture import Capture, Frame
 from ...refiner.inference import refine
 from ..images import target_image
-from ..run_folder import capture_info
+from ...run.folder import capture_info
 from .base import InputCameras, ParamSource, timestep_of, views_at
 from .fitted import FittedParams
 from .tracked import AlignedTrackedParams

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from ...data.capture import Capture, Frame
-from ..run_folder import MOTION_KEYS, RunFolder
+from ...run.folder import MOTION_KEYS, RunFolder
 from .base import timestep_of
 
 

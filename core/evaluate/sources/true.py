@@ -6,7 +6,7 @@ import numpy as np
 
 from ...data.capture import Capture, Frame
 from ...errors import InputError
-from ..run_folder import MOTION_KEYS, RunFolder, capture_info, load_flame_file
+from ...run.folder import MOTION_KEYS, RunFolder, capture_info, load_flame_file
 from .base import timestep_of
 
 
