@@ -1,4 +1,7 @@
-"""``python -m mogaface …``: the command line (see ``core/cli``)."""
+"""``python -m mogaface …``: the command line (see ``core/cli``).
+
+``--help`` (of the program or of any command) is answered before torch or numba is imported.
+"""
 
 import os
 import sys

@@ -1,8 +1,10 @@
 """The ``python -m mogaface`` command line.
 
 Each sub-command is a module in this package with ``add_arguments(parser)`` and
-``run(args) -> int``. Modules are imported only when their command runs (or its
-``--help`` is asked for), so ``--help`` stays fast and needs no torch.
+``run(args) -> int``. Arguments are parsed first and torch and numba imported after, and only
+the named command's module is imported (its ``add_arguments`` imports nothing heavy), so
+``--help`` and a usage error stay fast and load neither torch nor numba
+(tests/test_cli_light.py).
 """
 
 from __future__ import annotations
@@ -94,9 +96,9 @@ def _load_heavy_modules_uninterrupted() -> bool:
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     try:
+        args = _build_parser(argv).parse_args(argv)  # --help and usage errors leave here: no torch, no numba
         if _load_heavy_modules_uninterrupted():
             raise KeyboardInterrupt
-        args = _build_parser(argv).parse_args(argv)
         return int(_command_module(args.command).run(args) or 0)
     except MogafaceError as error:
         print(f"error: {error}", file=sys.stderr)

@@ -6,7 +6,7 @@ import pathlib
 
 
 def add_arguments(parser) -> None:
-    from ..evaluate.protocols import ALL_PROTOCOLS, PROTOCOLS
+    from ..evaluate.protocol_names import ALL_PROTOCOLS, PROTOCOLS
 
     parser.add_argument("run", type=pathlib.Path, metavar="RUN", help="run folder written by 'train'")
     parser.add_argument(

@@ -6,7 +6,7 @@ import pathlib
 
 
 def add_arguments(parser):
-    from ..data.generator import CaptureSettings
+    from ..data.capture_settings import CaptureSettings
 
     d = CaptureSettings()
     parser.add_argument("out", type=pathlib.Path, help="output capture folder")
@@ -66,7 +66,8 @@ def add_arguments(parser):
 def run(args) -> int:
     import time
 
-    from ..data.generator import CaptureSettings, make_capture
+    from ..data.capture_settings import CaptureSettings
+    from ..data.generator import make_capture
     from ..data.sequences import NOISE_GROUPS
     from ..data.validate import validate_capture
 

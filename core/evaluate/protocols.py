@@ -28,10 +28,8 @@ from ..run.folder import capture_info
 from .sources.base import ParamSource, views_at
 from .sources.driven import DrivenParams
 from .sources.tracked import TrackedParams
+from .protocol_names import ALL_PROTOCOLS, OPTIONAL_PROTOCOLS, PROTOCOLS
 
-PROTOCOLS = ("novel_view", "self_reenactment")  # scored by default
-OPTIONAL_PROTOCOLS = ("novel_view_aligned",)  # scored when asked for
-ALL_PROTOCOLS = PROTOCOLS + OPTIONAL_PROTOCOLS
 __all__ = ["ALL_PROTOCOLS", "OPTIONAL_PROTOCOLS", "PROTOCOLS", "check_protocol", "DrivenParams", "ParamSource",
            "Scored", "TrackedParams", "cross_identity", "novel_view", "novel_view_aligned", "protocol_frames",
            "render_frame", "run_protocol", "score", "self_reenactment", "target_image", "views_at"]
