@@ -17,7 +17,7 @@ from mogaface.core.data.capture import Capture
 from mogaface.core.data.generator import GT_CAMERAS_FILE, GT_FLAME_DIR
 from mogaface.core.evaluate import benchmark
 from mogaface.core.evaluate.protocols import protocol_frames
-from mogaface.core.evaluate.run_folder import RunFolder
+from mogaface.core.run.folder import RunFolder
 from mogaface.core.evaluate.seed_stats import format_difference, paired_difference
 from test_evaluate_fixtures import fake_run, tiny_capture
 
