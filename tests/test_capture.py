@@ -14,7 +14,7 @@ from mogaface.core.errors import CaptureError
 from mogaface.core.io.image import write_png
 from mogaface.core.io.npz import save_npz
 
-W, H = 12, 8
+W, H = 16, 12  # the smallest size a capture may have is 11 px a side (MIN_IMAGE_SIDE)
 
 
 def _cameras():
@@ -150,7 +150,7 @@ def test_validate_summary_and_cli(capture_dir, capsys):
     assert summary.flame_sizes["expr"] == (5,) and summary.has_canonical
     assert cli_main(["check-capture", str(root)]) == 0
     out = capsys.readouterr().out
-    assert "views: 2" in out and "timesteps: 3" in out and "SEQ-A" in out and "12x8" in out
+    assert "views: 2" in out and "timesteps: 3" in out and "SEQ-A" in out and f"{W}x{H}" in out
     (root / "images" / "00001_01.png").unlink()
     assert cli_main(["check-capture", str(root)]) == 2
     err = capsys.readouterr().err

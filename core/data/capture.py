@@ -23,7 +23,7 @@ from ..camera import Camera, intrinsics_matrix, opengl_c2w_to_opencv_w2c
 from ..errors import CaptureError, InputError
 from ..io.files import check_plain_name
 from ..io.image import read_image
-from ..limits import (MAX_FOCAL_RATIO, MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE, MAX_PARAM_FILE_BYTES,
+from ..limits import (MAX_FOCAL_RATIO, MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE, MIN_IMAGE_SIDE, MAX_PARAM_FILE_BYTES,
                       MAX_PRINCIPAL_OFFSET_RATIO, MIN_FOCAL_RATIO)
 from ..io.jsonfile import read_json_object
 from ..io.npz import load_npz
@@ -152,10 +152,12 @@ def _frame_camera(frame: dict, top: dict, camera_id: str, source, where: str) ->
         c2w = np.array(matrix, dtype=np.float64)
     except (TypeError, ValueError):
         raise CaptureError(source, f"{where}.transform_matrix", "expected a 4x4 list of numbers") from None
-    if c2w.shape != (4, 4) or not np.isfinite(c2w).all():
-        raise CaptureError(
-            source, f"{where}.transform_matrix", f"expected a finite 4x4 matrix, got shape {c2w.shape}"
-        )
+    if c2w.shape != (4, 4):
+        raise CaptureError(source, f"{where}.transform_matrix", f"expected a 4x4 matrix, got shape {c2w.shape}")
+    if not np.isfinite(c2w).all():
+        row, column = np.argwhere(~np.isfinite(c2w))[0]
+        raise CaptureError(source, f"{where}.transform_matrix", f"expected finite numbers, found {c2w[row, column]} "
+                                                                f"in row {row}, column {column}")
     rot = c2w[:3, :3]
     if not np.allclose(c2w[3], [0, 0, 0, 1], atol=1e-6) or not np.allclose(rot @ rot.T, np.eye(3), atol=1e-4):
         raise CaptureError(source, f"{where}.transform_matrix", "not a rigid camera-to-world transform")
@@ -164,6 +166,9 @@ def _frame_camera(frame: dict, top: dict, camera_id: str, source, where: str) ->
 
 def _check_intrinsics(w, h, fx, fy, cx, cy, source, where) -> None:
     """Refuse sizes and intrinsics no real camera has (they only cost memory or time)."""
+    if min(w, h) < MIN_IMAGE_SIDE:
+        raise CaptureError(source, f"{where}.w/h", f"{w}x{h} is smaller than the limit ({MIN_IMAGE_SIDE} px a side: "
+                                                   f"the image loss's SSIM window)")
     if max(w, h) > MAX_IMAGE_SIDE or w * h > MAX_IMAGE_PIXELS:
         raise CaptureError(source, f"{where}.w/h", f"{w}x{h} is larger than the limit "
                                                    f"({MAX_IMAGE_SIDE} px a side, {MAX_IMAGE_PIXELS} pixels)")

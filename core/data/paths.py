@@ -23,12 +23,12 @@ import pathlib
 import posixpath
 
 from ..errors import CaptureError
+from ..io.files import check_path_text
 
 
 def split_relative(relative, source, field: str) -> tuple[bool, list[str]]:
     """``(is_sibling, parts)`` of a capture-relative path, refusing the forms that may leave it."""
-    if not isinstance(relative, str) or not relative:
-        raise CaptureError(source, field, f"expected a non-empty relative path string, got {relative!r}")
+    check_path_text(relative, source, field, CaptureError)
     text = relative.replace("\\", "/")
     parts = [p for p in text.split("/") if p not in ("", ".")]
     if posixpath.isabs(text) or (len(text) >= 2 and text[1] == ":"):

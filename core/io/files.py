@@ -15,6 +15,18 @@ import stat
 from ..errors import InputError
 
 _PLAIN = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.+-]{0,127}$")
+_CONTROL = re.compile(r"[\x00-\x1f\x7f]")
+
+
+def check_path_text(value, source, field: str, error: type[InputError] = InputError) -> str:
+    """A path read from a file: a non-empty string without NUL or other control characters (the
+    system cannot take a NUL; a newline or escape in a name forges lines in logs and terminals)."""
+    if not isinstance(value, str) or not value:
+        raise error(source, field, f"expected a non-empty path string, got {value!r}")
+    bad = _CONTROL.search(value)
+    if bad:
+        raise error(source, field, f"control character {bad.group()!r} in the path {value!r}")
+    return value
 
 
 def check_regular_file(path: str | os.PathLike, error: type[InputError] = InputError) -> None:
@@ -50,7 +62,8 @@ def file_inside(folder: str | os.PathLike, reference, source, field: str,
                 error: type[InputError] = InputError) -> pathlib.Path:
     """``folder / reference`` for a relative reference that stays inside ``folder`` (in text and
     after resolving links)."""
-    if not isinstance(reference, str) or not reference or "\\" in reference or "\0" in reference:
+    check_path_text(reference, source, field, error)
+    if "\\" in reference:
         raise error(source, field, f"expected a relative file name, got {reference!r}")
     relative = pathlib.PurePosixPath(reference)
     if relative.is_absolute() or ".." in relative.parts or re.match(r"^[A-Za-z]:", reference):

@@ -14,6 +14,8 @@ A pickle of a few bytes can reference one container from many places (memo GET, 
 
 from __future__ import annotations
 
+import contextlib
+import io
 import mmap
 import pickle
 import pickletools
@@ -50,7 +52,7 @@ def scan_opcodes(handle, path, budget: int, offset: int = 0) -> None:
     size = _file_size(handle)
     if size <= offset:
         raise pickle.UnpicklingError("empty file" if offset == 0 else f"nothing after byte {offset}")
-    with mmap.mmap(handle.fileno(), 0, access=mmap.ACCESS_READ) as view:  # read(n) never allocates n
+    with _view(handle) as view:  # read(n) never allocates n
         view.seek(offset)
         count = 0
         try:
@@ -70,6 +72,13 @@ def scan_opcodes(handle, path, budget: int, offset: int = 0) -> None:
         except ValueError as error:  # truncated data, unknown opcode, bad argument: for the caller to word
             raise pickle.UnpicklingError(str(error)) from None
     handle.seek(offset)
+
+
+def _view(handle):
+    """A file's bytes as a read-only map, or an in-memory buffer (a pickle read out of an archive) as is."""
+    if isinstance(handle, io.BytesIO):
+        return contextlib.nullcontext(io.BytesIO(handle.getbuffer()))
+    return mmap.mmap(handle.fileno(), 0, access=mmap.ACCESS_READ)
 
 
 def _file_size(handle) -> int:
