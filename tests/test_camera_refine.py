@@ -211,7 +211,8 @@ def test_training_refines_checkpoints_resumes_and_writes_the_cameras(capture, tm
 
 
 def test_by_default_only_the_rotations_are_stepped_and_the_centres_move_with_the_rig(capture, tmp_path):
-    """The default steps the rotations alone (the images pin the centres too weakly: results.md); the
+    """The default steps the rotations alone (the images pin the centres too weakly:
+    docs/notebook/2026-11-26-camera-refinement.md); the
     rigid motion the gauge takes out of the rotations reaches the centres as one rigid motion."""
     config = refine_config()
     defaults = C.resolve().cameras

@@ -14,7 +14,8 @@ drifted while every camera followed it.
 A rigid motion of the whole rig, the subject moving with it, changes no image: it is a gauge that
 refinement pins by holding the calibration's rigid motion. The calibration's own error in that
 motion is then a floor under the rotation error that no refinement can go below (0.24° on the
-1°-noise capture of docs/results.md). ``rotation_aligned_deg`` and ``position_aligned_mm`` are
+1°-noise capture of docs/notebook/2026-11-26-camera-refinement.md).
+``rotation_aligned_deg`` and ``position_aligned_mm`` are
 measured after the rigid motion that best aligns the rig with the truth, so they show how well
 the cameras sit relative to one another.
 """

@@ -65,7 +65,7 @@ def tracking_errors(run: RunFolder, capture, sources: dict) -> dict | None:
     others; None without a truth. ``vertex_mm`` (whole mesh) and ``expr_vertex_mm`` (expression
     alone) are given raw and ``*_gauge``: against the truth plus the mean offset of the run's
     fine-tuned parameters from it, the constant tracker bias an avatar absorbs in training and that
-    no image can show (docs/results.md, "The multi-view refiner")."""
+    no image can show (docs/notebook/2026-11-26-multiview-refiner.md, "The multi-view refiner")."""
     folder = truth_folder(capture)
     if folder is None:
         return None

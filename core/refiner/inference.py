@@ -6,8 +6,9 @@ photometric error on the views it was given (else half of it is tried), so extra
 walk away from what the images support.
 
 A single pass is taken as solved, unchecked: its check would render every view again and double
-its time, and on unseen frames the check kept every first pass in full (docs/results.md). Two or
-more passes check every pass, the first included."""
+its time, and on unseen frames the check kept every first pass in full
+(docs/notebook/2026-11-26-multiview-refiner.md). Two or more passes check every pass, the first
+included."""
 
 from __future__ import annotations
 

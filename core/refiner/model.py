@@ -12,8 +12,8 @@ its residual variance ``r_v`` come from renders at known offsets, and ``g_v`` is
 capture-versus-render gap at the run's own (fine-tuned) parameters, ``B_v`` its ``gap_rank``
 leading components and ``s_v`` the variance they leave. The gap is structured (the same parts of
 the face are off together), and telling the solve which patterns are gap rather than motion was
-worth more than any other change (docs/results.md). The solve fuses any subset of the cameras it
-knows (a scored view is simply left out).
+worth more than any other change (docs/notebook/2026-11-26-multiview-refiner.md). The solve
+fuses any subset of the cameras it knows (a scored view is simply left out).
 
 Pooled cells keep the low frequencies of the difference and lose where an edge sits within a cell,
 which is where an expression shows. So a pass ends with ``full_size_steps`` Gauss–Newton steps on
@@ -21,7 +21,8 @@ the full-size crops: the gradient ``g = Σ_v J_vᵀ(o_v − r_v) / pixels_v`` is
 one backward per view), and the matrix ``Σ_v H_v`` is each camera's mean ``J_vᵀJ_v / pixels_v``
 measured at training timesteps (``curvature``), damped by ``damping``:
 ``x = (Σ_v H_v + damping·I)⁻¹ g``. Measuring ``J`` itself at every frame would take a render per
-regressed value and view; its mean over a few frames read the expression as well (docs/results.md).
+regressed value and view; its mean over a few frames read the expression as well
+(docs/notebook/2026-11-26-multiview-refiner.md).
 """
 
 from __future__ import annotations

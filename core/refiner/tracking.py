@@ -78,7 +78,8 @@ def refine_tracking(run_dir, out=None, capture=None, passes: int = 1, views: int
     ``passes``, ``views`` and ``fit_steps`` are those of
     :class:`..evaluate.sources.refined.RefinerInference`: the refiner on every timestep (``views``
     spread over the rig), then, with ``fit_steps``, fitting to all the views of each timestep whose
-    parameters training did not fit (three times slower; docs/results.md). Events: the
+    parameters training did not fit (three times slower; docs/notebook/2026-11-26-multiview-refiner.md).
+    Events: the
     refiner's own when it is trained first, then ``iter`` with ``stage="frames"`` per timestep,
     then ``done`` (or ``stopped`` when ``should_stop`` said so).
     """

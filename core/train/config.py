@@ -92,7 +92,8 @@ class CamerasSection:
     rotation_lr: float = _setting(2e-3, "learning rate of the camera rotation offsets (radians)")
     translation_lr: float = _setting(0.0, "learning rate of the camera centre offsets (metres); 0: the centres "
                                           "move only with the rig's rigid motion that the gauge takes out (the "
-                                          "images pin a sideways centre shift too weakly: docs/results.md)")
+                                          "images pin a sideways centre shift too weakly: "
+                                          "docs/notebook/2026-11-26-camera-refinement.md)")
     begin: float = _setting(0.45, "fraction of the last round's steps after which its camera offsets move (they "
                                   "hold still while its avatar forms; earlier rounds move them from the first step)")
     final_ratio: float = _setting(1.0, "the camera rates at the last step, as a fraction of the first (exponential "
@@ -248,7 +249,8 @@ def _get(config, dotted: str):
 # three are ten times the paper's.
 FLAME_FINETUNE = {"finetune": True, "expression_lr": 1e-2, "joints_lr": 1e-4, "translation_lr": 1e-5}
 # The full method's modules, with the zero-mean prior on the correction (ours): without it the
-# modules drift by an offset shared by all timestamps, which no image pins (docs/results.md).
+# modules drift by an offset shared by all timestamps, which no image pins
+# (docs/notebook/2026-11-22-mogaface-ablation-iid.md).
 FULL_METHOD = {"mode": "multi", "bank": True, "texture": True, "centring_weight": 1.0}
 
 PRESETS: dict[str, dict] = {

@@ -2,9 +2,10 @@
 landmarks, on the tracked mesh, land where the detector found them in every view.
 
 Why: a calibration that is off by a degree leaves refinement from the images alone at about 70 %
-of the novel view it costs (docs/results.md): cameras that see the same side of the face turn
-together and carry the avatar's face with them. Landmarks are information from outside the images
-the avatar learns from; started from the cameras they give, refinement ends nearer the truth.
+of the novel view it costs (docs/notebook/2026-11-26-camera-refinement.md): cameras that see the
+same side of the face turn together and carry the avatar's face with them. Landmarks are
+information from outside the images the avatar learns from; started from the cameras they give,
+refinement ends nearer the truth.
 
 The adjustment (L-BFGS, Huber loss on pixel residuals): a rotation ``ω`` per camera about its own
 centre (centres are held, as refinement holds them: the images pin them only by parallax), and a
@@ -12,7 +13,7 @@ rigid correction of every timestep's tracked mesh (the tracker's head pose is of
 holds the head at the tracked position: a shift of the head and a turn of every camera toward it
 then differ only by perspective, and the cameras may aim a few tenths of a degree off; refinement
 takes that out from the images, and a prior of a millimetre on the shift, which aimed them right,
-scored 0.8 dB lower after refinement (docs/results.md). Then the
+scored 0.8 dB lower after refinement (docs/notebook/2026-11-26-camera-refinement.md). Then the
 refinement's gauge (``rigid`` by default) is applied, so the result starts ``[cameras] refine``
 exactly as an earlier round's cameras would. A union of sequences shifts each camera per sequence;
 one turn per camera, about each pose's own centre, fits all its poses.

@@ -4,7 +4,7 @@ the cameras the last round refined, N times in all.
 An avatar trained against misaligned views absorbs part of the misalignment (it blurs to agree
 with all of them), and a blurred avatar pulls the cameras less; a fresh avatar trained from the
 refined cameras starts from views that agree better, so its own refinement goes further
-(docs/results.md, "Camera refinement under calibration error"). Rounds 1 … N−1 are whole runs in
+(docs/notebook/2026-11-26-camera-refinement.md). Rounds 1 … N−1 are whole runs in
 ``RUN/camera_rounds/<k>/`` without the final evaluation; the last round is ``RUN`` itself,
 starting from the cameras of round N−1 (``[cameras] start``). A complete round is skipped and a
 round with a checkpoint resumed, so a stopped training continues where it stopped; each round has
