@@ -63,7 +63,8 @@ class RefinerInference:
     parameters training did not fit (the unseen ones; every timestep of a run that kept the tracking).
 
     No fitting by default: since a pass ends with full-size steps, fitting after it lowered the
-    held-out view's PSNR and moved the pose away (docs/results.md, "A pass that ends at full size").
+    self-reenactment PSNR and moved the pose away
+    (docs/notebook/2026-11-26-multiview-refiner.md, "A pass that ends at full size").
     Never on training timesteps: a fine-tuned run fitted them to every view already, and fitting
     from there moved them off ("Fitting at full size").
     """
