@@ -116,21 +116,45 @@ class Avatar(torch.nn.Module):
     @classmethod
     def from_state(cls, state: dict, folder: pathlib.Path, source=None) -> "Avatar":
         check_format(state, source, AVATAR_FORMAT, AVATAR_VERSION)
-        tensors = state["gaussians"]
+        tensors = state.get("gaussians")
+        if not isinstance(tensors, dict):
+            raise InputError(source, "gaussians", f"expected a table of tensors, got {type(tensors).__name__}")
         missing = [k for k in ("binding", *PARAMETER_NAMES) if k not in tensors]
         if missing:
             raise InputError(source, f"gaussians.{missing[0]}", "missing")
+        for name in ("binding", *PARAMETER_NAMES):
+            value = tensors[name]
+            floating = name != "binding"
+            if not isinstance(value, torch.Tensor) or value.is_floating_point() != floating or value.is_complex():
+                kind = "a floating-point" if floating else "an integer"
+                raise InputError(source, f"gaussians.{name}", f"expected {kind} tensor, got "
+                                                              f"{getattr(value, 'dtype', type(value).__name__)}")
+        if tensors["binding"].dim() != 1:
+            raise InputError(source, "gaussians.binding", f"expected one triangle id a Gaussian (shape (N,)), got "
+                                                          f"shape {tuple(tensors['binding'].shape)}")
         head_file = folder / check_plain_name(state.get("head_file"), source, "head_file")
-        gaussians = BoundGaussians(
-            tensors["binding"], int(state["max_sh_degree"]), **{k: tensors[k] for k in PARAMETER_NAMES}
-        )
-        gaussians.active_sh_degree = int(state["active_sh_degree"])
+        max_degree = _small_int(state, "max_sh_degree", 0, 3, source)
+        active_degree = _small_int(state, "active_sh_degree", 0, max_degree, source)
+        try:
+            gaussians = BoundGaussians(tensors["binding"], max_degree, **{k: tensors[k] for k in PARAMETER_NAMES})
+        except InputError as error:  # the same problem, named in this file
+            raise InputError(source, f"gaussians.{error.field}", error.problem) from None
+        gaussians.active_sh_degree = active_degree
         for name in PARAMETER_NAMES:
             if not bool(torch.isfinite(tensors[name]).all()):
                 raise InputError(source, f"gaussians.{name}", "holds NaN or infinite values")
         n_vertices = state.get("n_vertices")
+        if n_vertices is not None:
+            n_vertices = _small_int(state, "n_vertices", 1, 10 ** 7, source)
         return cls(FlameModel.load(head_file, n_vertices=None if n_vertices is None else int(n_vertices)),
                    gaussians, head_file)
+
+
+def _small_int(state: dict, key: str, low: int, high: int, source) -> int:
+    value = state.get(key)
+    if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+        raise InputError(source, key, f"expected an integer in [{low}, {high}], got {value!r}")
+    return value
 
 
 def flame_params_to_torch(params: dict[str, np.ndarray]) -> dict[str, torch.Tensor]:

@@ -116,10 +116,12 @@ def _checked(value: np.ndarray, key: str, ndim: int, size: int | None, source) -
         raise CaptureError(source, key, f"expected a float array, got dtype {array.dtype}")
     if array.ndim == ndim + 1 and array.shape[0] == 1:
         array = array[0]
-    wanted = ("n",) * (ndim - 1) + (size if size is not None else "n",)
+    wanted = ["n"] * (ndim - 1) + [str(size) if size is not None else "n"]
     if array.ndim != ndim or (size is not None and array.shape[-1] != size) or array.size == 0:
-        batched = "(1, " + ", ".join(map(str, wanted)) + ")"
-        raise CaptureError(source, key, f"expected shape {wanted} or {batched}, got {np.shape(value)}")
+        got = np.shape(value)
+        got = f"shape {got}" + (" (a single number)" if got == () else " (no values)" if 0 in got else "")
+        raise CaptureError(source, key, f"expected shape ({', '.join(wanted)}{',' * (ndim == 1)}) or "
+                                        f"(1, {', '.join(wanted)}), got {got}")
     if ndim == 1 and array.shape[-1] > MAX_PARAM_VECTOR:
         raise CaptureError(source, key, f"{array.shape[-1]} coefficients; the limit is {MAX_PARAM_VECTOR}")
     if not np.isfinite(array).all():

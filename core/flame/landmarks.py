@@ -23,6 +23,7 @@ import pathlib
 import numpy as np
 
 from ..errors import InputError, UnsafePickleError
+from ..io.npz import load_npz
 from ..io.restricted_pickle import NUMPY_ARRAY_GLOBALS, restricted_load
 from .safe_pickle import latin1_encode
 
@@ -166,8 +167,7 @@ def read_embedding(path: str | os.PathLike) -> LandmarkEmbedding:
     if not path.is_file():
         raise InputError(path, None, "landmark embedding file not found")
     if path.suffix == ".npz":
-        with np.load(path, allow_pickle=False) as data:
-            entries = {k: data[k] for k in data.files}
+        entries = load_npz(path)
     elif path.suffix == ".npy":
         entries = _read_npy_dict(path)
     else:
