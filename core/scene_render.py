@@ -106,16 +106,43 @@ def render(request: RenderRequest) -> RenderResult:
     return RenderResult(request, rgb, alpha, depth)
 
 
-def linear_premultiplied(result: RenderResult) -> np.ndarray:
-    """``(H,W,4)`` float32: a transparent render's colour in linear light, premultiplied by alpha,
-    as Blender composes (the 3D view's colour buffer, the compositor's images)."""
+def blender_rgba(result: RenderResult) -> np.ndarray:
+    """``(H,W,4)`` float32, top row first: the one conversion of a render's colours for Blender.
+
+    The core renders display-referred sRGB (the capture's own values); Blender holds
+    scene-linear RGB premultiplied by alpha, and its view transform comes after ("Standard"
+    turns it back into these sRGB values). Every place the avatar reaches Blender uses this:
+    the viewport's draw, the Image Editor's images, the compositor's layer and the EXR files.
+
+    A transparent render (no ``background``) holds colour premultiplied by alpha: it is divided
+    by alpha, decoded with the sRGB curve per channel and premultiplied again, so semi-transparent
+    pixels keep their colour (neither darkened nor whitened). A render over a background is
+    opaque: alpha 1.
+    """
     from .io.image import srgb_to_linear
 
-    alpha = result.alpha[..., None]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        straight = np.where(alpha > 0, result.rgb / alpha, 0.0)
+    if result.request.background is None:
+        alpha = result.alpha[..., None]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            straight = np.where(alpha > 0, result.rgb / alpha, 0.0)
+    else:
+        alpha = np.ones_like(result.alpha)[..., None]
+        straight = result.rgb
     linear = srgb_to_linear(np.clip(straight, 0.0, 1.0)) * alpha
     return np.concatenate([linear, alpha], axis=2).astype(np.float32)
+
+
+def srgb_from_blender(rgba) -> np.ndarray:
+    """``(H,W,4)`` scene-linear premultiplied RGBA (as :func:`blender_rgba` gives, or as read back
+    from Blender) → the sRGB colour premultiplied by alpha that the core renders, ``(H,W,3)``;
+    what the "Standard" view transform shows over black."""
+    from .io.image import linear_to_srgb
+
+    rgba = np.asarray(rgba, np.float32)
+    alpha = rgba[..., 3:4]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        straight = np.where(alpha > 0, rgba[..., :3] / alpha, 0.0)
+    return (linear_to_srgb(straight) * alpha).astype(np.float32)
 
 
 # -- the 3D viewport ------------------------------------------------------------------------------
@@ -202,3 +229,22 @@ def depth_buffer_values(depth, projection) -> np.ndarray:
         ndc = clip_z / clip_w
     window = np.clip(0.5 * ndc + 0.5, 0.0, 1.0)
     return np.where(np.isfinite(depth), window, 1.0).astype(np.float32)
+
+
+def view_framing(points, lens: float, width: int, height: int, margin: float = 1.15) -> tuple[np.ndarray, float]:
+    """Where a perspective 3D view looks and how far back it stands to show all ``points``.
+
+    ``lens``: the view's focal length in mm (``SpaceView3D.lens``; Blender images a view onto a
+    72 mm sensor along the region's longer side). Returns ``(centre, distance)`` for
+    ``RegionView3D.view_location``/``view_distance``: the points' bounding sphere, seen whole
+    through the narrower side of the region, with ``margin``.
+    """
+    points = np.asarray(points, np.float64).reshape(-1, 3)
+    if len(points) == 0:
+        raise InputError(None, "points", "nothing to frame")
+    if lens <= 0 or width < 1 or height < 1:
+        raise InputError(None, "view", f"expected a positive lens and size, got {lens} mm, {width}x{height}")
+    centre = (points.min(axis=0) + points.max(axis=0)) / 2
+    radius = max(float(np.linalg.norm(points - centre, axis=1).max()), 1e-3) * margin
+    half_fov = np.arctan(36.0 / lens * min(width, height) / max(width, height))
+    return centre, radius / np.sin(half_fov)

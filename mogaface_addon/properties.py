@@ -48,8 +48,9 @@ class MoGaFaceSceneSettings(bpy.types.PropertyGroup):
         description="Learn each camera's time offset against the tracking, for a rig whose cameras are not "
                     "triggered together (writes camera_delays.json in the run folder)")
     viewport_resolution: IntProperty(
-        name="Viewport Resolution", default=512, min=64, max=4096,
-        description="Longest side in pixels of the avatar drawn in a still 3D view")
+        name="Viewport Resolution", default=100, min=10, max=100, subtype="PERCENTAGE",
+        description="Size of the avatar drawn in a still 3D view, in percent of the view's own pixels "
+                    "(100: sharp, one render pixel per screen pixel)")
     viewport_navigate_resolution: IntProperty(
         name="While Navigating", default=160, min=32, max=4096,
         description="Longest side in pixels of the avatar while the view moves (faster)")

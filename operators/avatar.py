@@ -20,6 +20,8 @@ from .head_rig import AVATAR_PATH_PROPERTY, expression_values, head_objects, is_
 np = LazyModule("numpy")  # imported on first use: registering needs no numpy
 
 BACKGROUND_PROPERTY = "mogaface_avatar_background"
+#: Blender's name of the scene-linear colour space of float images (OCIO role ``scene_linear``).
+SCENE_LINEAR = "Linear Rec.709"
 
 
 def avatar_heads(scene) -> list:
@@ -111,27 +113,38 @@ def head_request(scene, head, camera, frame: int, transparent: bool = False, key
 
 
 def render_head(context, head, camera_obj, frame: int):
-    """Render the head's avatar at ``frame`` from ``camera_obj``: ``(rgb, alpha)`` numpy."""
+    """Render the head's avatar at ``frame`` from ``camera_obj``: the core's ``RenderResult``."""
     from ..core.scene_render import render
 
     scene = context.scene
     scene.frame_set(frame)
-    result = render(head_request(scene, head, camera_of(scene, camera_obj, head), frame))
-    return result.rgb, result.alpha
+    return render(head_request(scene, head, camera_of(scene, camera_obj, head), frame))
 
 
-def store_image(name: str, rgb, alpha):
-    """Write a render into the image datablock ``name`` (float, packed into the .blend)."""
-    from ..core import scene_conversion as sc
+def blender_pixels(rgba) -> np.ndarray:
+    """``(H,W,4)`` top row first → Blender's flat pixel order (rows from the bottom), float32."""
+    return np.ascontiguousarray(np.asarray(rgba, np.float32)[::-1]).reshape(-1)
 
-    height, width = alpha.shape
+
+def store_image(name: str, result):
+    """Write a render into the float image datablock ``name`` (packed into the .blend).
+
+    Its pixels are :func:`core.scene_render.blender_rgba`'s: scene-linear, premultiplied, as
+    Blender's float buffers hold them, so the view transform "Standard" shows the core's sRGB.
+    """
+    from ..core.scene_render import blender_rgba
+
+    rgba = blender_rgba(result)
+    height, width = rgba.shape[:2]
     image = bpy.data.images.get(name)
     if image is not None and tuple(image.size) != (width, height):
         bpy.data.images.remove(image)
         image = None
     if image is None:
         image = bpy.data.images.new(name, width, height, alpha=True, float_buffer=True)
-    image.pixels.foreach_set(sc.rendered_pixels(rgb, alpha))
+    image.colorspace_settings.name = SCENE_LINEAR
+    image.alpha_mode = "PREMUL"
+    image.pixels.foreach_set(blender_pixels(rgba))
     image.file_format = "OPEN_EXR"
     image.use_fake_user = True  # an image no one uses would not be saved in the .blend
     image.pack()
@@ -139,50 +152,86 @@ def store_image(name: str, rgb, alpha):
     return image
 
 
-def image_editor_area(window_manager):
-    """The first Image Editor area of any open window, or None."""
-    for window in getattr(window_manager, "windows", ()):
-        for area in window.screen.areas:
-            if area.type == "IMAGE_EDITOR":
-                return area
-    return None
+#: The smallest Image Editor (pixels) a render is shown in; a smaller one is passed over.
+MIN_IMAGE_EDITOR = (400, 300)
+#: The smallest render window opened for it (Blender sizes its render window to the scene's resolution).
+RENDER_WINDOW = (640, 480)
+
+
+def image_editor_area(window_manager, min_size=(1, 1)):
+    """The largest Image Editor area of the open windows at least ``min_size`` pixels, and its window."""
+    found = [(area.width * area.height, area, window) for window in getattr(window_manager, "windows", ())
+             for area in window.screen.areas
+             if area.type == "IMAGE_EDITOR" and area.width >= min_size[0] and area.height >= min_size[1]]
+    if not found:
+        return None, None
+    _, area, window = max(found, key=lambda item: item[0])
+    return area, window
 
 
 def show_image(context, image):
-    """Show ``image`` in an Image Editor: the first one open, else one opened as Blender opens its
-    render view (Preferences › Interface › Render In, a new window by default). Returns the area,
-    or None without a window (background mode)."""
-    area = image_editor_area(context.window_manager)
+    """Show ``image`` whole in an Image Editor big enough to see it (at least :data:`MIN_IMAGE_EDITOR`):
+    the largest one open, else one opened as Blender opens its render view (Preferences ›
+    Interface › Render In, a new window by default). Returns the area, or None without a window
+    (background mode)."""
+    area, window = image_editor_area(context.window_manager, MIN_IMAGE_EDITOR)
     if area is None and context.window is not None and not bpy.app.background:
-        with context.temp_override(window=context.window):
-            bpy.ops.render.view_show("INVOKE_DEFAULT")
-        area = image_editor_area(context.window_manager)
+        # Blender sizes its render window to the scene's resolution: a 48-pixel capture would get
+        # a window too small to see. Ask for one at least RENDER_WINDOW (the setting is restored).
+        render = context.scene.render
+        percent = render.resolution_percentage
+        side = max(RENDER_WINDOW[0] / max(render.resolution_x, 1), RENDER_WINDOW[1] / max(render.resolution_y, 1))
+        render.resolution_percentage = min(32767, max(percent, int(np.ceil(100 * side))))
+        try:
+            with context.temp_override(window=context.window):
+                bpy.ops.render.view_show("INVOKE_DEFAULT")
+        finally:
+            render.resolution_percentage = percent
+    if area is None:
+        area, window = image_editor_area(context.window_manager)  # the one just opened, or a small one
     if area is not None:
         area.spaces.active.image = image
+        region = next((r for r in area.regions if r.type == "WINDOW"), None)
+        if window is not None and region is not None and not bpy.app.background:
+            with context.temp_override(window=window, area=area, region=region):
+                bpy.ops.image.view_all(fit_view=True)
         area.tag_redraw()
     return area
 
 
-def write_files(folder: str, stem: str, rgb, alpha, file_format: str) -> list[str]:
-    """Save a render as PNG (sRGB bytes) and/or EXR (linear float), atomically, through the core."""
+def write_files(folder: str, stem: str, result, file_format: str) -> list[str]:
+    """Save a render, atomically, through the core: EXR holds :func:`core.scene_render.blender_rgba`
+    (scene-linear, premultiplied, as Blender writes EXR); PNG the same pixels as 8-bit sRGB with
+    straight alpha, i.e. the core's own sRGB colours (what "Standard" shows)."""
     from ..core.io.image import write_exr, write_png
+    from ..core.scene_render import blender_rgba, srgb_from_blender
 
+    rgba = blender_rgba(result)
     folder = bpy.path.abspath(folder)
     os.makedirs(folder, exist_ok=True)
     paths = []
     if file_format in ("PNG", "BOTH"):
         path = os.path.join(folder, f"{stem}.png")
-        write_png(path, np.concatenate([rgb, alpha[..., None]], axis=2))
+        alpha = rgba[..., 3:4]
+        straight = np.divide(srgb_from_blender(rgba), alpha, out=np.zeros_like(rgba[..., :3]), where=alpha > 0)
+        write_png(path, np.concatenate([straight, alpha], axis=2))
         paths.append(path)
     if file_format in ("EXR", "BOTH"):
         path = os.path.join(folder, f"{stem}.exr")
-        write_exr(path, rgb, alpha)
+        write_exr(path, rgba[..., :3], rgba[..., 3])
         paths.append(path)
     return paths
 
 
+def _located_avatar(core, path: str):
+    """The avatar file, its training background and the loaded avatar (thread-safe core work)."""
+    found, background = core.avatar_location(path)
+    return found, background, core.load_avatar(found)
+
+
 class MOGAFACE_OT_load_avatar(bpy.types.Operator):
-    """Link a trained avatar (run folder or avatar.pt) to a head, for rendering and export"""
+    """Link a trained avatar (run folder or avatar.pt) to a head, for rendering and export.
+    It loads in the background; Blender stays usable"""
 
     bl_idname = "mogaface.load_avatar"
     bl_label = "Load Avatar"
@@ -190,6 +239,9 @@ class MOGAFACE_OT_load_avatar(bpy.types.Operator):
 
     filepath: StringProperty(name="Avatar", subtype="FILE_PATH", description="Run folder or avatar.pt")
     target: StringProperty(name="Head", description="Head object (empty: the active object)")
+
+    _timer = None
+    _future = None
 
     def invoke(self, context, event):
         if self.filepath:
@@ -205,23 +257,49 @@ class MOGAFACE_OT_load_avatar(bpy.types.Operator):
         core = core_or_report(self, context)
         if core is None:
             return {"CANCELLED"}
-        found = run_core(self, core.avatar_location, bpy.path.abspath(self.filepath))
-        if found is None:
+        self.target = obj.name
+        path = bpy.path.abspath(self.filepath)
+        if bpy.app.background or context.window is None:  # timers never run headless: load here
+            return self._link(context, run_core(self, _located_avatar, core, path))
+        from .render_job import executor
+
+        # Reading the file and importing torch take seconds: a thread does it, a timer collects it.
+        self._future = executor().submit(_located_avatar, core, path)
+        wm = context.window_manager
+        self._timer = wm.event_timer_add(0.05, window=context.window)
+        wm.modal_handler_add(self)
+        context.workspace.status_text_set(f"MoGaFace: loading the avatar {os.path.basename(path.rstrip(os.sep))}")
+        return {"RUNNING_MODAL"}
+
+    def modal(self, context, event):
+        if event.type != "TIMER" or not self._future.done():
+            return {"PASS_THROUGH"}
+        context.window_manager.event_timer_remove(self._timer)
+        clear_status_text()
+        return self._link(context, run_core(self, self._future.result))
+
+    def _link(self, context, loaded) -> set:
+        """Link a loaded avatar to the head (main thread), or report why not."""
+        from ..core import scene_conversion as sc
+
+        obj = bpy.data.objects.get(self.target)
+        if loaded is None:
             return {"CANCELLED"}
-        path, background = found
-        avatar = run_core(self, core.load_avatar, path)
-        if avatar is None:
+        if not is_head(obj):
+            self.report({"ERROR"}, f"{self.target} was removed while its avatar loaded")
             return {"CANCELLED"}
+        path, background, avatar = loaded
         vertices = avatar.flame.n_vertices
         if vertices != len(obj.data.vertices):
             self.report({"ERROR"}, f"{path}: the avatar's head has {vertices} vertices, {obj.name} has "
                         f"{len(obj.data.vertices)}: import the avatar's head model (head.pkl beside it)")
             return {"CANCELLED"}
-        obj[core.AVATAR_PATH_PROPERTY] = str(path)
+        obj[sc.AVATAR_PATH_PROPERTY] = str(path)
         obj[BACKGROUND_PROPERTY] = list(background)
         if getattr(obj, "mogaface_show_avatar", False):
             obj.display_type = "BOUNDS"  # the avatar is drawn in the viewport; the mesh would cover it
         context.scene.mogaface.avatar_file = str(path)
+        redraw_areas(context, ("VIEW_3D", "PROPERTIES"))
         self.report({"INFO"}, f"{obj.name}: avatar with {len(avatar.gaussians)} Gaussians")
         return {"FINISHED"}
 
@@ -256,10 +334,10 @@ class _RenderBase:
         from ..core import scene_conversion as sc
 
         frame = result.request.frame
-        image = store_image(sc.render_image_name(camera.name, frame), result.rgb, result.alpha)
+        image = store_image(sc.render_image_name(camera.name, frame), result)
         if self.directory:
             written = run_core(self, write_files, self.directory, f"{camera.name}_{frame:04d}".replace(" ", "_"),
-                               result.rgb, result.alpha, self.file_format)
+                               result, self.file_format)
             if written is None:
                 return None
         return image

@@ -1,9 +1,12 @@
 """The avatar in Blender's own renders (F12, Ctrl F12), Cycles and EEVEE alike.
 
 ``mogaface.setup_render_layer`` sets up the compositor once: per head with an avatar, two
-Image nodes (the avatar layer's premultiplied linear RGBA and its depth) and a Z Combine node
-that merges them with the render layer's image and Depth pass; the result goes to the
-compositor's output. Before every render Blender makes (``render_pre``), :func:`render_avatar_layers`
+Image nodes (the avatar layer's RGBA, scene-linear premultiplied from
+:func:`core.scene_render.blender_rgba`, and its depth), an Alpha Over node that lays the layer
+over the render (premultiplied: ``avatar + (1 - alpha) · render``) and a Z Combine node that
+takes that blend where the avatar is nearer than the render layer's Depth pass and the render
+elsewhere; the result goes to the compositor's output. (Z Combine's own "Use Alpha" mixes with
+straight alpha, which would darken the avatar's premultiplied edges; it stays off.) Before every render Blender makes (``render_pre``), :func:`render_avatar_layers`
 renders each avatar layer at that frame from the scene camera with the core's one render
 request into those two float images, so F12 and animation renders show the avatar without any
 MoGaFace button.
@@ -22,6 +25,7 @@ from __future__ import annotations
 import bpy
 
 from .common import core_or_report, run_core
+from .avatar import SCENE_LINEAR
 from .dependencies import LazyModule
 
 np = LazyModule("numpy")  # imported on first use: registering needs no numpy
@@ -57,11 +61,12 @@ def _output_socket(tree):
     return node.inputs[0]
 
 
-def _set_use_alpha(node) -> None:
-    if "Use Alpha" in node.inputs:  # Blender 5.0: an input socket
-        node.inputs["Use Alpha"].default_value = True
+def _set_option(node, socket: str, attribute: str, value) -> None:
+    """A node option: an input socket in Blender 5.0, a property before."""
+    if socket in node.inputs:
+        node.inputs[socket].default_value = value
     else:
-        node.use_alpha = True
+        setattr(node, attribute, value)
 
 
 def layer_image(head, kind: str, create: bool = True):
@@ -71,7 +76,7 @@ def layer_image(head, kind: str, create: bool = True):
     image = bpy.data.images.get(name)
     if image is None and create:
         image = bpy.data.images.new(name, 4, 4, alpha=True, float_buffer=True)
-        image.colorspace_settings.name = "Non-Color" if kind == "depth" else "Linear Rec.709"
+        image.colorspace_settings.name = "Non-Color" if kind == "depth" else SCENE_LINEAR
         image.alpha_mode = "PREMUL"
         image.use_fake_user = False
     return image
@@ -99,15 +104,26 @@ def setup_layer(scene, heads) -> list:
             node.label = f"MoGaFace {head.name} {kind}"
             node.location = (-600 + 250 * index, -350 - 200 * len(nodes))
             nodes.append(node)
+        over = tree.nodes.new("CompositorNodeAlphaOver")
+        over.label = f"MoGaFace {head.name} over"
+        over.location = (-300 + 250 * index, -200)
+        _set_option(over, "Straight Alpha", "use_premultiply", False)  # the layer is premultiplied
+        if hasattr(over, "premul"):
+            over.premul = 0.0
+        background, foreground = (over.inputs["Background"], over.inputs["Foreground"]) \
+            if "Foreground" in over.inputs else (over.inputs[1], over.inputs[2])  # 4.2-4.5: Fac, Image, Image
+        tree.links.new(image, background)
+        tree.links.new(nodes[0].outputs["Image"], foreground)
         combine = tree.nodes.new("CompositorNodeZcombine")
         combine.label = f"MoGaFace {head.name}"
         combine.location = (-300 + 250 * index, 0)
-        _set_use_alpha(combine)
+        _set_option(combine, "Use Alpha", "use_alpha", False)
+        _set_option(combine, "Anti-Alias", "use_antialias_z", False)  # the avatar's alpha is its edge
         tree.links.new(image, combine.inputs[0])
         tree.links.new(depth, combine.inputs[1])
-        tree.links.new(nodes[0].outputs["Image"], combine.inputs[2])
+        tree.links.new(over.outputs[0], combine.inputs[2])
         tree.links.new(nodes[1].outputs["Image"], combine.inputs[3])
-        for node in (*nodes, combine):
+        for node in (over, *nodes, combine):
             node[NODE_TAG] = head.name
         image, depth = combine.outputs[0], combine.outputs[1]
         combines.append(combine)
@@ -126,10 +142,11 @@ def layer_heads(scene) -> list:
 
 def layer_pixels(result) -> tuple[np.ndarray, np.ndarray]:
     """A transparent render as the compositor wants it, in Blender's flat pixel order (rows from
-    the bottom): premultiplied linear RGBA, and the depth (:data:`FAR` where the avatar is not)."""
-    from ..core.scene_render import linear_premultiplied
+    the bottom): :func:`core.scene_render.blender_rgba`, and the depth (:data:`FAR` where the
+    avatar is not)."""
+    from ..core.scene_render import blender_rgba
 
-    rgba = linear_premultiplied(result)
+    rgba = blender_rgba(result)
     depth = np.where(np.isfinite(result.depth), result.depth, FAR)[..., None]
     depth = np.concatenate([np.repeat(depth, 3, axis=2), np.ones_like(depth)], axis=2)
     return tuple(np.ascontiguousarray(a[::-1], np.float32).reshape(-1) for a in (rgba, depth))

@@ -89,6 +89,28 @@ def build_camera(settings, collection, existing=None):
     return obj
 
 
+def frame_views(context, points) -> None:
+    """Point every perspective 3D view of the open windows at ``points`` (the capture's cameras and
+    the head at the origin), as View Selected would, without changing the selection. Nothing
+    happens without a window (background mode)."""
+    from ..core.scene_render import view_framing
+
+    for window in getattr(context.window_manager, "windows", ()):
+        for area in window.screen.areas:
+            region = next((r for r in area.regions if r.type == "WINDOW"), None)
+            if area.type != "VIEW_3D" or region is None:
+                continue
+            space = area.spaces.active
+            view = space.region_3d
+            if view.view_perspective == "CAMERA":
+                continue
+            centre, distance = view_framing([tuple(p) for p in points], space.lens, region.width, region.height)
+            view.view_location = tuple(centre)
+            view.view_distance = distance
+            view.view_perspective = "PERSP"
+            area.tag_redraw()
+
+
 class MOGAFACE_OT_import_capture(bpy.types.Operator):
     """Import a capture's cameras (exact intrinsics and poses), first-view images and timeline"""
 
@@ -102,6 +124,10 @@ class MOGAFACE_OT_import_capture(bpy.types.Operator):
         name="Refined Cameras", subtype="FILE_PATH", default="",
         description="A training run's cameras_refined.json (camera refinement): the cameras it names take its "
                     "poses; empty: the capture's calibration")
+    use_standard_view: BoolProperty(
+        name="Standard View Transform", default=True,
+        description="Set the scene's view transform to Standard: captures and the avatar are display-referred "
+                    "sRGB, and Standard shows their colours as captured (AgX or Filmic would tone-map them)")
 
     def invoke(self, context, event):
         if self.filepath:
@@ -131,6 +157,11 @@ class MOGAFACE_OT_import_capture(bpy.types.Operator):
         scene.frame_set(description.frame_start)
         scene.mogaface.capture_folder = description.root
         message = f"Imported {len(cameras)} cameras, {description.n_timesteps} timesteps"
+        if self.use_standard_view and scene.view_settings.view_transform != "Standard":
+            message += f"; view transform {scene.view_settings.view_transform} -> Standard (the captured colours)"
+            scene.view_settings.view_transform = "Standard"
+            scene.view_settings.look = "None"
+        frame_views(context, [obj.matrix_world.translation for obj in cameras] + [(0.0, 0.0, 0.0)])
         if refined:
             message += " (refined poses from the run)"
         if description.moving_cameras:

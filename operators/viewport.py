@@ -4,7 +4,9 @@ Each redraw of a 3D view builds the render request of every shown avatar from th
 matrices (:func:`viewport_request`); a request that differs from the last one goes to a render
 thread, and the view keeps drawing the last finished image (:class:`ViewportImage`) until the new
 one arrives (a timer then asks for a redraw). While the view moves, requests are made at a
-lower resolution; once it has been still for :data:`SETTLE_S`, at full resolution.
+lower resolution; once it has been still for :data:`SETTLE_S`, at the region's own pixel size
+(``region.width``/``height`` are device pixels, HiDPI included), so one render pixel is one screen
+pixel and the image is sharp.
 
 The image is drawn as a full-view quad through Blender's ``gpu`` module; its fragment shader
 writes the avatar's depth as fragment depth, so scene geometry in front hides it and geometry
@@ -44,9 +46,18 @@ class ViewportImage:
     key: str
 
 
-def draw_size(region_width: int, region_height: int, max_side: int) -> tuple[int, int]:
-    """The render size for a region: its own, scaled down so the longer side is at most ``max_side``."""
-    factor = min(1.0, max_side / max(region_width, region_height, 1))
+#: Alpha from which the avatar counts as opaque in the viewport: drawn with alpha 1, so nothing
+#: behind it (the grid, a camera's lines) shows through the face.
+OPAQUE_ALPHA = 0.98
+
+
+def draw_size(region_width: int, region_height: int, max_side: int | None = None,
+              percent: int = 100) -> tuple[int, int]:
+    """The render size for a region: ``percent`` of its own, and the longer side at most ``max_side``."""
+    factor = percent / 100.0
+    if max_side is not None:
+        factor = min(factor, max_side / max(region_width, region_height, 1))
+    factor = min(1.0, factor)
     return max(1, round(region_width * factor)), max(1, round(region_height * factor))
 
 
@@ -67,13 +78,19 @@ def viewport_request(head, view_matrix, projection, size: tuple[int, int], frame
 def viewport_image(result, view, projection) -> ViewportImage:
     """A finished render as the draw's pixel buffers (rows flipped, depth in window units).
 
-    The 3D view composes in scene-linear light (its view transform comes after), so the avatar's
-    sRGB colours are made linear, premultiplied, as for the compositor's layer.
+    The colours are :func:`core.scene_render.blender_rgba`'s, as everywhere. A ``POST_VIEW``
+    handler draws into the view's overlay buffer, which holds linear values encoded as sRGB and
+    is laid over the scene after its view transform: the avatar is shown with the core's sRGB
+    colours under every view transform, exactly as the capture photo a camera shows as its
+    background image (checked in Blender 4.3 by reading the screen back).
     """
-    from ..core.scene_render import depth_buffer_values, linear_premultiplied
+    from ..core.scene_render import blender_rgba, depth_buffer_values
 
     height, width = result.alpha.shape
-    rgba = np.ascontiguousarray(linear_premultiplied(result)[::-1], np.float32).reshape(-1)
+    rgba = blender_rgba(result)
+    opaque = rgba[..., 3] >= OPAQUE_ALPHA
+    rgba[opaque] /= rgba[opaque][:, 3:4]  # alpha 1, the colour unchanged
+    rgba = np.ascontiguousarray(rgba[::-1], np.float32).reshape(-1)
     depth = depth_buffer_values(result.depth - view.depth_offset, projection)
     return ViewportImage(width, height, rgba, np.ascontiguousarray(depth[::-1]).reshape(-1), result.request.key())
 
@@ -146,9 +163,9 @@ def update_view(state: ViewState, head, region, region_3d, scene, now: float | N
         state.view_key, state.view_changed = view_key, now
     settings = scene.mogaface
     moving = now - state.view_changed < SETTLE_S
-    side = settings.viewport_navigate_resolution if moving else settings.viewport_resolution
-    request, view = viewport_request(head, view_matrix, projection, draw_size(region.width, region.height, side),
-                                     scene.frame_current)
+    size = draw_size(region.width, region.height, settings.viewport_navigate_resolution) if moving else \
+        draw_size(region.width, region.height, percent=settings.viewport_resolution)
+    request, view = viewport_request(head, view_matrix, projection, size, scene.frame_current)
     key = request.key()
     shown = state.image.key if state.image is not None else None
     if state.future is None and key not in (shown, state.pending_key):

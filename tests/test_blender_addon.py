@@ -202,7 +202,12 @@ def test_importing_a_capture_again_updates_its_cameras(scenario):
     cameras = bpy.data.collections["MoGaFace Capture"].objects
     before = {obj.name: obj.matrix_world.copy() for obj in cameras}
     json_file = scenario["capture"] / "transforms_train.json"
+    view = bpy.context.scene.view_settings
+    view.view_transform = "AgX"  # Blender's default: the import makes it Standard, unless asked not to
+    assert bpy.ops.mogaface.import_capture(filepath=str(json_file), use_standard_view=False) == {"FINISHED"}
+    assert view.view_transform == "AgX"
     assert bpy.ops.mogaface.import_capture(filepath=str(json_file)) == {"FINISHED"}
+    assert view.view_transform == "Standard" and view.look == "None"
     assert {obj.name: obj.matrix_world for obj in cameras} == before
     assert all(len(obj.data.background_images) == 1 for obj in cameras)
     bpy.context.scene.frame_start, bpy.context.scene.frame_end = 1, 4

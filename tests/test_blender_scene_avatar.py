@@ -20,6 +20,7 @@ import torch  # noqa: E402
 from mathutils import Matrix, Vector  # noqa: E402
 
 from mogaface.core import scene_conversion as sc  # noqa: E402
+from mogaface.core.scene_render import blender_rgba  # noqa: E402
 from mogaface.core.avatar.avatar import Avatar  # noqa: E402
 from mogaface.core.avatar.gaussians import rgb_to_sh_dc  # noqa: E402
 
@@ -137,8 +138,10 @@ def test_viewport_depth_meets_the_mesh_and_is_what_opengl_writes(scene):
     straight = np.divide(result.rgb, result.alpha[..., None], out=np.zeros_like(result.rgb),
                          where=result.alpha[..., None] > 0)
     srgb_decoded = np.where(straight > 0.04045, ((straight + 0.055) / 1.055) ** 2.4, straight / 12.92)
-    assert np.allclose(rgba[..., :3], srgb_decoded * result.alpha[..., None], atol=1e-5)  # linear, premultiplied
-    assert np.allclose(rgba[..., 3], result.alpha)
+    opaque = result.alpha >= ops("viewport").OPAQUE_ALPHA  # drawn with alpha 1: nothing shows through
+    shown_alpha = np.where(opaque, 1.0, result.alpha)
+    assert np.allclose(rgba[..., :3], srgb_decoded * shown_alpha[..., None], atol=1e-5)  # linear, premultiplied
+    assert np.allclose(rgba[..., 3], shown_alpha) and opaque.sum() > 50 and (~opaque & (result.alpha > 0.1)).any()
     assert (depth_window[result.alpha < 1 / 255] == 1.0).all()
     camera, scn = scene["camera"], bpy.context.scene
     depsgraph = bpy.context.evaluated_depsgraph_get()
@@ -196,8 +199,8 @@ def settle(state, timeout=900.0):  # the first render compiles the extension cop
 def test_the_view_refreshes_on_frame_keys_head_and_view_and_sharpens_when_still(scene):
     viewport = ops("viewport")
     scn, head, camera = bpy.context.scene, scene["head"], scene["camera"]
-    scn.mogaface.viewport_resolution, scn.mogaface.viewport_navigate_resolution = 64, 32
-    region, region_3d = fake_view(camera, 96, 96)
+    scn.mogaface.viewport_resolution, scn.mogaface.viewport_navigate_resolution = 100, 32
+    region, region_3d = fake_view(camera, 64, 64)
     state = viewport.ViewState()
     scn.frame_set(1)
     now = 100.0
@@ -232,8 +235,14 @@ def test_the_view_refreshes_on_frame_keys_head_and_view_and_sharpens_when_still(
         assert update(now + 9)
     finally:
         scn.frame_set(1)
-    region, region_3d = fake_view(camera, 80, 96)  # the view changed
+    region, region_3d = fake_view(camera, 54, 64)  # the view changed: navigating, then still at its own size
     assert update(now + 10) and (state.image.width, state.image.height) == (27, 32)
+    assert update(now + 11 + viewport.SETTLE_S) and (state.image.width, state.image.height) == (54, 64)
+    scn.mogaface.viewport_resolution = 50
+    try:
+        assert update(now + 12 + viewport.SETTLE_S) and (state.image.width, state.image.height) == (27, 32)
+    finally:
+        scn.mogaface.viewport_resolution = 100
 
 
 def test_shown_heads_follow_the_per_object_switch(scene):
@@ -317,8 +326,11 @@ def test_setup_builds_the_compositor_and_f12_renders_show_the_avatar_in_depth(sc
         combine = next(n for n in tree.nodes if n.bl_idname == "CompositorNodeZcombine")
         assert combine.inputs[0].links[0].from_node.bl_idname == "CompositorNodeRLayers"
         assert combine.inputs[1].links[0].from_socket.name == "Depth"
-        assert {link.from_node.image.name for link in (combine.inputs[2].links[0], combine.inputs[3].links[0])} == {
-            f"MoGaFace layer {head.name} rgba", f"MoGaFace layer {head.name} depth"}
+        over = combine.inputs[2].links[0].from_node  # the layer over the render, premultiplied
+        assert over.bl_idname == "CompositorNodeAlphaOver" and not over.inputs["Straight Alpha"].default_value
+        assert over.inputs["Foreground"].links[0].from_node.image.name == f"MoGaFace layer {head.name} rgba"
+        assert combine.inputs[3].links[0].from_node.image.name == f"MoGaFace layer {head.name} depth"
+        assert not combine.inputs["Use Alpha"].default_value
         assert combine.outputs[0].links and scn.view_layers[0].use_pass_z and head.hide_render
         frames = {}
         for frame in (1, 2):
@@ -346,6 +358,12 @@ def test_setup_builds_the_compositor_and_f12_renders_show_the_avatar_in_depth(sc
     assert avatar_only.sum() > 50 and card_over_avatar.sum() > 20 and ((alpha < 1e-3) & wall).sum() > 50
     linear = np.where(expected.rgb > 0.04045, ((expected.rgb + 0.055) / 1.055) ** 2.4, expected.rgb / 12.92)
     assert np.abs(image[avatar_only][:, :3] - linear[avatar_only]).max() < 0.02  # the avatar over the wall
+    # its semi-transparent edges too: premultiplied over the wall, neither darkened nor whitened
+    layer_rgba = blender_rgba(expected)  # a transparent render: premultiplied
+    over_wall = edge(wall) & (alpha > 0.05) & (alpha < 0.95)
+    assert over_wall.sum() > 10
+    blended = layer_rgba[..., :3] + (1 - alpha[..., None]) * scene_only[..., :3]
+    assert np.abs(image[over_wall][:, :3] - blended[over_wall]).max() < 0.02
     empty = edge(alpha < 1e-3) & (edge(card) | edge(wall))
     assert np.abs(image[empty] - scene_only[empty]).max() < 0.02  # the scene alone where the avatar is not
     assert np.allclose(image[card_over_avatar][:, :3], (0.0, 0.0, 1.0), atol=0.02)  # the card in front hides it
@@ -437,7 +455,8 @@ def test_render_frame_shows_its_image_in_an_image_editor(scene):
         assert area.spaces.active.image.name == sc.render_image_name("Camera", 1)
     finally:
         area.type = old
-    assert ops("avatar").image_editor_area(bpy.context.window_manager) is None
+    assert ops("avatar").image_editor_area(bpy.context.window_manager) == (None, None)
+    assert ops("avatar").image_editor_area(bpy.context.window_manager, (10**6, 10**6)) == (None, None)
 
 
 def test_render_animation_job_renders_each_frames_keys_and_cancels(scene):
