@@ -145,7 +145,9 @@ class RunFolder:
             capture = self.info.get("capture")
             if not isinstance(capture, str) or not capture:
                 raise InputError(self.run_json_path, "capture", "missing: pass the capture folder explicitly")
-            capture = self.root / capture  # absolute as written; a relative one is read from the run folder
+            from ..io.files import check_path_text
+
+            capture = self.root / check_path_text(capture, self.run_json_path, "capture")  # absolute as written; a relative one is read from the run folder
         return pathlib.Path(capture)
 
     @functools.cached_property
