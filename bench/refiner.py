@@ -5,8 +5,15 @@ over the tracked parameters, in one run so the ratio holds however loaded the ma
 ``python -m mogaface bench refiner --avatar RUN`` (a run folder with ``refiner.pt``, from
 ``train-refiner``) prints JSON with the load average. Frames: the self-reenactment protocol (the
 unseen sequence, every scored view left out of the sources' inputs), 12 spread over it (4 with
-``--quick``). ``--fit-steps 10,30,100`` times fitting at each length, for its curve of PSNR against
-time: ten steps are not where fitting stops gaining.
+``--quick``); the report names them and the cameras they are scored on (``scored``). The refiner
+and fitting read the same views of each frame (``input_views``; :func:`..core.evaluate.benchmark.
+standard_sources`). Every source computes one frame untimed before the timed ones, so first calls
+and first disk reads are no source's time.
+
+``--fit-steps 10,30,100`` (the default) times fitting at each length, for its curve of PSNR against
+time; ``equal_quality`` sets each refiner's time against the fitting length that reaches the same
+PSNR (interpolated in log-steps between the measured lengths; "not reached" when the refiner beats
+the longest), beside the ratios at the fixed lengths.
 """
 
 from __future__ import annotations
@@ -16,15 +23,59 @@ import os
 # tracked_aligned: runs that fine-tuned; refined_fit_N: N fitting steps (the first of fit_steps) from
 # the refiner's one pass on the timesteps training did not fit (`refine-tracking --fit-steps N`)
 PASSES = (1, 3)
+FIT_STEPS = (10, 30, 100)
+
+
+def _warm_up_frame(capture, frames):
+    """A frame of the protocol that is not scored, at a timestep none of ``frames`` has where there
+    is one (its views are then read for the first time when they are timed), else the first."""
+    from mogaface.core.evaluate.protocols import protocol_frames
+
+    timesteps = {f.timestep_index for f in frames}
+    spare = [f for f in protocol_frames(capture, "self_reenactment") if f not in frames]
+    elsewhere = [f for f in spare if f.timestep_index not in timesteps]
+    return (elsewhere or spare or frames)[0]
+
+
+def _equal_quality(scores: dict, fit_steps) -> dict:
+    """Per refiner source: the fitting length of the same PSNR, fitting's time there, the ratio."""
+    from mogaface.core.evaluate.benchmark import matching_fit_length, seconds_at_length
+
+    psnr = {steps: scores[f"fit_{steps}"]["psnr"] for steps in fit_steps}
+    seconds = {steps: scores[f"fit_{steps}"]["source_s"] for steps in fit_steps}
+    out = {}
+    for passes in PASSES:
+        refined = scores.get(f"refined_{passes}")
+        if refined is None:
+            continue
+        match = matching_fit_length(psnr, refined["psnr"])
+        entry = {"psnr_db": round(refined["psnr"], 3), "fit_steps": None, "status": match["status"],
+                 "fit_seconds_per_frame": None, "fitting_time_over_refiner": None}
+        if match["steps"] is not None:
+            fit_seconds = seconds_at_length(seconds, match["steps"])
+            entry.update(fit_steps=round(match["steps"], 1), fit_seconds_per_frame=round(fit_seconds, 4),
+                         fitting_time_over_refiner=round(fit_seconds / max(refined["source_s"], 1e-9), 2))
+        out[f"refined_{passes}"] = entry
+    return out
+
+
+def _input_views(sources: dict, names) -> dict:
+    """Per image-reading source, the cameras it read for each scored frame (``scored camera``: …)."""
+    out = {}
+    for name in names:
+        inputs = getattr(sources.get(name), "inputs", None)
+        if inputs:
+            out[name] = [{"scored": scored, "read": list(read)} for scored, read in inputs]
+    return out
 
 
 def run(threads: int = 2, quick: bool = False, avatar: str | None = None,
-        fit_steps: tuple[int, ...] = (10,)) -> dict:
+        fit_steps: tuple[int, ...] = FIT_STEPS) -> dict:
     import torch
 
     from mogaface.core.errors import InputError
     from mogaface.core.evaluate.benchmark import score_source, standard_sources
-    from mogaface.core.evaluate.protocols import protocol_frames
+    from mogaface.core.evaluate.protocols import protocol_frames, scored_views
     from mogaface.core.run.folder import RunFolder
     from mogaface.core.refiner.files import REFINER_FILE
 
@@ -34,23 +85,33 @@ def run(threads: int = 2, quick: bool = False, avatar: str | None = None,
         raise InputError(folder.root / REFINER_FILE, None, "no refiner: run 'train-refiner RUN' first")
     capture = folder.open_capture()
     trained = folder.load_avatar()
+    fit_steps = tuple(sorted(set(fit_steps)))
     sources = standard_sources(folder, capture, trained, fit_steps=fit_steps, refiner_passes=PASSES)
-    names = ["tracked", "tracked_aligned", *(f"refined_{k}" for k in PASSES), *(f"fit_{n}" for n in fit_steps),
-             f"refined_fit_{fit_steps[0]}"]
+    names = [name for name in ["tracked", "tracked_aligned", *(f"refined_{k}" for k in PASSES),
+                               *(f"fit_{n}" for n in fit_steps), f"refined_fit_{fit_steps[0]}"] if name in sources]
     frames = protocol_frames(capture, "self_reenactment", 4 if quick else 12)
+    warm = _warm_up_frame(capture, frames)
+    for name in names:  # untimed: first calls, first reads of the capture and the run
+        sources[name].params_for(warm, exclude_view=warm.camera_id)
+        getattr(sources[name], "inputs", []).clear()
     load_before = os.getloadavg()
     scores = {name: score_source(trained, capture, sources[name], frames, folder.background, lpips=False)
-              for name in names if name in sources}
+              for name in names}
     tracked = scores["tracked"]["psnr"]
     return {
         "run": str(folder.root), "frames": len(frames), "threads": threads,
+        "scored": scored_views(capture, frames),
+        "warm_up_frame": f"{warm.timestep_id}/{warm.camera_id}",
+        "fit_steps": list(fit_steps),
         "seconds_per_frame": {name: round(s["source_s"], 4) for name, s in scores.items()},
         "psnr_db": {name: round(s["psnr"], 3) for name, s in scores.items()},
         "psnr_gain_over_tracked_db": {name: round(s["psnr"] - tracked, 3) for name, s in scores.items()},
         "fitting_time_over_refiner": {
             f"fit_{steps}/refined_{passes}": round(
                 scores[f"fit_{steps}"]["source_s"] / max(scores[f"refined_{passes}"]["source_s"], 1e-9), 2)
-            for steps in fit_steps for passes in PASSES},
+            for steps in fit_steps for passes in PASSES if f"refined_{passes}" in scores},
+        "equal_quality": _equal_quality(scores, fit_steps),
+        "input_views": _input_views(sources, names),
         "load_average_before": [round(x, 2) for x in load_before],
         "load_average_after": [round(x, 2) for x in os.getloadavg()],
     }

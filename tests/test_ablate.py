@@ -40,6 +40,9 @@ def test_ablate_writes_results_table_and_figure(tiny_capture, tmp_path):
                     assert scores["frames"] == 2 and scores["psnr"] > 5, (name, seed, source)
                     assert scores["vertex_mm"] >= 0 and scores["frame_s"] > 0
             assert run["training_expression"]["expr_rmse_tracked"] > 0
+            for protocol, named in run["scored"].items():  # what each protocol scored, by name
+                assert len(named["frames"]) == 2 and named["cameras"] and named["label"], protocol
+            assert "unseen frames (FREE)" in run["scored"]["self_reenactment"]["label"]
     free = results["variants"]["freeze"]["seeds"]["0"]["protocols"]["self_reenactment"]
     assert free["true"]["vertex_mm"] == pytest.approx(0.0, abs=1e-6)  # the ceiling: the truth's own motion
     assert free["tracked"]["vertex_mm"] > 0.1

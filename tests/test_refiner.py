@@ -389,6 +389,17 @@ def test_the_command_trains_a_refiner_that_eval_then_uses(run_root, tmp_path, ca
     for steps in (1, 3):
         ratio = report["fitting_time_over_refiner"][f"fit_{steps}/refined_1"]
         assert ratio == pytest.approx(seconds[f"fit_{steps}"] / seconds["refined_1"], rel=0.05, abs=0.02)
+    # what was scored, by name; the same views read by the refiner and fitting; time at equal quality
+    assert report["scored"]["label"].startswith("self-reenactment") and "FREE" in report["scored"]["label"]
+    assert len(report["scored"]["frames"]) == report["frames"] == 4
+    assert report["warm_up_frame"] not in report["scored"]["frames"]
+    reads = report["input_views"]
+    assert len(reads["fit_1"]) == len(reads["refined_1"]) == 4 and reads["fit_1"] == reads["refined_1"]
+    assert all(entry["scored"] not in entry["read"] and "cam01" not in entry["read"] for entry in reads["fit_1"])
+    for passes in (1, 3):
+        equal = report["equal_quality"][f"refined_{passes}"]
+        assert equal["status"] in ("interpolated", "not reached", "reached by the shortest")
+        assert (equal["fit_steps"] is None) == (equal["status"] == "not reached")
     with pytest.raises(SystemExit):
         main(["bench", "refiner", "--fit-steps", "10,x"])
     assert "positive step counts" in capsys.readouterr().err

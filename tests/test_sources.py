@@ -82,7 +82,7 @@ def test_test_time_fitting_improves_a_known_noisy_input(capture, run):
     # Only the other views of the timestep were looked at.
     assert rendered.loaded and (frame.timestep_index, frame.camera_id) not in rendered.loaded
     assert {t for t, _ in rendered.loaded} == {frame.timestep_index}
-    assert source.inputs == [(frame.camera_id, [c for c in capture.cameras if c != frame.camera_id])]
+    assert source.inputs == [(frame.camera_id, [c for c in capture.cameras if c != frame.camera_id])]  # all: no limit
     # The avatar is frozen: fitting changed none of its weights.
     assert all(p.grad is None or not p.grad.any() for p in avatar.parameters())
 
@@ -261,6 +261,9 @@ def test_no_scored_view_reaches_any_source(capture, run_with_refiner, monkeypatc
     free = result["protocols"]["self_reenactment"]
     assert free["true"]["vertex_mm"] == pytest.approx(0.0, abs=1e-6) and free["tracked"]["vertex_mm"] > 0.1
     assert all(scores["frame_s"] > 0 for scores in free.values())
+    named = result["scored"]["self_reenactment"]
+    assert len(named["frames"]) == 2 and named["frames"][0].startswith("FREE_") and "FREE" in named["label"]
+    assert result["scored"]["novel_view"]["label"] == "novel view: held-out camera cam01 on training frames"
 
 
 def test_image_assisted_sources_see_their_input_views_through_the_runs_refined_cameras(
@@ -302,3 +305,64 @@ def test_image_assisted_sources_see_their_input_views_through_the_runs_refined_c
     seen["fit"].clear()
     standard_sources(run, capture, avatar, fit_steps=(2,))["fit_2"].params_for(frame, exclude_view=frame.camera_id)
     np.testing.assert_allclose({c.camera_id: c for c in seen["fit"]}["cam00"].w2c, calibrated.w2c)
+
+
+def test_fitting_and_the_refiner_read_the_same_views(capture, run_with_refiner):
+    """Like for like: per frame both read the same other views, of the training cameras only (the
+    held-out camera's unseen frames are scored, never read), at most INPUT_VIEWS of them."""
+    from mogaface.core.evaluate.sources.base import INPUT_VIEWS, input_views, training_cameras
+
+    run = run_with_refiner
+    sources = standard_sources(run, capture, run.load_avatar(), fit_steps=(1,))
+    held_out = {f.camera_id for f in capture.frames("val")}
+    assert training_cameras(capture) == sorted(set(capture.cameras) - held_out) == ["cam00", "cam02"]
+    for frame in protocol_frames(capture, "self_reenactment"):
+        for name in ("fit_1", "refined_1", "refined_3", "refined_fit_1"):
+            sources[name].params_for(frame, exclude_view=frame.camera_id)
+        reads = {name: sources[name].inputs[-1] for name in ("fit_1", "refined_1", "refined_3", "refined_fit_1")}
+        assert len({(scored, tuple(read)) for scored, read in reads.values()}) == 1, reads
+        scored, read = reads["fit_1"]
+        assert scored == frame.camera_id and frame.camera_id not in read and not held_out & set(read)
+        assert read == [f.camera_id for f in input_views(capture, frame.timestep_index, frame.camera_id,
+                                                         INPUT_VIEWS, training_cameras(capture))]
+        assert read  # every FREE frame has another training view to read
+
+
+def test_input_views_are_spread_over_the_rig(capture):
+    from mogaface.core.evaluate.sources.base import input_views
+
+    t = protocol_frames(capture, "self_reenactment")[0].timestep_index
+    assert [f.camera_id for f in input_views(capture, t, "cam01")] == ["cam00", "cam02"]
+    assert [f.camera_id for f in input_views(capture, t, None, 2)] == ["cam00", "cam02"]  # ends of the rig
+    assert [f.camera_id for f in input_views(capture, t, None, cameras=["cam01"])] == ["cam01"]
+    assert input_views(capture, t, "cam01", cameras=["cam01"]) == []
+
+
+def test_scored_views_name_what_a_protocol_scores(capture):
+    from mogaface.core.evaluate.protocols import scored_views
+
+    free = protocol_frames(capture, "self_reenactment")
+    everything = scored_views(capture, free)
+    assert everything["cameras"] == ["cam00", "cam01", "cam02"]
+    assert everything["frames"][0] == f"{free[0].timestep_id}/{free[0].camera_id}" and len(everything["frames"]) == 12
+    assert everything["label"].startswith("self-reenactment and novel view of unseen frames") and "FREE" in everything["label"]
+    own = scored_views(capture, [f for f in free if f.camera_id != "cam01"])
+    assert own["label"] == "self-reenactment: training cameras on unseen frames (FREE)"
+    held = scored_views(capture, [f for f in free if f.camera_id == "cam01"])
+    assert held["label"] == "novel view of unseen frames: held-out camera cam01 on unseen frames (FREE)"
+    novel = scored_views(capture, protocol_frames(capture, "novel_view"))
+    assert novel["label"] == "novel view: held-out camera cam01 on training frames" and novel["cameras"] == ["cam01"]
+
+
+def test_eval_names_the_frames_and_cameras_it_scored(run, tmp_path):
+    from mogaface.core.evaluate.evaluation import evaluate_run
+
+    evaluate_run(run.root, ["novel_view", "self_reenactment"], 3, lpips=False, out_dir=tmp_path, comparisons=0)
+    written = json.loads((tmp_path / "metrics.json").read_text())["protocols"]
+    for name, summary in written.items():
+        rows = summary["per_frame"]
+        assert len(summary["scored"]["frames"]) == len(rows) == summary["frames"], name
+        assert summary["scored"]["cameras"] == sorted({r["camera"] for r in rows}), name
+        assert [f.split("/")[1] for f in summary["scored"]["frames"]] == [r["camera"] for r in rows], name
+    assert written["self_reenactment"]["scored"]["label"].endswith("unseen frames (FREE)")
+    assert written["novel_view"]["scored"]["label"].startswith("novel view: held-out camera cam01")

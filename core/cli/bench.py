@@ -28,7 +28,8 @@ def add_arguments(parser):
     parser.add_argument("--avatar", help="viewport: the avatar (run folder or avatar.pt); refiner: the run folder "
                                          "with refiner.pt (default out/demo/run)")
     parser.add_argument("--fit-steps", type=step_counts,
-                        help="refiner only: fitting lengths to time, comma-separated (default 10)")
+                        help="refiner only: fitting lengths to time, comma-separated (default 10,30,100); the "
+                             "refiner's time is also set against the length that matches its PSNR")
     parser.add_argument("--scale", choices=["small", "real"],
                         help="train only: 'real' times the full method at 802x550, 16 cameras, 100k Gaussians")
 

@@ -18,7 +18,7 @@ import numpy as np
 
 from ..errors import InputError
 from .expression_error import frame_errors
-from .protocols import PROTOCOLS, protocol_frames, run_protocol, score
+from .protocols import PROTOCOLS, protocol_frames, run_protocol, score, scored_views
 from ..run.folder import RunFolder
 from .sources.base import ParamSource
 
@@ -57,8 +57,10 @@ def standard_sources(run: RunFolder, capture, avatar, fit_steps=FIT_STEPS,
     parameters), smoothed, fit_N…, refined_K… and refined_fit_N (runs with a refiner; the refiner's
     one pass, then fitting from there where training did not fit, as ``refine-tracking`` does),
     method (MoGaFace runs), true. Fitting and the refiner start from the aligned tracked parameters
-    (:class:`.sources.tracked.AlignedTrackedParams`)."""
-    from .sources.base import InputCameras
+    (:class:`.sources.tracked.AlignedTrackedParams`) and read the same views: per frame
+    :data:`.sources.base.INPUT_VIEWS` other views of the training cameras, spread over the rig (the
+    held-out camera's images are the novel-view protocols' to score, never an input)."""
+    from .sources.base import INPUT_VIEWS, InputCameras, training_cameras
     from .sources.fitted import FittedParams
     from .sources.mogaface import MoGaFaceParams
     from .sources.refined import RefinedParams, RefinerInference, run_refiner
@@ -81,16 +83,19 @@ def standard_sources(run: RunFolder, capture, avatar, fit_steps=FIT_STEPS,
     if has_truth:
         held_out = [capture_info(capture.root).get("test_sequence")]
         sources["smoothed"] = SmoothedParams(capture, tracked, choose_sigmas(capture, held_out))
+    views = {"cameras": inputs, "input_cameras": training_cameras(capture)}
     for steps in fit_steps:
-        sources[f"fit_{steps}"] = FittedParams(avatar, capture, start, steps, run.background, cameras=inputs)
+        sources[f"fit_{steps}"] = FittedParams(avatar, capture, start, steps, run.background, views=INPUT_VIEWS,
+                                               **views)
     refiner = run_refiner(run.root, avatar)
     if refiner is not None:
         for passes in refiner_passes:
             sources[f"refined_{passes}"] = RefinedParams(avatar, capture, start, refiner, run.background, passes,
-                                                         cameras=inputs)
+                                                         max_views=INPUT_VIEWS, **views)
         if fit_steps:
             sources[f"refined_fit_{fit_steps[0]}"] = RefinerInference(avatar, capture, run, refiner, passes=1,
-                                                                      fit_steps=fit_steps[0], cameras=inputs)
+                                                                      views=INPUT_VIEWS, fit_steps=fit_steps[0],
+                                                                      **views)
     model = getattr(avatar, "model", None)
     if model is not None and model.mode != "off":
         sources["method"] = MoGaFaceParams(capture, run, model, image_assisted=True)
@@ -126,7 +131,8 @@ def score_source(avatar, capture, source: ParamSource, frames, background, lpips
 
 def benchmark_run(run_dir, protocols=PROTOCOLS, max_frames: int | None = None, lpips: bool = True,
                   fit_steps=FIT_STEPS, sources: dict[str, ParamSource] | None = None, avatar=None) -> dict:
-    """``{"protocols": {protocol: {source: scores}}, "sources": {name: description}, "cameras": …}``."""
+    """``{"protocols": {protocol: {source: scores}}, "scored": {protocol: what it scored}, "sources":
+    {name: description}, "cameras": …}`` (``scored``: :func:`.protocols.scored_views`)."""
     from .camera_error import camera_errors
 
     run = RunFolder(run_dir)
@@ -134,10 +140,46 @@ def benchmark_run(run_dir, protocols=PROTOCOLS, max_frames: int | None = None, l
     avatar = run.load_avatar() if avatar is None else avatar
     sources = standard_sources(run, capture, avatar, fit_steps) if sources is None else sources
     result = {"sources": {name: getattr(s, "description", type(s).__name__) for name, s in sources.items()},
-              "protocols": {}, "cameras": camera_errors(capture, run.root)}
+              "protocols": {}, "scored": {}, "cameras": camera_errors(capture, run.root)}
     for protocol in protocols:
         frames = protocol_frames(capture, protocol, max_frames)
+        result["scored"][protocol] = scored_views(capture, frames)
         result["protocols"][protocol] = {
             name: score_source(avatar, capture, source, frames, run.background, lpips) for name, source in sources.items()
         }
     return result
+
+
+def matching_fit_length(psnr_by_steps: dict[int, float], target: float) -> dict:
+    """The test-time fitting length that reaches ``target`` PSNR, from its PSNR measured at a few
+    lengths: linear in log-steps between the two measured lengths around the first crossing.
+
+    ``{"steps": …, "status": "interpolated"}``; ``status`` "not reached" (``steps`` None) when
+    every length stays below ``target``; "reached by the shortest" (``steps`` that length) when the
+    shortest measured length is at or above it already (fewer steps were not measured).
+    """
+    points = sorted((int(steps), float(psnr)) for steps, psnr in psnr_by_steps.items())
+    if not points or min(steps for steps, _ in points) < 1:
+        raise ValueError(f"expected PSNR at positive fitting lengths, got {psnr_by_steps!r}")
+    if points[0][1] >= target:
+        return {"steps": points[0][0], "status": "reached by the shortest"}
+    for (s0, p0), (s1, p1) in zip(points, points[1:]):
+        if p1 >= target:
+            share = (target - p0) / (p1 - p0)
+            steps = math.exp(math.log(s0) + share * (math.log(s1) - math.log(s0)))
+            return {"steps": steps, "status": "interpolated"}
+    return {"steps": None, "status": "not reached"}
+
+
+def seconds_at_length(seconds_by_steps: dict[int, float], steps: float) -> float:
+    """Fitting's seconds per frame at ``steps`` (possibly fractional): linear in the number of
+    steps between the measured lengths around it (a step costs the same at any length)."""
+    points = sorted((int(s), float(t)) for s, t in seconds_by_steps.items())
+    if len(points) == 1 or steps <= points[0][0]:
+        s0, t0 = points[0]
+        return t0 * steps / s0
+    for (s0, t0), (s1, t1) in zip(points, points[1:]):
+        if steps <= s1:
+            return t0 + (steps - s0) * (t1 - t0) / (s1 - s0)
+    (s0, t0), (s1, t1) = points[-2], points[-1]
+    return t1 + (steps - s1) * (t1 - t0) / (s1 - s0)

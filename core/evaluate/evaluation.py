@@ -16,7 +16,7 @@ from .camera_alignment import split_frames
 from .images import ScoringCameras
 from .protocols import (
     PROTOCOLS, DrivenParams, ParamSource, TrackedParams, check_protocol, cross_identity, novel_view_aligned,
-    protocol_frames, protocol_unavailable, run_protocol, score,
+    protocol_frames, protocol_unavailable, run_protocol, score, scored_views,
 )
 from ..run.folder import RunFolder
 
@@ -85,7 +85,7 @@ def evaluate_run(
         "skipped": skipped,
     }
     for name, frames in plans.items():
-        rows, alignment = [], None
+        rows, alignment, scored = [], None, []
         if name == "novel_view_aligned":
             items, alignment = novel_view_aligned(avatar, cap, source, run.background, frames)
         else:
@@ -93,6 +93,7 @@ def evaluate_run(
         for index, item in enumerate(items):
             row = score(item, lpips)
             frame = item.frame
+            scored.append(frame)
             rows.append({"timestep": frame.timestep_index, "camera": frame.camera_id, "sequence": frame.sequence, **row})
             if index < comparisons:
                 stem = f"{name}_{frame.timestep_index:05d}_{frame.camera_id}"
@@ -104,6 +105,7 @@ def evaluate_run(
             values = sorted({r[field] for r in rows if r[field] is not None})
             summary[group] = {v: _summary([r for r in rows if r[field] == v], keys) for v in values}
         summary["per_frame"] = rows
+        summary["scored"] = scored_views(cap, scored)
         if alignment is not None:
             summary["alignment"] = alignment
         result["protocols"][name] = summary
@@ -119,14 +121,15 @@ def evaluate_run(
 def _with_refiner(run, capture, avatar, source):
     """A run with a refiner (``RUN/refiner.pt``) is scored with it as ``refine-tracking`` applies it
     (:class:`.sources.refined.RefinerInference`, its defaults): what is scored is what a user gets."""
-    from .sources.base import InputCameras
+    from .sources.base import InputCameras, training_cameras
     from .sources.refined import RefinerInference, run_refiner
 
     avatar = run.load_avatar() if avatar is None else avatar
     refiner = run_refiner(run.root, avatar)
     if refiner is None:
         return avatar, source
-    return avatar, RefinerInference(avatar, capture, run, refiner, cameras=InputCameras.of_run(capture, run.root))
+    return avatar, RefinerInference(avatar, capture, run, refiner, cameras=InputCameras.of_run(capture, run.root),
+                                    input_cameras=training_cameras(capture))
 
 
 def write_cross_identity(avatar, capture, run, driver, out: pathlib.Path, max_frames, progress, cameras=None) -> dict:

@@ -32,7 +32,7 @@ from .protocol_names import ALL_PROTOCOLS, OPTIONAL_PROTOCOLS, PROTOCOLS
 
 __all__ = ["ALL_PROTOCOLS", "OPTIONAL_PROTOCOLS", "PROTOCOLS", "check_protocol", "DrivenParams", "ParamSource",
            "Scored", "TrackedParams", "cross_identity", "novel_view", "novel_view_aligned", "protocol_frames",
-           "render_frame", "run_protocol", "score", "self_reenactment", "target_image", "views_at"]
+           "render_frame", "run_protocol", "score", "scored_views", "self_reenactment", "target_image", "views_at"]
 
 
 # -- which frames a protocol scores --------------------------------------------------------------
@@ -95,6 +95,35 @@ def protocol_frames(capture: Capture, protocol: str, max_frames: int | None = No
                          or "the capture holds no frames for this protocol")
     frames = sorted(frames, key=lambda f: (f.timestep_index, f.camera_index))
     return _spread(frames, max_frames)
+
+
+def scored_views(capture: Capture, frames: list[Frame]) -> dict:
+    """What a set of scored frames is, for every report that scores them: ``label`` (which
+    cameras on which frames: training cameras on unseen frames is self-reenactment, the held-out
+    camera on unseen frames a novel view of unseen frames, the held-out camera on training frames
+    a novel view), ``cameras`` and ``frames`` by name (``TIMESTEP_ID/CAMERA``)."""
+    info = capture_info(capture.root)
+    held_out = {f.camera_id for f in capture.frames("val")} if "val" in capture.splits else set()
+    held_out |= {info["val_camera"]} if info.get("val_camera") else set()
+    trained = {f.timestep_index for f in capture.frames("train")}
+    cameras = sorted({f.camera_id for f in frames})
+    seen_by = sorted(set(cameras) & held_out)
+    others = [c for c in cameras if c not in held_out]
+    unseen = [f for f in frames if f.timestep_index not in trained]
+    sequences = ", ".join(sorted({f.sequence or "?" for f in unseen})) or "?"
+    held = f"held-out camera{'s' if len(seen_by) > 1 else ''} {', '.join(seen_by)}"
+    if frames and len(unseen) == len(frames):
+        where = f"unseen frames ({sequences})"
+        label = {(True, False): f"self-reenactment: training cameras on {where}",
+                 (False, True): f"novel view of unseen frames: {held} on {where}",
+                 (True, True): f"self-reenactment and novel view of unseen frames: training cameras and {held} "
+                               f"on {where}"}[bool(others), bool(seen_by)]
+    elif frames and not unseen and not others:
+        label = f"novel view: {held} on training frames"
+    else:
+        label = (f"{len(frames)} frames: cameras {', '.join(cameras)}, "
+                 f"{len(unseen)} of them on frames no training step saw")
+    return {"label": label, "cameras": cameras, "frames": [f"{f.timestep_id}/{f.camera_id}" for f in frames]}
 
 
 # -- rendering and scoring -----------------------------------------------------------------------

@@ -33,6 +33,33 @@ def views_at(capture: Capture, timestep: int, exclude_view: str | None, split: s
     return [f for f in capture.frames(split) if f.timestep_index == timestep and f.camera_id != exclude_view]
 
 
+# How many other views the refiner and test-time fitting read per frame: the same views for both,
+# so their comparison is one of methods, not of how much each was shown (docs/evaluation.md).
+INPUT_VIEWS = 4
+
+
+def training_cameras(capture: Capture) -> list[str]:
+    """The cameras of the capture's training frames, without the held-out one (``val_camera``)."""
+    from ...run.folder import capture_info
+
+    held_out = capture_info(capture.root).get("val_camera")
+    return sorted({f.camera_id for f in capture.frames("train")} - {held_out})
+
+
+def input_views(capture: Capture, timestep: int, exclude_view: str | None, count: int | None = None,
+                cameras=None) -> list[Frame]:
+    """The views an image-assisted source reads for one frame: the other views of its timestep
+    (:func:`views_at`), from ``cameras`` only (ids; None: any), at most ``count`` of them spread
+    evenly over the rig (None: all)."""
+    frames = views_at(capture, timestep, exclude_view)
+    if cameras is not None:
+        allowed = set(cameras)
+        frames = [f for f in frames if f.camera_id in allowed]
+    if count is None or len(frames) <= count:
+        return frames
+    return [frames[i] for i in np.unique(np.round(np.linspace(0, len(frames) - 1, count)).astype(int))]
+
+
 class InputCameras:
     """The camera an image-assisted source renders an input view from: the run's refined camera
     (``RUN/cameras_refined.json``, written by camera refinement in training) where it has one, else

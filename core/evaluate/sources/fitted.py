@@ -13,7 +13,7 @@ import torch
 from ...data.capture import Capture, Frame
 from ..images import target_image
 from ...run.folder import capture_info
-from .base import InputCameras, ParamSource, timestep_of, views_at
+from .base import InputCameras, ParamSource, input_views, timestep_of
 
 # The width of the prior toward the start per parameter (make-capture's default tracker error for
 # the expression, twice it for rotations and translation), and the scale of the Adam step sizes,
@@ -61,14 +61,18 @@ class FittedParams:
     """``base``'s parameters (image-free) refined by ``steps`` Adam steps of the L1 photometric
     error on ``views_per_step`` of the other views per step, rendered at ``scale`` of their size.
 
-    Every set of views it fits to is recorded in :attr:`inputs` (scored camera, cameras seen).
+    The views fitted to: the other views of the timestep from ``input_cameras`` (ids; None: any),
+    ``views`` of them spread over the rig (None: all), chosen as the refiner chooses its own
+    (:func:`.base.input_views`). Every set of views it fits to is recorded in :attr:`inputs`
+    (scored camera, cameras seen).
     """
 
     uses_images = True
 
     def __init__(self, avatar, capture: Capture, base: ParamSource, steps: int, background,
                  views_per_step: int = 2, scale: float = SCALE, rates: dict[str, float] | None = None,
-                 prior_weight: float = PRIOR_WEIGHT, decay: bool = True, cameras: InputCameras | None = None):
+                 prior_weight: float = PRIOR_WEIGHT, decay: bool = True, cameras: InputCameras | None = None,
+                 views: int | None = None, input_cameras=None):
         self.avatar = avatar
         self.capture = capture
         self.cameras = cameras or InputCameras(capture)
@@ -81,14 +85,17 @@ class FittedParams:
         self.prior_weight = float(prior_weight)
         self.decay = decay
         self.recorded = capture_info(capture.root).get("background")
+        self.views = views
+        self.input_cameras = None if input_cameras is None else list(input_cameras)
         self.inputs: list[tuple[str | None, list[str]]] = []
+        among = "other views" if views is None else f"of {views} other views"
         self.description = (f"test-time fitting ({steps} Adam steps on expression and pose, "
-                            f"{views_per_step} other views per step at {scale:g}× size; scored view left out)")
+                            f"{views_per_step} {among} per step at {scale:g}× size; scored view left out)")
 
     def params_for(self, frame: Frame | int, exclude_view: str | None = None) -> dict[str, np.ndarray]:
         timestep = timestep_of(frame)
         start = self.base.params_for(frame, exclude_view)  # a base that reads images leaves it out too
-        frames = views_at(self.capture, timestep, exclude_view)
+        frames = input_views(self.capture, timestep, exclude_view, self.views, self.input_cameras)
         if not frames or self.steps <= 0:
             return start
         self.inputs.append((exclude_view, [f.camera_id for f in frames]))

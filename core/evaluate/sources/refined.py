@@ -15,7 +15,7 @@ from ...data.capture import Capture, Frame
 from ...refiner.inference import refine
 from ..images import target_image
 from ...run.folder import capture_info
-from .base import InputCameras, ParamSource, timestep_of, views_at
+from .base import INPUT_VIEWS, InputCameras, ParamSource, input_views, timestep_of
 from .fitted import FittedParams
 from .tracked import AlignedTrackedParams
 
@@ -23,8 +23,11 @@ from .tracked import AlignedTrackedParams
 class RefinedParams:
     uses_images = True
 
+    """``base``'s parameters refined by the run's refiner from ``max_views`` other views of the
+    timestep from ``input_cameras`` (ids; None: any), spread over the rig (:func:`.base.input_views`)."""
+
     def __init__(self, avatar, capture: Capture, base: ParamSource, refiner, background, passes: int = 1,
-                 max_views: int = 4, cameras: InputCameras | None = None):
+                 max_views: int = INPUT_VIEWS, cameras: InputCameras | None = None, input_cameras=None):
         self.avatar = avatar
         self.capture = capture
         self.cameras = cameras or InputCameras(capture)
@@ -33,21 +36,16 @@ class RefinedParams:
         self.background = tuple(float(v) for v in background)
         self.passes = passes
         self.max_views = max_views
+        self.input_cameras = None if input_cameras is None else list(input_cameras)
         self.recorded = capture_info(capture.root).get("background")
         self.inputs: list[tuple[str | None, list[str]]] = []
         self.description = (f"multi-view refiner ({passes} pass{'es' if passes > 1 else ''}, "
                             f"{max_views} other views; scored view left out)")
 
-    def _chosen(self, frames: list[Frame]) -> list[Frame]:
-        """At most ``max_views`` of the other views, spread over the rig."""
-        if len(frames) <= self.max_views:
-            return frames
-        return [frames[i] for i in np.unique(np.round(np.linspace(0, len(frames) - 1, self.max_views)).astype(int))]
-
     def params_for(self, frame: Frame | int, exclude_view: str | None = None) -> dict[str, np.ndarray]:
         timestep = timestep_of(frame)
         start = self.base.params_for(frame, exclude_view)  # a base that reads images leaves it out too
-        frames = self._chosen(views_at(self.capture, timestep, exclude_view))
+        frames = input_views(self.capture, timestep, exclude_view, self.max_views, self.input_cameras)
         if not frames or self.passes <= 0:
             return start
         self.inputs.append((exclude_view, [f.camera_id for f in frames]))
@@ -71,13 +69,13 @@ class RefinerInference:
 
     uses_images = True
 
-    def __init__(self, avatar, capture: Capture, run, refiner, passes: int = 1, views: int = 4,
-                 fit_steps: int = 0, cameras: InputCameras | None = None):
+    def __init__(self, avatar, capture: Capture, run, refiner, passes: int = 1, views: int = INPUT_VIEWS,
+                 fit_steps: int = 0, cameras: InputCameras | None = None, input_cameras=None):
         self.start = AlignedTrackedParams(capture, run)
         self.refined = RefinedParams(avatar, capture, self.start, refiner, run.background, passes=passes,
-                                     max_views=views, cameras=cameras)
-        self.fitted = (FittedParams(avatar, capture, self.refined, fit_steps, run.background, cameras=cameras)
-                       if fit_steps else None)
+                                     max_views=views, cameras=cameras, input_cameras=input_cameras)
+        self.fitted = (FittedParams(avatar, capture, self.refined, fit_steps, run.background, cameras=cameras,
+                                    views=views, input_cameras=input_cameras) if fit_steps else None)
         self.fitted_by_training = set(run.trained_timesteps) if self.start.offset else set()
         self.inputs: list[tuple[str | None, list[str]]] = []
         self.description = self.refined.description + (
