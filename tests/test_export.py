@@ -1,6 +1,7 @@
 """PLY export and import: world space matches the avatar's render, binding space round-trips."""
 
 import numpy as np
+import torch
 import pytest
 
 from mogaface.core.avatar.avatar import Avatar
@@ -15,9 +16,10 @@ from mogaface.core.avatar.export import (
 from mogaface.core.cli import main
 from mogaface.core.data.capture import Capture
 from mogaface.core.errors import InputError
+from mogaface.core.flame.model import FlameModel
 from mogaface.core.io.ply import gaussian_property_names
 from mogaface.core.evaluate.protocols import TrackedParams
-from mogaface.core.evaluate.run_folder import RunFolder
+from mogaface.core.run.folder import RunFolder
 from test_evaluate_fixtures import fake_run, render_np, tiny_capture
 
 TIMESTEPS = (0, 6, 13)  # trained, trained, held-out sequence
@@ -127,3 +129,68 @@ def test_export_and_import_commands(setup, tmp_path, capsys):
     assert main(["export-ply", str(run.root), "--timestep", "99", "--out", str(tmp_path / "x.ply")]) == 2
     assert "timestep" in capsys.readouterr().err
     assert not (tmp_path / "x.ply").exists()
+
+
+# -- heads with teeth, and GaussianAvatars' own point_cloud.ply ----------------------------------
+@pytest.fixture(scope="module")
+def flame_head(tmp_path_factory):
+    """A head model of FLAME's topology (5023 vertices, synthetic bases): the teeth can be added."""
+    import vhap_fixture as V
+    from mogaface.core.flame.model_file import write_model_file
+
+    path = tmp_path_factory.mktemp("flame_head") / "head.npz"
+    write_model_file(path, V.synthetic_flame_topology())
+    return path
+
+
+def test_import_of_an_avatar_bound_to_the_teeth(flame_head, tmp_path):
+    """Our own export of a VHAP-tracked avatar (5143 vertices, FLAME's faces and 168 of teeth) comes back on
+    the head with teeth."""
+    avatar = Avatar.initial(flame_head, 1, n_vertices=5143)
+    ply = tmp_path / "teeth.ply"
+    export_binding_ply(avatar, ply)
+    out = tmp_path / "imported" / "avatar.pt"
+    assert main(["import-ply", str(ply), "--head", str(flame_head), "--out", str(out)]) == 0
+    loaded = Avatar.load(out)
+    assert loaded.flame.n_vertices == 5143 and len(loaded.flame.faces) == len(avatar.flame.faces)
+    assert int(loaded.gaussians.binding.max()) == len(avatar.flame.faces) - 1 > FlameModel.load(flame_head).faces.shape[0]
+    with torch.no_grad():
+        vertices = avatar.flame.v_template
+        expected, got = avatar.gaussians.world(vertices, avatar.flame.faces), loaded.gaussians.world(vertices, loaded.flame.faces)
+    for key in ("means", "quats", "scales", "opacities"):
+        np.testing.assert_allclose(got[key].numpy(), expected[key].numpy(), atol=1e-6)
+
+
+def gaussianavatars_ply(path, binding, sh_degree=3, seed=0):
+    """A ``point_cloud.ply`` as GaussianAvatars' ``save_ply`` writes it (plyfile, every property
+    ``'f4'``, ``binding_0`` included): x y z, nx ny nz, f_dc_*, f_rest_*, opacity, scale_*, rot_*."""
+    names = gaussian_property_names(sh_degree, with_binding=True)
+    rng = np.random.default_rng(seed)
+    table = np.zeros(len(binding), dtype=[(n, "f4") for n in names])
+    for n in names:
+        table[n] = rng.normal(scale=0.3, size=len(binding))
+    table["nx"] = table["ny"] = table["nz"] = 0
+    table["binding_0"] = binding
+    header = ["ply", "format binary_little_endian 1.0", f"element vertex {len(binding)}"]
+    header += [f"property float {n}" for n in names] + ["end_header"]
+    path.write_bytes(("\n".join(header) + "\n").encode() + table.tobytes())
+    return table
+
+
+def test_import_of_a_gaussianavatars_point_cloud(flame_head, tmp_path):
+    faces = len(FlameModel.load(flame_head, n_vertices=5143).faces)  # 10144 on FLAME itself
+    binding = np.r_[np.arange(faces), [faces - 1, 0]].astype(np.float32)
+    table = gaussianavatars_ply(tmp_path / "point_cloud.ply", binding)
+    avatar = import_binding_ply(tmp_path / "point_cloud.ply", flame_head)
+    assert avatar.flame.n_vertices == 5143
+    np.testing.assert_array_equal(avatar.gaussians.binding.numpy(), binding.astype(np.int64))
+    np.testing.assert_array_equal(avatar.gaussians.local_position[:, 1].detach().numpy(), table["y"])
+    np.testing.assert_array_equal(avatar.gaussians.local_rotation[:, 3].detach().numpy(), table["rot_3"])
+    np.testing.assert_array_equal(avatar.gaussians.sh_rest[:, 0, 0].detach().numpy(), table["f_rest_0"])
+    np.testing.assert_array_equal(avatar.gaussians.sh_rest[:, 0, 1].detach().numpy(), table["f_rest_15"])  # channel-major
+    gaussianavatars_ply(tmp_path / "beyond.ply", np.array([0, faces], np.float32))
+    with pytest.raises(InputError, match=f"face ids reach {faces}.*with FLAME's teeth"):
+        import_binding_ply(tmp_path / "beyond.ply", flame_head)
+    gaussianavatars_ply(tmp_path / "half.ply", np.array([0, 2.5], np.float32))
+    with pytest.raises(InputError, match="binding_0.*non-negative integers"):
+        import_binding_ply(tmp_path / "half.ply", flame_head)

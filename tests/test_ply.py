@@ -112,6 +112,18 @@ def test_we_read_files_in_the_layout_others_write(tmp_path):
     np.testing.assert_array_equal(back["sh"][:, 2, 1], table["f_rest_4"])  # G's second rest coefficient
 
 
+@pytest.mark.parametrize("bad", [2.5, -1.0, float("nan"), 3e9])
+def test_float_face_ids_that_are_not_whole_numbers_are_refused(tmp_path, bad):
+    count, names = 3, gaussian_property_names(0) + ["binding_0"]
+    table = np.zeros(count, dtype=[(n, "<f4") for n in names])
+    table["binding_0"] = [0, bad, 2]
+    header = ["ply", "format binary_little_endian 1.0", f"element vertex {count}"]
+    header += [f"property float {n}" for n in names] + ["end_header"]
+    (tmp_path / "bad.ply").write_bytes(("\n".join(header) + "\n").encode() + table.tobytes())
+    with pytest.raises(InputError, match="binding_0.*non-negative integers; Gaussian 1 holds"):
+        read_gaussian_ply(tmp_path / "bad.ply")
+
+
 def write_raw(path, header_lines, payload=b""):
     path.write_bytes(("\n".join(header_lines) + "\n").encode() + payload)
     return path

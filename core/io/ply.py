@@ -8,7 +8,8 @@ so ``M = 3 * ((d + 1)^2 - 1)`` for SH degree ``d``. Normals are written as zeros
 
 GaussianAvatars stores its triangle-bound Gaussians in the same layout with one more
 property, ``binding_0``, the index of the face each Gaussian is bound to (its loader
-matches properties named ``binding_<i>``); we write it as ``int`` and read either type.
+matches properties named ``binding_<i>``); we write it as ``int`` and read either type (its
+``save_ply`` writes every property, ``binding_0`` too, as ``float``: whole numbers are ids).
 """
 
 from __future__ import annotations
@@ -207,9 +208,13 @@ def read_gaussian_ply(path: str | os.PathLike) -> dict:
     binding = None
     if binding_name is not None:
         raw = table[binding_name]
-        binding = raw.astype(np.int64)
-        if np.any(binding != raw) or np.any(binding < 0):
-            raise InputError(path, binding_name, "face ids must be non-negative integers")
+        finite = np.isfinite(raw) if raw.dtype.kind == "f" else np.ones(len(raw), bool)
+        binding = np.where(finite, raw, -1).astype(np.int64)
+        bad = (binding != raw) | (binding < 0) | (binding >= 2**31)
+        if bad.any():  # GaussianAvatars writes the ids as floats: whole numbers are taken, others refused
+            first = int(np.argmax(bad))
+            raise InputError(path, binding_name, f"face ids must be non-negative integers; Gaussian {first} "
+                                                 f"holds {raw[first]!r} (and {int(bad.sum()) - 1} more)")
     out = {
         "means": stack(["x", "y", "z"]),
         "scales_log": stack(["scale_0", "scale_1", "scale_2"]),
