@@ -91,6 +91,7 @@ def _render_trial(width, height, n, threads, seed):
 
 def _train_trial(threads):
     from mogaface.core.data.generator import CaptureSettings, make_capture
+    from mogaface.core.run.names import EVENTS_FILE
     from mogaface.core.train import config as C
 
     with tempfile.TemporaryDirectory() as folder:
@@ -104,7 +105,7 @@ def _train_trial(threads):
         out = os.path.join(folder, "run")
         proc = subprocess.Popen([sys.executable, "-m", "mogaface", "train", capture, "--out", out, "--config", config,
                                  "--quiet"], stderr=subprocess.PIPE, text=True)
-        events = os.path.join(out, "events.jsonl")
+        events = os.path.join(out, EVENTS_FILE)
         try:
             deadline = time.monotonic() + 600
             while not (os.path.exists(events) and '"iter"' in open(events).read()):

@@ -28,14 +28,15 @@ def _stand_in_avatar(folder: pathlib.Path) -> pathlib.Path:
     from mogaface.core.avatar.avatar import Avatar
     from mogaface.core.flame.model_file import write_model_file
     from mogaface.core.flame.procedural import build_head
+    from mogaface.core.run.names import AVATAR_FILE
 
     folder.mkdir(parents=True, exist_ok=True)
     write_model_file(folder / "head.pkl", build_head(subject=0, seed=0))
     avatar = Avatar.initial(folder / "head.pkl")
     with torch.no_grad():
         avatar.gaussians.opacity_logit.fill_(4.0)
-    avatar.save(folder / "avatar.pt")
-    return folder / "avatar.pt"
+    avatar.save(folder / AVATAR_FILE)
+    return folder / AVATAR_FILE
 
 
 def _view_matrices(width: int, height: int):

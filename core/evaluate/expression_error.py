@@ -56,7 +56,7 @@ def truth_folder(capture) -> pathlib.Path | None:
 
 def _run_model(run: RunFolder) -> FlameModel:
     folder = pathlib.Path(run.avatar_path).parent
-    return FlameModel.load(file_inside(folder, run.info.get("head_file", "head.pkl"), folder / "run.json", "head_file"))
+    return FlameModel.load(file_inside(folder, run.info.get("head_file", run.head_path().name), run.run_json_path, "head_file"))
 
 
 def tracking_errors(run: RunFolder, capture, sources: dict) -> dict | None:
