@@ -4,7 +4,16 @@
 """
 
 import os
+import signal
 import sys
+
+
+def _terminated_while_starting(number, frame):  # nothing is written yet: leave at once, saying so
+    os.write(2, f"terminated by {signal.Signals(number).name}\n".encode())
+    os._exit(128 + number)
+
+
+signal.signal(signal.SIGTERM, _terminated_while_starting)  # core/cli's main() takes over from here
 
 # ``python -m`` puts the working directory first on sys.path. This package is imported by now,
 # so nothing else may come from there (a stray numpy.py beside a capture would shadow numpy).

@@ -17,6 +17,7 @@ import sys
 import threading
 
 from ..errors import MogafaceError
+from . import exits
 
 # a full or read-only disk, or a folder the user may not write: a clear error, not a traceback
 _DISK_ERRORS = {errno.ENOSPC, errno.EROFS, errno.EACCES, errno.EPERM, getattr(errno, "EDQUOT", errno.ENOSPC)}
@@ -84,17 +85,22 @@ def _load_heavy_modules_uninterrupted() -> bool:
         import torch  # noqa: F401
         return False
     noted = []
-    previous = signal.signal(signal.SIGINT, lambda number, frame: noted.append(number))
+    previous = {number: signal.signal(number, lambda number, frame: noted.append(number))
+                for number in (signal.SIGINT, signal.SIGTERM)}
     try:
         import numba  # noqa: F401
         import torch  # noqa: F401
     finally:
-        signal.signal(signal.SIGINT, previous)
+        for number, handler in previous.items():
+            signal.signal(number, handler)
+    if signal.SIGTERM in noted:
+        raise exits.Terminated(signal.SIGTERM)
     return bool(noted)
 
 
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
+    previous = exits.raise_on_sigterm()
     try:
         args = _build_parser(argv).parse_args(argv)  # --help and usage errors leave here: no torch, no numba
         if _load_heavy_modules_uninterrupted():
@@ -104,10 +110,15 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {error}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:  # before a command installs its own handler (imports, start-up)
-        print("interrupted", file=sys.stderr)
+        print(exits.ending_line(signal.SIGINT), file=sys.stderr)
         return 128 + signal.SIGINT
+    except exits.Terminated as stop:
+        print(exits.ending_line(stop.number), file=sys.stderr)
+        return 128 + stop.number
     except OSError as error:
         if error.errno not in _DISK_ERRORS:
             raise
         print(f"error: {error.filename or ''}: {error.strerror} (nothing half-written was kept)", file=sys.stderr)
         return 2
+    finally:
+        exits.restore(previous)

@@ -68,6 +68,16 @@ def _listeners(args):
     listeners = []
     if args.events == "stdout":
         listeners.append(lambda e: emit_event(sys.stdout, e["event"], **{k: v for k, v in e.items() if k != "event"}))
+    after_bar = "" if args.quiet else "\n"
+
+    def tell(event):  # warnings and the stop are said even under --quiet (it hides the progress bar)
+        if event["event"] == "warning":
+            print(f"{after_bar}warning: {event['message']}", file=sys.stderr)
+        elif event["event"] == "stopped":
+            print(f"{after_bar}stopped by {event['signal']} at step {event['step']} (checkpoint written)",
+                  file=sys.stderr)
+
+    listeners.append(tell)
     if not args.quiet:
         state = {"bar": None}
 
@@ -79,11 +89,6 @@ def _listeners(args):
                 bar = state["bar"]
                 note = f"loss {event['loss']:.4f} psnr {event['psnr']:.2f} G {event['gaussians']}"
                 bar.update(event["step"] - bar.done, note)
-            elif event["event"] == "warning":
-                print(f"\nwarning: {event['message']}", file=sys.stderr)
-            elif event["event"] == "stopped":
-                print(f"\nstopped by {event['signal']} at step {event['step']} (checkpoint written)",
-                      file=sys.stderr)
             elif event["event"] == "done" and event.get("metrics"):
                 m = event["metrics"]
                 text = ", ".join(f"{k} {m[k]:.4f}" for k in ("psnr", "ssim", "lpips", "psnr_masked") if k in m)

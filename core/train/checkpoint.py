@@ -2,8 +2,13 @@
 
 ``RUN/checkpoints/step_{step:06d}.pt`` holds everything a resumed run needs to continue exactly
 (see :meth:`mogaface.core.train.trainer.Trainer.state`); ``RUN/checkpoints/latest`` is a text
-file with the name of the newest one, replaced atomically after the checkpoint is complete, so a
-kill at any moment leaves a usable pair. Files load with ``torch.load(weights_only=True)``.
+file with the name of the newest one, replaced atomically after the checkpoint is complete. The
+pointer is a hint for readers outside (Blender's "resume if there is a checkpoint"): resuming
+takes the newest checkpoint that loads, whatever the pointer says, so a kill between a
+checkpoint and its pointer loses nothing. A checkpoint that does not load (damaged, or refused:
+a pickle that would run code, sizes out of bounds) is set aside as ``NAME.refused`` so the
+resumed run's own checkpoint of that step never overwrites it. Files load with
+``torch.load(weights_only=True)`` after their declared sizes are checked.
 """
 
 from __future__ import annotations
@@ -19,6 +24,7 @@ from ..io.atomic import atomic_path, write_text
 CHECKPOINT_FORMAT = "mogaface-train-checkpoint"
 CHECKPOINT_VERSION = 1
 LATEST = "latest"
+REFUSED = ".refused"  # the suffix of a checkpoint set aside because it did not load
 _NAME = re.compile(r"^step_(\d{6,})\.pt$")
 
 
@@ -50,13 +56,7 @@ def list_checkpoints(folder: str | os.PathLike) -> list[pathlib.Path]:
 
 
 def latest_checkpoint(folder: str | os.PathLike) -> pathlib.Path | None:
-    """The checkpoint ``latest`` names (else the highest step found), or None."""
-    folder = pathlib.Path(folder)
-    pointer = folder / LATEST
-    if pointer.is_file():
-        name = pointer.read_text(encoding="utf-8").strip()
-        if _NAME.match(name) and (folder / name).is_file():
-            return folder / name
+    """The checkpoint of the highest step found (the ``latest`` pointer may lag behind it), or None."""
     found = list_checkpoints(folder)
     return found[-1] if found else None
 
@@ -82,14 +82,14 @@ def remove_partials(folder: str | os.PathLike) -> list[pathlib.Path]:
 def newest_intact_checkpoint(folder: str | os.PathLike) -> tuple[pathlib.Path, dict, list[str]]:
     """The newest checkpoint that loads, its state, and why each newer one was skipped.
 
-    ``latest`` is tried first, then every other checkpoint from the highest step down, so a
-    truncated or corrupt newest file costs one interval, not the run.
+    Checkpoints are tried from the highest step down (the ``latest`` pointer is not trusted: a
+    kill between a checkpoint and its pointer leaves it one behind), so a truncated, corrupt or
+    refused newest file costs one interval, not the run.
     """
     folder = pathlib.Path(folder)
-    first = latest_checkpoint(folder)
-    if first is None:
+    candidates = list(reversed(list_checkpoints(folder)))
+    if not candidates:
         raise InputError(folder, None, "no checkpoint to resume from")
-    candidates = [first] + [p for p in reversed(list_checkpoints(folder)) if p != first]
     skipped = []
     for path in candidates:
         try:
@@ -97,3 +97,19 @@ def newest_intact_checkpoint(folder: str | os.PathLike) -> tuple[pathlib.Path, d
         except InputError as error:
             skipped.append(str(error))
     raise InputError(folder, None, "no intact checkpoint to resume from: " + "; ".join(skipped))
+
+
+def set_aside_newer(folder: str | os.PathLike, used: pathlib.Path) -> list[str]:
+    """Rename every checkpoint of a step above ``used`` (resuming skipped each: it did not load) to
+    ``NAME.refused``, kept for inspection and never overwritten by the resumed run; a note for each."""
+    notes = []
+    for path in list_checkpoints(folder):
+        if int(_NAME.match(path.name).group(1)) <= int(_NAME.match(used.name).group(1)):
+            continue
+        aside = path.with_name(path.name + REFUSED)
+        number = 1
+        while aside.exists() or aside.is_symlink():
+            aside, number = path.with_name(f"{path.name}.{number}{REFUSED}"), number + 1
+        path.rename(aside)
+        notes.append(f"kept the checkpoint that did not load as {aside.name}")
+    return notes

@@ -33,7 +33,7 @@ from ..splat import cancel
 from ..splat.cancel import RenderCancelled
 from . import config as config_module
 from .camera_refine import CameraOffsets, write_refined_cameras
-from .checkpoint import latest_checkpoint, newest_intact_checkpoint, save_checkpoint
+from .checkpoint import latest_checkpoint, newest_intact_checkpoint, save_checkpoint, set_aside_newer
 from .run_lock import resume_notes, take_run_folder
 from .config import LANDMARKS_START, TrainConfig
 from .camera_delays import CameraDelays, read_delays
@@ -118,6 +118,7 @@ class Trainer:
             path, checkpoint, skipped = newest_intact_checkpoint(self.run_folder.checkpoint_dir)
             if self.lock is not None:
                 self._notes = resume_notes(self.run_folder.checkpoint_dir, path, skipped, self.lock)
+                self._notes += set_aside_newer(self.run_folder.checkpoint_dir, path)
             if config is None:
                 config = config_module.load(self.run_folder.config_path)
         elif latest_checkpoint(self.run_folder.checkpoint_dir) is not None or self.run_folder.avatar_path.exists():
