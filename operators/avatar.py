@@ -225,6 +225,9 @@ def write_files(folder: str, stem: str, result, file_format: str) -> list[str]:
 
 def _located_avatar(core, path: str):
     """The avatar file, its training background and the loaded avatar (thread-safe core work)."""
+    from .dependencies import preload_native_libraries
+
+    preload_native_libraries()  # the first load imports torch: its libraries, without the GIL
     found, background = core.avatar_location(path)
     return found, background, core.load_avatar(found)
 

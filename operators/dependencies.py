@@ -127,3 +127,36 @@ def remove_site_packages() -> None:
         folders.add(own)
     sys.path[:] = [path for path in sys.path if path not in folders]
     importlib.invalidate_caches()
+
+
+#: The big native libraries behind torch and numba: (package, folder in it, library names).
+_NATIVE_LIBRARIES = (("torch", "lib", ("c10", "torch_cpu", "torch_cuda", "torch")),
+                     ("llvmlite", "binding", ("llvmlite",)))
+
+
+def preload_native_libraries() -> None:
+    """Load torch's and llvmlite's shared libraries through ``dlopen`` called via ctypes, from a
+    worker thread, before those packages are imported.
+
+    Python's own import of an extension module holds the interpreter lock while the dynamic loader
+    maps and initialises its libraries (libtorch_cpu: 0.4-0.7 s), freezing Blender's interface;
+    a ctypes call releases the lock. The later import finds them loaded. Only plain C++ libraries
+    are preloaded (never a Python extension), each at most once; a library not found is skipped.
+    """
+    import ctypes
+    import ctypes.util
+
+    libc = ctypes.CDLL(None)
+    libc.dlopen.restype = ctypes.c_void_p
+    libc.dlopen.argtypes = [ctypes.c_char_p, ctypes.c_int]
+    for package, folder, names in _NATIVE_LIBRARIES:
+        if package in sys.modules:
+            continue
+        spec = importlib.util.find_spec(package)
+        if spec is None or spec.origin is None:
+            continue
+        for name in names:
+            path = os.path.join(os.path.dirname(spec.origin), folder, f"lib{name}.so")
+            path = path if os.path.isfile(path) else ctypes.util.find_library(name)  # a distribution's torch
+            if path:
+                libc.dlopen(os.fsencode(path), os.RTLD_NOW | os.RTLD_GLOBAL)

@@ -34,6 +34,13 @@ def check(condition, message):
         raise AssertionError(message)
 
 
+def check_at_end(condition, message):
+    """A measured threshold: the check goes on (every number is printed) and fails at the end."""
+    if not condition:
+        log(f"FAILED: {message}")
+        RESULTS.setdefault("failures", []).append(message)
+
+
 def window_and_view():
     window = bpy.context.window_manager.windows[0]
     area = max((a for a in window.screen.areas if a.type == "VIEW_3D"), key=lambda a: a.width * a.height)
@@ -80,6 +87,70 @@ def shot(name):
 
 def module(name):
     return sys.modules[f"{MODULE}.{name}"]
+
+
+def screen_pixels(region):
+    """What the screen shows in ``region``: ``(H, W, 3)`` float sRGB in [0, 1], top row first."""
+    import numpy as np
+
+    path = WORK / "screen.png"
+    subprocess.run(["import", "-window", "root", "-depth", "8", str(path)], check=True, timeout=60)
+    image = bpy.data.images.load(str(path))
+    width, height = image.size
+    pixels = np.zeros(width * height * 4, np.float32)
+    image.pixels.foreach_get(pixels)  # a PNG's bytes / 255 (sRGB byte images are read as stored)
+    bpy.data.images.remove(image)
+    screen = pixels.reshape(height, width, 4)[::-1, :, :3]
+    window = bpy.context.window_manager.windows[0]
+    top = height - window.y - region.y - region.height
+    left = window.x + region.x
+    return screen[top:top + region.height, left:left + region.width]
+
+
+def saved_pixels(image, name):
+    """An image saved as Blender saves renders (PNG through the scene's view transform), read back:
+    ``(H, W, 4)`` float in [0, 1], top row first, alpha straight."""
+    import numpy as np
+
+    path = WORK / f"{name}.png"
+    image.save_render(str(path), scene=bpy.context.scene)
+    read = bpy.data.images.load(str(path))
+    width, height = read.size
+    pixels = np.zeros(width * height * 4, np.float32)
+    read.pixels.foreach_get(pixels)
+    bpy.data.images.remove(read)
+    return pixels.reshape(height, width, 4)[::-1]
+
+
+def srgb(linear):
+    import numpy as np
+
+    linear = np.clip(linear, 0.0, 1.0)
+    return np.where(linear <= 0.0031308, linear * 12.92, 1.055 * linear ** (1 / 2.4) - 0.055)
+
+
+def linear(encoded):
+    import numpy as np
+
+    return np.where(encoded <= 0.04045, encoded / 12.92, ((encoded + 0.055) / 1.055) ** 2.4)
+
+
+def compare(place, got, expected, mask, transform="Standard", required=True):
+    """PSNR (dB) of what Blender shows against the core render, over the avatar's pixels (``mask``);
+    below 35 dB fails under Standard."""
+    import numpy as np
+
+    check(got.shape == expected.shape, f"{place}: shape {got.shape}, expected {expected.shape}")
+    check(mask.sum() > 20, f"{place}: only {int(mask.sum())} avatar pixels to compare")
+    mse = float(np.mean((got[mask] - expected[mask]) ** 2))
+    db = 10 * np.log10(1.0 / max(mse, 1e-12))
+    label = place if transform == "Standard" else f"{place} ({transform})"
+    line = f"pixels {label}: {db:.1f} dB against the core render"
+    print(line, flush=True)
+    RESULTS.setdefault("pixels", []).append(line)
+    if required:
+        check_at_end(db >= 35.0, line)
+    return db
 
 
 def wait_until(condition, timeout, what):
@@ -195,10 +266,28 @@ def scene_stages():
         check(bpy.ops.mogaface.import_head(filepath=os.path.join(run, "head.npz") if os.path.exists(
             os.path.join(run, "head.npz")) else os.path.join(run, "head.pkl")) == {"FINISHED"}, "import run head")
         head = bpy.context.active_object
-        check(bpy.ops.mogaface.load_avatar(filepath=run, target=head.name) == {"FINISHED"}, "load avatar")
+    ticks = [time.monotonic()]
+
+    def tick():  # Blender's event loop runs a timer every 20 ms when nothing blocks it
+        ticks.append(time.monotonic())
+        return 0.02 if "done" not in RESULTS.get("load_avatar", {}) else None
+
+    bpy.app.timers.register(tick, first_interval=0.02)
+    with override():
+        result = bpy.ops.mogaface.load_avatar("INVOKE_DEFAULT", filepath=run, target=head.name)
+        check(result in ({"RUNNING_MODAL"}, {"FINISHED"}), f"load avatar gave {result}")
+    RESULTS["load_avatar"] = {}
+    yield from wait_until(lambda: "mogaface_avatar_path" in head, 300, "load avatar")
+    RESULTS["load_avatar"] = {"done": True, "seconds": round(time.monotonic() - ticks[0], 2),
+                              "longest_ui_block_s": round(max(b - a for a, b in zip(ticks, ticks[1:])), 3)}
+    log(f"Load Avatar: {RESULTS['load_avatar']}")
+    check_at_end(RESULTS["load_avatar"]["longest_ui_block_s"] < 0.5, f"Load Avatar froze the UI: {RESULTS['load_avatar']}")
+    with override():
         camera = next(o for o in bpy.data.objects if o.type == "CAMERA")
         bpy.context.scene.camera = camera
         check(bpy.ops.mogaface.render_frame(head=head.name) == {"FINISHED"}, "render frame")
+    yield from render_frame_pixels(head, camera)
+    with override():
         head.data.shape_keys.key_blocks[1].value = 0.0
         head.data.shape_keys.key_blocks[1].keyframe_insert("value", frame=1)
         head.data.shape_keys.key_blocks[1].value = 1.0
@@ -212,6 +301,16 @@ def scene_stages():
         check(result == {"RUNNING_MODAL"}, f"render animation gave {result}")
     yield from wait_until(lambda: avatar_ops.current_render_job() is None, 600, "render animation")
     check(len(list(frames.glob("*.png"))) == 2, f"expected 2 frames in {frames}")
+    for frame, path in zip((1, 2), sorted(frames.glob("*.png"))):
+        core = core_render(head, camera, frame, transparent=False)
+        read = bpy.data.images.load(str(path))
+        import numpy as np
+
+        pixels = np.zeros(read.size[0] * read.size[1] * 4, np.float32)
+        read.pixels.foreach_get(pixels)
+        shape = (read.size[1], read.size[0], 4)
+        bpy.data.images.remove(read)
+        compare(f"Render Animation frame {frame}", pixels.reshape(shape)[::-1, :, :3], core.rgb, core.alpha > 1 / 255)
     with override():
         ply = WORK / "avatar.ply"
         check(bpy.ops.mogaface.export_ply(filepath=str(ply), head=head.name) == {"FINISHED"} and ply.exists(),
@@ -225,6 +324,40 @@ def scene_stages():
     yield from avatar_in_scene_stages(head)
     yield from improve_tracking_stages(head, run)
     bpy.ops.wm.save_userpref()
+
+
+def core_render(head, camera, frame, transparent):
+    """The core's own render of what ``head`` shows at ``frame`` (its keys) from ``camera``."""
+    scene = bpy.context.scene
+    avatar_ops = module("operators.avatar")
+    request = avatar_ops.head_request(scene, head, avatar_ops.camera_of(scene, camera, head), frame,
+                                      transparent=transparent, keyed=True)
+    return module("core.scene_render").render(request)
+
+
+def render_frame_pixels(head, camera):
+    """Render Frame's image saved through the view transform: under Standard the core render."""
+    scene = bpy.context.scene
+    frame = scene.frame_current
+    image = bpy.data.images[module("core.scene_conversion").render_image_name(camera.name, frame)]
+    core = core_render(head, camera, frame, transparent=False)
+    mask = core.alpha > 1 / 255
+    check(scene.view_settings.view_transform == "Standard", "Import Capture did not set Standard")
+    compare("Render Frame", saved_pixels(image, "render-frame-standard")[..., :3], core.rgb, mask)
+    area = module("operators.avatar").image_editor_area(bpy.context.window_manager)[0]
+    RESULTS["render_frame_editor"] = None if area is None else [area.width, area.height]
+    check(area is not None and area.width >= 400 and area.height >= 300, f"Image Editor {RESULTS['render_frame_editor']}")
+    yield 1.0
+    shot("8-render-frame-standard")
+    scene.view_settings.view_transform = "AgX"
+    compare("Render Frame", saved_pixels(image, "render-frame-agx")[..., :3], core.rgb, mask, "AgX", required=False)
+    yield 1.0
+    shot("8-render-frame-agx")
+    scene.view_settings.view_transform = "Standard"
+    for window in list(bpy.context.window_manager.windows)[1:]:
+        with bpy.context.temp_override(window=window):
+            bpy.ops.wm.window_close()
+    yield 1.0
 
 
 def improve_tracking_stages(head, run):
@@ -245,6 +378,53 @@ def improve_tracking_stages(head, run):
     keyed = {len(c.keyframe_points) for c in curves if "key_blocks" in c.data_path}
     check(keyed == {len(list(pathlib.Path(folder).glob("*.npz")))}, f"keys per expression: {keyed}")
     stage("improve tracking (the refiner trained first), the head keyed")
+
+
+def viewport_pixels(head, viewport):
+    """The still viewport read back from the screen: at the region's own size, and under Standard
+    the core render of the view's camera over what the view shows without the avatar."""
+    import numpy as np
+
+    _, area, region = window_and_view()
+    region_3d = area.spaces.active.region_3d
+
+    def full_size():
+        area.tag_redraw()
+        states = [s for s in viewport._views.values() if s.image is not None]
+        return states and all(s.future is None for s in viewport._views.values()) and \
+            (states[0].image.width, states[0].image.height) == (region.width, region.height)
+
+    yield from wait_until(full_size, 300, "the still viewport at the region's size")
+    request, _ = viewport.viewport_request(head, np.array(region_3d.view_matrix), np.array(region_3d.window_matrix),
+                                           (region.width, region.height), bpy.context.scene.frame_current)
+    core = module("core.scene_render").render(request)
+    alpha = np.where(core.alpha >= viewport.OPAQUE_ALPHA, 1.0, core.alpha)[..., None]
+    straight = np.divide(core.rgb, core.alpha[..., None], out=np.zeros_like(core.rgb), where=core.alpha[..., None] > 0)
+    RESULTS["viewport_size"] = [region.width, region.height]
+    overlay = area.spaces.active.overlay
+    # overlays off: the colours alone; on: the grid and lines must not show through the face either
+    for show_overlays, transform in ((False, "Standard"), (True, "Standard"), (True, "AgX")):
+        overlay.show_overlays = show_overlays
+        bpy.context.scene.view_settings.view_transform = transform
+        area.tag_redraw()
+        yield 1.0
+        shown = screen_pixels(region)
+        setattr(head, viewport.SHOW_PROPERTY, False)
+        head.display_type = "BOUNDS"  # the mesh stays out of the way, as while the avatar is shown
+        area.tag_redraw()
+        yield 1.0
+        behind = screen_pixels(region)
+        setattr(head, viewport.SHOW_PROPERTY, True)
+        area.tag_redraw()
+        expected = srgb(linear(straight) * alpha + (1 - alpha) * linear(behind))  # premultiplied over the view
+        place = "viewport" if not show_overlays else "viewport with overlays"
+        compare(place, shown, expected, core.alpha > 1 / 255, transform, required=transform == "Standard")
+        if show_overlays:
+            yield 1.0
+            shot(f"9-viewport-{transform.lower()}")
+    bpy.context.scene.view_settings.view_transform = "Standard"
+    area.tag_redraw()
+    yield 0.5
 
 
 def avatar_in_scene_stages(head):
@@ -280,6 +460,7 @@ def avatar_in_scene_stages(head):
         yield 1.0
         shot(f"6-viewport-frame{frame}")
     stage("the avatar in the viewport follows the keys")
+    yield from viewport_pixels(head, viewport)
 
     scene = bpy.context.scene
     capture_camera = next(o for o in scene.objects if o.get("mogaface_resolution") is not None)
@@ -304,6 +485,13 @@ def avatar_in_scene_stages(head):
     changed = np.abs(with_avatar - plain).max(-1) > 0.1
     RESULTS["f12_avatar_pixels"] = int(changed.sum())
     check(changed.mean() > 0.01, f"the F12 render does not show the avatar ({int(changed.sum())} pixels differ)")
+    core = core_render(head, scene.camera, scene.frame_current, transparent=True)
+    straight = np.divide(core.rgb, core.alpha[..., None], out=np.zeros_like(core.rgb), where=core.alpha[..., None] > 0)
+    a = core.alpha[..., None]
+    expected = srgb(linear(straight) * a + (1 - a) * linear(plain[::-1]))  # render_still's rows are bottom first
+    compare("F12 composite", with_avatar[::-1], expected, core.alpha > 1 / 255)
+    result = saved_pixels(bpy.data.images["Render Result"], "f12-render-result")
+    compare("F12 Render Result", result[..., :3], expected, core.alpha > 1 / 255)
     stage(f"F12 render with the avatar ({scene.render.engine})")
 
 
@@ -320,7 +508,7 @@ def step():
     try:
         return next(RUNNER)
     except StopIteration:
-        RESULTS["ok"] = True
+        RESULTS["ok"] = not RESULTS.get("failures")
     except Exception:  # noqa: BLE001 - every failure ends the check with its traceback
         RESULTS["ok"] = False
         RESULTS["error"] = traceback.format_exc()
