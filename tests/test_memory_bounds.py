@@ -29,3 +29,90 @@ def test_encoder_views_are_cached_up_to_a_byte_bound():
     again = [views.batch([f]) for f in frames]
     assert capture.loads == 40 + 35  # the 5 cached views are not decoded twice, the rest are
     assert all(torch.equal(a, b) for a, b in zip(first, again))  # and look the same either way
+
+
+# -- files that declare far more than they hold: refused before anything is allocated ----------
+
+import json
+import os
+import pathlib
+import subprocess
+import sys
+
+import pytest
+
+TESTS = pathlib.Path(__file__).resolve().parent
+CAP_BYTES = 1536 * 1024 ** 2  # each file asks for 2 GiB or more; torch and the readers need ~0.8 GiB of address space
+
+# Loads each file with the given reader under an address-space cap; prints the error and how much
+# the peak resident size grew while reading it (Linux: the peak is reset through /proc/self/clear_refs).
+CHILD = r"""
+import json, resource, sys
+resource.setrlimit(resource.RLIMIT_AS, (int(sys.argv[1]), int(sys.argv[1])))
+import torch
+from mogaface.core.avatar.avatar import Avatar
+from mogaface.core.io.jsonfile import read_json_object
+from mogaface.core.io.npz import load_npz
+from mogaface.core.train.checkpoint import load_checkpoint
+readers = {"avatar": Avatar.load, "checkpoint": load_checkpoint, "json": read_json_object, "npz": load_npz}
+def kib(field):
+    with open("/proc/self/status") as status:
+        return next(int(line.split()[1]) for line in status if line.startswith(field + ":"))
+results = {}
+for kind, path in zip(sys.argv[2::2], sys.argv[3::2]):
+    with open("/proc/self/clear_refs", "w") as refs:
+        refs.write("5")  # the peak resident size starts again from the current one
+    before = kib("VmRSS")
+    try:
+        readers[kind](path)
+        outcome = ["loaded", ""]
+    except Exception as error:
+        outcome = [type(error).__name__, str(error)]
+    results[path] = outcome + [(kib("VmHWM") - before) * 1024]
+print(json.dumps(results))
+"""
+
+
+def _bombs(tmp_path):
+    sys.path.insert(0, str(TESTS))
+    import torch
+
+    from hostile import breakers as b
+
+    avatar = tmp_path / "avatar.pt"
+    b.torch_declaring(avatar, {"format": "mogaface-avatar", "version": 1, "x": torch.zeros(100_003)}, 100_003,
+                      2 ** 29, inflate=True)
+    checkpoint = tmp_path / "step_000001.pt"
+    b.torch_declaring(checkpoint, {"format": "mogaface-train-checkpoint", "version": 1,
+                                   "x": torch.zeros(1).expand(100_003)}, 100_003, 2 ** 31 - 1)
+    padded = tmp_path / "transforms_train.json"
+    with open(padded, "wb") as handle:  # 600 MiB of whitespace after an object (written, not sparse)
+        handle.write(b'{"frames": []}')
+        block = b" " * 2 ** 24
+        for _ in range(600 // 16):
+            handle.write(block)
+    npz = tmp_path / "00000.npz"
+    b.npz_declaring(npz, "expr", (2 ** 30,))
+    return {"avatar": (avatar, "declares 2147"), "checkpoint": (checkpoint, "(2147483647,)"),
+            "json": (padded, "a JSON file of 620757006 bytes; the limit is"), "npz": (npz, "declares shape (1073741824,)")}
+
+
+@pytest.mark.skipif(not os.path.exists("/proc/self/clear_refs"), reason="measures the peak through /proc")
+def test_declared_sizes_are_refused_before_allocating(tmp_path):
+    import torch
+
+    bombs = _bombs(tmp_path)
+    assert all(path.stat().st_size < 8 * 2 ** 20 for kind, (path, _) in bombs.items() if kind != "json")
+    control = tmp_path / "control.pt"  # a real 96 MiB checkpoint: the probe sees what loading allocates
+    torch.save({"format": "mogaface-train-checkpoint", "version": 1, "x": torch.ones(24 * 2 ** 20)}, control)
+    argv = [str(CAP_BYTES)] + [str(part) for kind, (path, _) in bombs.items() for part in (kind, path)]
+    argv += ["checkpoint", str(control)]
+    result = subprocess.run([sys.executable, "-c", CHILD, *argv], capture_output=True, text=True,
+                            timeout=300)  # a harness against hangs only
+    assert result.returncode == 0, result.stderr
+    outcome = json.loads(result.stdout)
+    for kind, (path, words) in bombs.items():
+        error, message, grown = outcome[str(path)]
+        assert error == "InputError" and message.startswith(str(path)) and words in message, (kind, message)
+        assert grown < 64 * 2 ** 20, (kind, grown)  # nothing of what the file declares was allocated
+    assert outcome[str(control)][0] == "loaded" and outcome[str(control)][2] >= 90 * 2 ** 20

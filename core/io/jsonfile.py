@@ -23,6 +23,8 @@ def read_json(path: str | os.PathLike, error: type[InputError] = InputError):
         if len(data) > MAX_JSON_BYTES:  # grew while it was opened
             raise error(path, None, f"a JSON file over the limit of {MAX_JSON_BYTES} bytes")
         return json.loads(data.decode("utf-8"))
+    except InputError:  # already worded (InputError is a ValueError too)
+        raise
     except RecursionError:
         raise error(path, None, "nested too deeply to be a capture or settings file") from None
     except FileNotFoundError:

@@ -171,7 +171,150 @@ CASES = [
      ["timestep"]),
     ("demo-non-empty-out", lambda c, t: ((t / "d").mkdir(), (t / "d" / "keep.txt").write_text("mine"),
                                          ["demo", "--tiny", "--out", t / "d"])[2], ["not empty", "--overwrite"]),
+    # outputs that are not files: never replaced (see test_outputs_that_are_not_files_are_kept)
+    ("out-is-a-fifo", lambda c, t: (os.mkfifo(t / "o.ply"), _export(c, t / "o.ply"))[1],
+     ["o.ply", "is a FIFO", "regular file only"]),
+    ("out-is-a-folder", lambda c, t: ((t / "o.ply").mkdir(), _export(c, t / "o.ply"))[1], ["o.ply", "is a folder"]),
+    ("out-is-a-socket", lambda c, t: (_socket(t / "o.ply"), _export(c, t / "o.ply"))[1], ["o.ply", "is a socket"]),
+    ("out-links-to-dev-null", lambda c, t: ((t / "o.ply").symlink_to("/dev/null"), _export(c, t / "o.ply"))[1],
+     ["o.ply", "symbolic link to a character device"]),
+    ("out-links-to-a-folder", lambda c, t: ((t / "o.ply").symlink_to(t), _export(c, t / "o.ply"))[1],
+     ["o.ply", "symbolic link to a folder"]),
+    ("out-png-is-a-fifo", lambda c, t: ((t / "r").mkdir(), os.mkfifo(t / "r" / "00000_cam00.png"),
+                                        ["render", c["run"], "--timesteps", "0", "--camera", "cam00",
+                                         "--out", t / "r"])[2], ["00000_cam00.png", "is a FIFO"]),
+    ("events-log-links-out", lambda c, t: ((t / "mine.txt").write_text("mine"), (c["run"] / "events.jsonl").unlink(),
+                                           (c["run"] / "events.jsonl").symlink_to(t / "mine.txt"),
+                                           ["train", c["capture"], "--out", c["run"], "--resume", "--steps", "4",
+                                            "--quiet"])[3], ["events.jsonl", "symbolic link"]),
+    ("events-log-is-a-fifo", lambda c, t: ((c["run"] / "events.jsonl").unlink(), os.mkfifo(c["run"] / "events.jsonl"),
+                                           ["train", c["capture"], "--out", c["run"], "--resume", "--steps", "4",
+                                            "--quiet"])[2], ["events.jsonl", "FIFO"]),
+    # torch files that declare more than they hold, or ask for code
+    ("pt-deflated-2GiB", lambda c, t: (b.avatar_with(c["run"], "opacity_logit", lambda: torch.zeros(100_003),
+                                                     marker=100_003, declared=2 ** 29, inflate=True), _render(c, t))[1],
+     ["avatar.pt", "declares 21", "bytes of records in a file of"]),
+    ("pt-storage-past-its-record", lambda c, t: (b.avatar_with(c["run"], "opacity_logit", lambda: torch.zeros(100_003),
+                                                               marker=100_003, declared=2 ** 29), _render(c, t))[1],
+     ["avatar.pt", "field 'data.pkl'", "536870912 elements", "its record holds 400012"]),
+    ("pt-stride-zero-view", lambda c, t: (b.avatar_with(c["run"], "opacity_logit",
+                                                        lambda: torch.zeros(1).expand(100_003), marker=100_003,
+                                                        declared=2 ** 30), _render(c, t))[1],
+     ["avatar.pt", "field 'data.pkl'", "(1073741824,)", "limit"]),
+    ("pt-runs-code", lambda c, t: (_pickle_in_avatar(c["run"], {"x": b.RunsCode()}), _render(c, t))[1],
+     ["avatar.pt", "refused to load global", "system"]),
+    ("pt-truncated", lambda c, t: (b.truncate(c["run"] / "avatar.pt"), _render(c, t))[1],
+     ["avatar.pt", "not a readable avatar file"]),
+    ("pt-not-a-zip", lambda c, t: ((c["run"] / "avatar.pt").write_bytes(b"\x80\x02}q\x00."), _render(c, t))[1],
+     ["avatar.pt", "not a torch archive"]),
+    ("pt-active-sh-degree-7", lambda c, t: (_avatar_edit(c["run"], lambda s: s.update(active_sh_degree=7)),
+                                            _render(c, t))[1], ["avatar.pt", "active_sh_degree", "[0, 3]"]),
+    ("pt-sh-degree-text", lambda c, t: (_avatar_edit(c["run"], lambda s: s.update(max_sh_degree="x")),
+                                        _render(c, t))[1], ["avatar.pt", "max_sh_degree"]),
+    ("pt-colour-shape", lambda c, t: (_avatar_edit(c["run"], lambda s: s["gaussians"].update(
+        sh_rest=torch.zeros(3, 2, 3))), _render(c, t))[1], ["avatar.pt", "gaussians.sh_rest", "expected shape"]),
+    ("pt-binding-float", lambda c, t: (_avatar_edit(c["run"], lambda s: s["gaussians"].update(
+        binding=s["gaussians"]["binding"].float())), _render(c, t))[1], ["avatar.pt", "gaussians.binding", "integer"]),
+    ("pt-binding-2d", lambda c, t: (_avatar_edit(c["run"], lambda s: s["gaussians"].update(
+        binding=s["gaussians"]["binding"][:, None])), _render(c, t))[1], ["avatar.pt", "gaussians.binding", "shape"]),
+    # JSON files
+    ("json-over-the-size-limit", lambda c, t: (_pad(c["capture"] / "transforms_train.json", 200 * 2 ** 20),
+                                               cap(c))[1], ["transforms_train.json", "limit", "bytes"]),
+    ("json-number-of-10000-digits", lambda c, t: ((c["capture"] / "transforms_train.json").write_text(
+        '{"frames": ' + "1" * 10_000 + "}"), cap(c))[1], ["transforms_train.json", "unreadable JSON", "digits"]),
+    ("json-not-utf8", lambda c, t: ((c["capture"] / "transforms_train.json").write_bytes(b'{"a": "\xff"}'),
+                                    cap(c))[1], ["transforms_train.json", "unreadable JSON"]),
+    ("run-json-nested", lambda c, t: (b.nested_json(c["run"] / "run.json"), _render(c, t))[1],
+     ["run.json", "nested too deeply"]),
+    # images too small for the loss, and names that are not paths
+    ("image-1x1", lambda c, t: (b.set_every_frame(c["capture"], w=1, h=1), cap(c))[1], ["w/h", "1x1", "smaller"]),
+    ("image-3x7", lambda c, t: (b.set_every_frame(c["capture"], w=3, h=7), cap(c))[1], ["w/h", "3x7", "SSIM"]),
+    ("image-10x32", lambda c, t: (b.set_every_frame(c["capture"], w=10), cap(c))[1], ["w/h", "10x32"]),
+    ("image-0x0", lambda c, t: (b.set_every_frame(c["capture"], w=0, h=0), cap(c))[1], ["w", "positive integer"]),
+    ("image-1x1-train", lambda c, t: (b.set_every_frame(c["capture"], w=1, h=1), train(c, t))[1], ["w/h", "1x1"]),
+    ("file-path-nul", lambda c, t: (b.set_first_frame(c["capture"], file_path="images/00000_00.png\0.png"),
+                                    cap(c))[1], ["transforms_train.json", "file_path", "control character '\\x00'"]),
+    ("file-path-newline", lambda c, t: (b.set_first_frame(c["capture"], file_path="images/x\nerror: forged.png"),
+                                        cap(c))[1], ["file_path", "control character '\\n'"]),
+    ("mask-path-escape", lambda c, t: (b.set_first_frame(c["capture"], fg_mask_path="fg_masks/\x1b[2J.png"),
+                                       cap(c))[1], ["fg_mask_path", "control character"]),
+    ("flame-path-nul", lambda c, t: (b.set_first_frame(c["capture"], flame_param_path="flame_param/\0"), cap(c))[1],
+     ["flame_param_path", "control character"]),
+    ("run-json-capture-nul", lambda c, t: (b.edit_json(c["run"] / "run.json", lambda d: d.update(capture="a\0b")),
+                                           _render(c, t))[1], ["run.json", "'capture'", "control character"]),
+    ("model-file-nul", lambda c, t: (b.edit_json(c["capture"] / "capture_info.json",
+                                                 lambda d: d.update(model_file="head\0.pkl")), train(c, t))[1],
+     ["capture_info.json", "model_file", "control character"]),
+    ("avatar-head-file-newline", lambda c, t: (_avatar_edit(c["run"], lambda s: s.update(head_file="head\n.pkl")),
+                                               _render(c, t))[1], ["avatar.pt", "head_file"]),
+    # numbers that are not what they should be
+    ("matrix-nan", lambda c, t: (b.set_first_frame(c["capture"], transform_matrix=[[float("nan"), 0, 0, 0],
+                                                                                    [0, 1, 0, 0], [0, 0, 1, 0],
+                                                                                    [0, 0, 0, 1]]), cap(c))[1],
+     ["transforms_train.json", "transform_matrix", "finite", "nan in row 0, column 0"]),
+    ("matrix-3x4", lambda c, t: (b.set_first_frame(c["capture"], transform_matrix=[[1, 0, 0, 0]] * 3), cap(c))[1],
+     ["transform_matrix", "got shape (3, 4)"]),
+    ("npz-expression-scalar", lambda c, t: (_param_edit(c["capture"] / "flame_param" / "00000.npz",
+                                                        expr=np.float32(1)), cap(c))[1],
+     ["00000.npz", "'expr'", "(a single number)"]),
+    ("npz-expression-empty", lambda c, t: (_param_edit(c["capture"] / "flame_param" / "00000.npz",
+                                                       expr=np.zeros(0, np.float32)), cap(c))[1],
+     ["00000.npz", "'expr'", "(no values)"]),
+    ("npz-member-not-npy", lambda c, t: (_zip_member(c["capture"] / "flame_param" / "00000.npz", b"garbage"),
+                                         cap(c))[1], ["00000.npz", "not a plain numpy archive"]),
+    ("npz-declares-1e12-in-the-run", lambda c, t: (b.npz_declaring(c["run"] / "flame_param" / "00000.npz", "expr",
+                                                                   (10 ** 12,)), _render(c, t))[1],
+     ["00000.npz", "expr", "declares"]),
 ]
+
+
+def _export(c, out):
+    return ["export-ply", c["run"], "--timestep", "0", "--out", out]
+
+
+def _render(c, t):
+    return ["render", c["run"], "--timesteps", "0", "--out", t / "r"]
+
+
+_SOCKETS = []
+
+
+def _socket(path):
+    import socket
+
+    server = socket.socket(socket.AF_UNIX)
+    server.bind(str(path))
+    _SOCKETS.append(server)  # open until the test ends
+
+
+def _pickle_in_avatar(run, obj):
+    import pickle
+
+    b.torch_declaring(run / "avatar.pt", {"x": torch.zeros(70_000)}, 70_000, 70_000,
+                      pickle_bytes=pickle.dumps(obj, protocol=2))
+
+
+def _pad(path, size):
+    """The file grown to ``size`` bytes after its JSON (a sparse file: nothing is stored; the size alone is
+    refused, before a byte is read)."""
+    with open(path, "r+b") as handle:
+        handle.seek(size - 1)
+        handle.write(b" ")
+
+
+def _param_edit(path, **arrays):
+    from mogaface.core.io.npz import load_npz, save_npz
+
+    params = load_npz(path)
+    params.update(arrays)
+    save_npz(path, params)
+
+
+def _zip_member(path, data):
+    import zipfile
+
+    with zipfile.ZipFile(path, "w") as archive:
+        archive.writestr("expr.npy", data)
 
 
 def _long_expression(path):
@@ -206,7 +349,11 @@ def _negative_binding_ply(path):
 def test_hostile_input_gives_a_clear_error(case, copies, tmp_path, capsys):
     _, prepare, expected = case
     argv = prepare(copies, tmp_path)
-    code, err = run_cli(argv, capsys)
+    try:
+        code, err = run_cli(argv, capsys)
+    finally:
+        while _SOCKETS:
+            _SOCKETS.pop().close()
     assert code == 2, err
     assert err.startswith("error: ") and "Traceback" not in err
     for text in expected:
@@ -291,3 +438,31 @@ def test_a_model_file_outside_the_capture_is_never_copied_into_the_run(copies, t
     code, err = run_cli(train(copies, tmp_path), capsys)
     assert code == 2 and "model_file" in err
     assert not (tmp_path / "newrun" / "head.pkl").exists()
+
+
+@pytest.mark.parametrize("make", ["fifo", "folder", "link-to-dev-null", "link-to-a-folder"])
+def test_outputs_that_are_not_files_are_kept(copies, tmp_path, capsys, make):
+    """What a refused output names is left exactly as it was (same kind, same inode, same link)."""
+    out = tmp_path / "o.ply"
+    {"fifo": lambda: os.mkfifo(out), "folder": out.mkdir, "link-to-dev-null": lambda: out.symlink_to("/dev/null"),
+     "link-to-a-folder": lambda: out.symlink_to(tmp_path)}[make]()
+    before = os.lstat(out)
+    code, err = run_cli(_export(copies, out), capsys)
+    after = os.lstat(out)
+    assert code == 2 and "regular file only" in err
+    assert (after.st_mode, after.st_ino) == (before.st_mode, before.st_ino)
+    if make == "link-to-dev-null":
+        import stat
+
+        assert os.readlink(out) == "/dev/null" and stat.S_ISCHR(os.stat("/dev/null").st_mode)
+    assert not [p for p in tmp_path.iterdir() if ".partial" in p.name]
+
+
+def test_an_output_linked_to_a_file_replaces_the_link_not_the_file(copies, tmp_path, capsys):
+    mine = tmp_path / "mine.ply"
+    mine.write_text("mine")
+    out = tmp_path / "o.ply"
+    out.symlink_to(mine)
+    code, err = run_cli(_export(copies, out), capsys)
+    assert code == 0, err
+    assert not out.is_symlink() and out.read_bytes().startswith(b"ply\n") and mine.read_text() == "mine"

@@ -250,3 +250,97 @@ def test_the_cancel_flag_stops_a_running_raster_kernel():
     finally:
         setter.join()
         cancel.FLAG[0] = 0
+
+
+# -- SIGTERM at any moment, refused checkpoints, a pointer that lags ---------------------------
+
+def _handles_sigterm(pid) -> bool:
+    """Whether process ``pid`` has a handler for SIGTERM yet (Linux: the SigCgt mask in /proc)."""
+    try:
+        with open(f"/proc/{pid}/status") as status:
+            mask = next(int(line.split()[1], 16) for line in status if line.startswith("SigCgt:"))
+    except (FileNotFoundError, StopIteration):
+        return False
+    return bool(mask >> (signal.SIGTERM - 1) & 1)
+
+
+@pytest.mark.skipif(not os.path.exists("/proc/self/status"), reason="reads the signal mask from /proc")
+@pytest.mark.parametrize("after", [0.0, 0.3, 1.0])
+def test_sigterm_while_starting_says_so_and_exits_143(copies, tmp_path, after):
+    """From the command line's first line on (``python -m mogaface`` arms SIGTERM at once), through the
+    imports of torch and numba and the reading of the capture, SIGTERM ends with one line and 143."""
+    process, _ = _train_process(copies, tmp_path)
+    try:
+        deadline = time.monotonic() + 120
+        while not _handles_sigterm(process.pid):
+            assert process.poll() is None and time.monotonic() < deadline, process.communicate()
+        time.sleep(after)
+        process.send_signal(signal.SIGTERM)
+        _, err = process.communicate(timeout=120)
+    finally:
+        if process.poll() is None:
+            process.kill()
+    assert process.returncode == 128 + signal.SIGTERM, err
+    assert "Traceback" not in err
+    assert "terminated by SIGTERM" in err or "stopped by SIGTERM" in err, err
+
+
+def test_sigterm_while_training_is_said_under_quiet(copies, tmp_path):
+    process, out = _train_process(copies, tmp_path)
+    try:
+        _wait_for_first_step(process, out)
+        process.send_signal(signal.SIGTERM)
+        _, err = process.communicate(timeout=120)
+    finally:
+        if process.poll() is None:
+            process.kill()
+    assert process.returncode == 128 + signal.SIGTERM, err
+    assert "stopped by SIGTERM at step" in err and "checkpoint written" in err
+
+
+def test_a_refused_checkpoint_is_said_under_quiet_and_kept_aside(copies, capsys):
+    from hostile import breakers as b
+
+    newest = copies["run"] / "checkpoints" / "step_000003.pt"
+    state = torch.load(newest, weights_only=True)
+    state["extra"] = torch.zeros(100_003)
+    b.torch_declaring(newest, state, 100_003, 2 ** 29, inflate=True)  # 2 GiB once inflated
+    bomb = newest.read_bytes()
+    code = main(["train", str(copies["capture"]), "--out", str(copies["run"]), "--resume", "--steps", "4", "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    assert "warning: skipped a damaged checkpoint" in err and "step_000003.pt: declares" in err, err
+    assert "kept the checkpoint that did not load as step_000003.pt.refused" in err
+    aside = copies["run"] / "checkpoints" / "step_000003.pt.refused"
+    assert aside.read_bytes() == bomb  # kept as it was
+    assert load_checkpoint(newest)["step"] == 3  # the resumed run's own, from step 2
+    assert [e["step"] for e in events(copies["run"]) if e["event"] == "resume"] == [2]
+
+
+def test_a_checkpoint_that_would_run_code_is_refused_and_kept_aside(copies, capsys):
+    import pickle
+
+    from hostile import breakers as b
+
+    newest = copies["run"] / "checkpoints" / "step_000003.pt"
+    b.torch_declaring(newest, {"x": torch.zeros(70_000)}, 70_000, 70_000,
+                      pickle_bytes=pickle.dumps({"x": b.RunsCode()}, protocol=2))
+    code = main(["train", str(copies["capture"]), "--out", str(copies["run"]), "--resume", "--steps", "3", "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 0 and "refused to load global" in err and "step_000003.pt.refused" in err, err
+    assert (copies["run"] / "checkpoints" / "step_000003.pt.refused").exists()
+
+
+def test_resume_takes_the_newest_complete_checkpoint_when_the_pointer_lags(copies, capsys):
+    """A kill between a checkpoint and its ``latest`` pointer leaves the pointer one behind."""
+    (copies["run"] / "checkpoints" / "latest").write_text("step_000002.pt\n")
+    code = main(["train", str(copies["capture"]), "--out", str(copies["run"]), "--resume", "--steps", "4", "--quiet"])
+    assert code == 0, capsys.readouterr().err
+    assert [e["step"] for e in events(copies["run"]) if e["event"] == "resume"] == [3]
+
+
+def test_resume_without_a_pointer_takes_the_newest(copies, capsys):
+    (copies["run"] / "checkpoints" / "latest").unlink()
+    code = main(["train", str(copies["capture"]), "--out", str(copies["run"]), "--resume", "--steps", "4", "--quiet"])
+    assert code == 0, capsys.readouterr().err
+    assert [e["step"] for e in events(copies["run"]) if e["event"] == "resume"] == [3]
