@@ -9,7 +9,6 @@ from collections.abc import Iterable
 import numpy as np
 
 from ..errors import InputError
-from ..run.names import DELAYS_FILE
 from ..train.camera_delays import delayed_views
 from . import report
 from .camera_alignment import split_frames
@@ -67,7 +66,7 @@ def evaluate_run(
         avatar, source = _with_refiner(run, cap, avatar, source)
     avatar = run.load_avatar() if avatar is None else avatar
     source = TrackedParams(cap, run) if source is None else source
-    shift = delayed_views(cap, avatar, run.root / DELAYS_FILE)  # a run that learned its cameras' delays
+    shift = delayed_views(cap, avatar, run.delays_path)  # a run that learned its cameras' delays
     skipped = {name: reason for name in protocols if (reason := protocol_unavailable(cap, name)) is not None}
     if skipped and len(skipped) == len(protocols):
         raise InputError(cap.root, "protocols", "; ".join(f"{k}: {v}" for k, v in skipped.items()))
