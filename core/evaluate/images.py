@@ -3,14 +3,12 @@ background, the avatar's render, and the camera a frame is scored from."""
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 import torch
 
 from ..data.capture import Capture, Frame
 from ..data.capture import _frame_camera as camera_from_entry
-from ..errors import InputError
+from ..io.jsonfile import read_json_object
 from ..run.folder import capture_info
 
 
@@ -45,12 +43,7 @@ def read_cameras(path, cy_origin: str = "bottom") -> dict:
 
     ``cy`` is read by the capture's convention (its split files' ``cy_origin``), as it was written.
     """
-    try:
-        entries = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as error:
-        raise InputError(path, None, f"not readable JSON ({error})") from None
-    if not isinstance(entries, dict):
-        raise InputError(path, None, "expected an object of camera id → camera fields")
+    entries = read_json_object(path)  # camera id → camera fields
     return {cid: camera_from_entry(entry, {"cy_origin": cy_origin}, cid, path, cid) for cid, entry in entries.items()}
 
 
