@@ -339,3 +339,26 @@ def test_blender_request_and_points_show_the_same_avatar(modulated):
     np.testing.assert_allclose(sc.blender_to_flame(points["position"]), ours["means"], atol=1e-6)
     np.testing.assert_allclose(points["scale"], ours["scales"], rtol=1e-6)
     np.testing.assert_allclose(points["opacity"], ours["opacities"], atol=1e-6)
+
+
+def test_blender_reads_run_json_as_every_consumer_does(modulated, tmp_path):
+    """Blender's avatar field (a run folder or an avatar file) goes through the same checked run.json."""
+    import json
+    import shutil
+
+    from mogaface.core.errors import InputError
+
+    m = modulated
+    path, background = sc.avatar_location(m["run"].root)
+    assert path == m["run"].avatar_path.resolve() and background == m["run"].background
+    copy = tmp_path / "run"
+    copy.mkdir()
+    for name in ("avatar.pt", "head.pkl"):
+        shutil.copy(m["run"].root / name, copy / name)
+    assert sc.avatar_location(copy / "avatar.pt")[1] == (1.0, 1.0, 1.0)  # no run.json: white
+    assert not isinstance(sc.load_avatar(copy), ModulatedAvatar)  # no mogaface.pt: the plain avatar
+    (copy / "run.json").write_text(json.dumps({"background": [0, 0, 2]}))
+    with pytest.raises(InputError, match="run.json.*background"):
+        sc.avatar_location(copy)
+    with pytest.raises(InputError, match="avatar file not found"):
+        sc.load_avatar(copy / "missing.pt")

@@ -87,6 +87,8 @@ class RunFolder:
         path = pathlib.Path(path).expanduser()
         if path.is_dir():
             return cls(path)
+        if not path.is_file():
+            raise InputError(path, None, "avatar file not found (is training finished?)")
         return cls(path.parent, avatar_file=path)
 
     # -- paths -------------------------------------------------------------------------------
