@@ -24,4 +24,5 @@ TORCH_BYTES_PER_FILE_BYTE = 16  # ... and at most this many per byte of the file
 MAX_TORCH_RECORDS = 100_000  # records in one torch file (ours: a few per tensor, ~100 in a checkpoint)
 MAX_TORCH_PICKLE_BYTES = 64 * 1024 ** 2  # the data.pkl of one torch file (ours: a few kB; tensors live in records)
 MAX_JSON_BYTES = 128 * 1024 ** 2  # one JSON file: ~120 000 frames of a split file at ~1.1 kB each (a large subject: ~50 000)
+MAX_JSON_VALUES = 10_000_000  # values in one JSON file (~40 a frame: 250 000 frames), counted by separators: at most ~0.4 GB of Python objects
 MIN_IMAGE_SIDE = 11  # px, width or height of an image or camera: the SSIM window of the image loss and metric (2 x 5 + 1 taps)

@@ -1,4 +1,5 @@
-"""What training keeps in memory does not grow with the capture's length (lazy, bounded caches)."""
+"""Memory stays bounded: what training keeps does not grow with the capture's length (lazy, bounded caches),
+and files that declare far more than they hold are refused before anything is allocated."""
 
 import types
 
@@ -91,10 +92,14 @@ def _bombs(tmp_path):
         block = b" " * 2 ** 24
         for _ in range(600 // 16):
             handle.write(block)
+    lists = tmp_path / "run.json"  # 18 MB of '[],': 0.8 GB of Python lists once parsed
+    lists.write_bytes(b'{"a": [' + b",".join([b"[]"] * 6_000_000) + b"]}")
     npz = tmp_path / "00000.npz"
     b.npz_declaring(npz, "expr", (2 ** 30,))
-    return {"avatar": (avatar, "declares 2147"), "checkpoint": (checkpoint, "(2147483647,)"),
-            "json": (padded, "a JSON file of 620757006 bytes; the limit is"), "npz": (npz, "declares shape (1073741824,)")}
+    return {"avatar": ("avatar", avatar, "declares 2147"), "checkpoint": ("checkpoint", checkpoint, "(2147483647,)"),
+            "padded json": ("json", padded, "a JSON file of 620757006 bytes; the limit is"),
+            "json of lists": ("json", lists, "holds up to 12000001 values"),
+            "npz": ("npz", npz, "declares shape (1073741824,)")}
 
 
 @pytest.mark.skipif(not os.path.exists("/proc/self/clear_refs"), reason="measures the peak through /proc")
@@ -102,16 +107,16 @@ def test_declared_sizes_are_refused_before_allocating(tmp_path):
     import torch
 
     bombs = _bombs(tmp_path)
-    assert all(path.stat().st_size < 8 * 2 ** 20 for kind, (path, _) in bombs.items() if kind != "json")
+    assert all(path.stat().st_size < 8 * 2 ** 20 for reader, path, _ in bombs.values() if reader != "json")
     control = tmp_path / "control.pt"  # a real 96 MiB checkpoint: the probe sees what loading allocates
     torch.save({"format": "mogaface-train-checkpoint", "version": 1, "x": torch.ones(24 * 2 ** 20)}, control)
-    argv = [str(CAP_BYTES)] + [str(part) for kind, (path, _) in bombs.items() for part in (kind, path)]
+    argv = [str(CAP_BYTES)] + [str(part) for reader, path, _ in bombs.values() for part in (reader, path)]
     argv += ["checkpoint", str(control)]
     result = subprocess.run([sys.executable, "-c", CHILD, *argv], capture_output=True, text=True,
                             timeout=300)  # a harness against hangs only
     assert result.returncode == 0, result.stderr
     outcome = json.loads(result.stdout)
-    for kind, (path, words) in bombs.items():
+    for kind, (_, path, words) in bombs.items():
         error, message, grown = outcome[str(path)]
         assert error == "InputError" and message.startswith(str(path)) and words in message, (kind, message)
         assert grown < 64 * 2 ** 20, (kind, grown)  # nothing of what the file declares was allocated

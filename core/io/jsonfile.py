@@ -7,7 +7,7 @@ import json
 import os
 
 from ..errors import InputError
-from ..limits import MAX_JSON_BYTES
+from ..limits import MAX_JSON_BYTES, MAX_JSON_VALUES
 from .files import check_regular_file
 
 
@@ -22,6 +22,12 @@ def read_json(path: str | os.PathLike, error: type[InputError] = InputError):
             data = handle.read(MAX_JSON_BYTES + 1)
         if len(data) > MAX_JSON_BYTES:  # grew while it was opened
             raise error(path, None, f"a JSON file over the limit of {MAX_JSON_BYTES} bytes")
+        # Python's objects take up to ~35 bytes a value ('[],' is 3 bytes of text and 69 of lists):
+        # counted on the bytes before parsing (commas in strings count too: an upper bound).
+        values = data.count(b",") + data.count(b"[") + data.count(b"{")
+        if values > MAX_JSON_VALUES:
+            raise error(path, None, f"holds up to {values} values (counting separators); the limit is "
+                                    f"{MAX_JSON_VALUES} (see docs/safety.md)")
         return json.loads(data.decode("utf-8"))
     except InputError:  # already worded (InputError is a ValueError too)
         raise

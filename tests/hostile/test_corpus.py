@@ -222,6 +222,9 @@ CASES = [
                                                cap(c))[1], ["transforms_train.json", "limit", "bytes"]),
     ("json-number-of-10000-digits", lambda c, t: ((c["capture"] / "transforms_train.json").write_text(
         '{"frames": ' + "1" * 10_000 + "}"), cap(c))[1], ["transforms_train.json", "unreadable JSON", "digits"]),
+    ("json-many-values", lambda c, t: ((c["capture"] / "transforms_train.json").write_bytes(
+        b'{"frames": [' + b",".join([b"{}"] * 6_000_000) + b"]}"), cap(c))[1],
+     ["transforms_train.json", "holds up to 12000001 values", "limit"]),
     ("json-not-utf8", lambda c, t: ((c["capture"] / "transforms_train.json").write_bytes(b'{"a": "\xff"}'),
                                     cap(c))[1], ["transforms_train.json", "unreadable JSON"]),
     ("run-json-nested", lambda c, t: (b.nested_json(c["run"] / "run.json"), _render(c, t))[1],
