@@ -180,6 +180,8 @@ CASES = [
      ["o.ply", "symbolic link to a character device"]),
     ("out-links-to-a-folder", lambda c, t: ((t / "o.ply").symlink_to(t), _export(c, t / "o.ply"))[1],
      ["o.ply", "symbolic link to a folder"]),
+    ("out-avatar-is-a-fifo", lambda c, t: (os.mkfifo(t / "a.pt"), ["import-ply", c["ply"], "--head", c["head"],
+                                                                   "--out", t / "a.pt"])[1], ["a.pt", "is a FIFO"]),
     ("out-png-is-a-fifo", lambda c, t: ((t / "r").mkdir(), os.mkfifo(t / "r" / "00000_cam00.png"),
                                         ["render", c["run"], "--timesteps", "0", "--camera", "cam00",
                                          "--out", t / "r"])[2], ["00000_cam00.png", "is a FIFO"]),
@@ -469,3 +471,13 @@ def test_an_output_linked_to_a_file_replaces_the_link_not_the_file(copies, tmp_p
     code, err = run_cli(_export(copies, out), capsys)
     assert code == 0, err
     assert not out.is_symlink() and out.read_bytes().startswith(b"ply\n") and mine.read_text() == "mine"
+
+
+def test_a_landmark_embedding_npz_is_read_by_the_one_npz_reader(tmp_path):
+    from mogaface.core.errors import InputError
+    from mogaface.core.flame.landmarks import read_embedding
+
+    path = tmp_path / "embedding.npz"
+    b.npz_declaring(path, "lmk_faces_idx", (10 ** 12,))
+    with pytest.raises(InputError, match=r"embedding.npz: field 'lmk_faces_idx': declares shape \(1000000000000,\)"):
+        read_embedding(path)

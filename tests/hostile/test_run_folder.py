@@ -5,6 +5,7 @@ import errno
 import json
 import os
 import signal
+import stat
 import subprocess
 import sys
 import tempfile
@@ -344,3 +345,14 @@ def test_resume_without_a_pointer_takes_the_newest(copies, capsys):
     code = main(["train", str(copies["capture"]), "--out", str(copies["run"]), "--resume", "--steps", "4", "--quiet"])
     assert code == 0, capsys.readouterr().err
     assert [e["step"] for e in events(copies["run"]) if e["event"] == "resume"] == [3]
+
+
+def test_a_fifo_in_place_of_the_newest_checkpoint_is_skipped_without_hanging(copies, capsys):
+    newest = copies["run"] / "checkpoints" / "step_000003.pt"
+    newest.unlink()
+    os.mkfifo(newest)
+    code = main(["train", str(copies["capture"]), "--out", str(copies["run"]), "--resume", "--steps", "3", "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 0 and "step_000003.pt: expected a regular file" in err, err
+    assert stat.S_ISFIFO(os.lstat(copies["run"] / "checkpoints" / "step_000003.pt.refused").st_mode)
+    assert load_checkpoint(newest)["step"] == 3
