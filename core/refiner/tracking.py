@@ -24,7 +24,7 @@ from ..run.folder import RunFolder
 from ..evaluate.sources.base import InputCameras
 from ..evaluate.sources.refined import RefinerInference, run_refiner
 from ..evaluate.sources.tracked import TrackedParams
-from ..io.atomic import write_json
+from ..io.atomic import check_output_target, write_json
 from ..io.npz import save_npz
 from .files import REFINER_FILE, is_outdated
 from .training import RefinerSettings, frozen_avatar, train_refiner
@@ -64,6 +64,7 @@ def _train_first(run_root: pathlib.Path, settings: RefinerSettings, listeners, s
     try:
         train_refiner(run_root, settings, out=partial, listeners=listeners, should_stop=should_stop)
         if not should_stop():
+            check_output_target(run_root / REFINER_FILE)  # a file, or nothing: never a device or FIFO
             os.replace(partial, run_root / REFINER_FILE)
     finally:
         partial.unlink(missing_ok=True)
