@@ -175,7 +175,8 @@ def show_image(context, image):
     Interface › Render In, a new window by default). Returns the area, or None without a window
     (background mode)."""
     area, window = image_editor_area(context.window_manager, MIN_IMAGE_EDITOR)
-    if area is None and context.window is not None and not bpy.app.background:
+    main_window = context.window or next(iter(getattr(context.window_manager, "windows", ())), None)
+    if area is None and main_window is not None and not bpy.app.background:
         # Blender sizes its render window to the scene's resolution: a 48-pixel capture would get
         # a window too small to see. Ask for one at least RENDER_WINDOW (the setting is restored).
         render = context.scene.render
@@ -183,7 +184,7 @@ def show_image(context, image):
         side = max(RENDER_WINDOW[0] / max(render.resolution_x, 1), RENDER_WINDOW[1] / max(render.resolution_y, 1))
         render.resolution_percentage = min(32767, max(percent, int(np.ceil(100 * side))))
         try:
-            with context.temp_override(window=context.window):
+            with context.temp_override(window=main_window):
                 bpy.ops.render.view_show("INVOKE_DEFAULT")
         finally:
             render.resolution_percentage = percent
@@ -197,6 +198,17 @@ def show_image(context, image):
                 bpy.ops.image.view_all(fit_view=True)
         area.tag_redraw()
     return area
+
+
+def show_image_soon(image_name: str) -> None:
+    """:func:`show_image` from a timer: a modal handler must not open the render window itself
+    (Blender then called the finished handler once more)."""
+    def show():
+        image = bpy.data.images.get(image_name)
+        if image is not None:
+            show_image(bpy.context, image)
+
+    bpy.app.timers.register(show, first_interval=0.0)
 
 
 def write_files(folder: str, stem: str, result, file_format: str) -> list[str]:
@@ -433,7 +445,10 @@ class MOGAFACE_OT_render_animation(_RenderBase, bpy.types.Operator):
             self.report({"ERROR"}, job.error)
             return {"CANCELLED"}
         if job.images:
-            show_image(context, job.images[-1])
+            if bpy.app.background or context.window is None:
+                show_image(context, job.images[-1])
+            else:
+                show_image_soon(job.images[-1].name)
         frames = job.frames
         if job.cancelled:
             self.report({"WARNING"}, f"Render cancelled after {job.done} of {len(frames)} frames")
@@ -468,6 +483,8 @@ class MOGAFACE_OT_render_animation(_RenderBase, bpy.types.Operator):
             return {"PASS_THROUGH"}
         context.window_manager.event_timer_remove(self._timer)
         clear_status_text()
+        if job is None:  # finished already
+            return {"CANCELLED"}
         return self._finish(context, job)
 
 
