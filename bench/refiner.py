@@ -5,7 +5,8 @@ over the tracked parameters, in one run so the ratio holds however loaded the ma
 ``python -m mogaface bench refiner --avatar RUN`` (a run folder with ``refiner.pt``, from
 ``train-refiner``) prints JSON with the load average. Frames: the self-reenactment protocol (the
 unseen sequence, every scored view left out of the sources' inputs), 12 spread over it (4 with
-``--quick``); the report names them and the cameras they are scored on (``scored``). The refiner
+``--quick``; ``--split validation``: of the validation sequence instead, where settings are
+chosen); the report names them and the cameras they are scored on (``scored``). The refiner
 and fitting read the same views of each frame (``input_views``; :func:`..core.evaluate.benchmark.
 standard_sources`). Every source computes one frame untimed before the timed ones, so first calls
 and first disk reads are no source's time.
@@ -26,13 +27,13 @@ PASSES = (1, 3)
 FIT_STEPS = (10, 30, 100)
 
 
-def _warm_up_frame(capture, frames):
+def _warm_up_frame(capture, frames, split):
     """A frame of the protocol that is not scored, at a timestep none of ``frames`` has where there
     is one (its views are then read for the first time when they are timed), else the first."""
     from mogaface.core.evaluate.protocols import protocol_frames
 
     timesteps = {f.timestep_index for f in frames}
-    spare = [f for f in protocol_frames(capture, "self_reenactment") if f not in frames]
+    spare = [f for f in protocol_frames(capture, "self_reenactment", split=split) if f not in frames]
     elsewhere = [f for f in spare if f.timestep_index not in timesteps]
     return (elsewhere or spare or frames)[0]
 
@@ -70,7 +71,7 @@ def _input_views(sources: dict, names) -> dict:
 
 
 def run(threads: int = 2, quick: bool = False, avatar: str | None = None,
-        fit_steps: tuple[int, ...] = FIT_STEPS) -> dict:
+        fit_steps: tuple[int, ...] = FIT_STEPS, split: str = "test") -> dict:
     import torch
 
     from mogaface.core.errors import InputError
@@ -89,8 +90,8 @@ def run(threads: int = 2, quick: bool = False, avatar: str | None = None,
     sources = standard_sources(folder, capture, trained, fit_steps=fit_steps, refiner_passes=PASSES)
     names = [name for name in ["tracked", "tracked_aligned", *(f"refined_{k}" for k in PASSES),
                                *(f"fit_{n}" for n in fit_steps), f"refined_fit_{fit_steps[0]}"] if name in sources]
-    frames = protocol_frames(capture, "self_reenactment", 4 if quick else 12)
-    warm = _warm_up_frame(capture, frames)
+    frames = protocol_frames(capture, "self_reenactment", 4 if quick else 12, split)
+    warm = _warm_up_frame(capture, frames, split)
     for name in names:  # untimed: first calls, first reads of the capture and the run
         sources[name].params_for(warm, exclude_view=warm.camera_id)
         getattr(sources[name], "inputs", []).clear()
@@ -99,7 +100,7 @@ def run(threads: int = 2, quick: bool = False, avatar: str | None = None,
               for name in names}
     tracked = scores["tracked"]["psnr"]
     return {
-        "run": str(folder.root), "frames": len(frames), "threads": threads,
+        "run": str(folder.root), "frames": len(frames), "threads": threads, "split": split,
         "scored": scored_views(capture, frames),
         "warm_up_frame": f"{warm.timestep_id}/{warm.camera_id}",
         "fit_steps": list(fit_steps),

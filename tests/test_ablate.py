@@ -57,3 +57,14 @@ def test_ablate_writes_results_table_and_figure(tiny_capture, tmp_path):
     assert main([*args, "--variants", "full_prior"]) == 0
     assert (out / "runs" / "full_prior" / "seed1" / "run.json").stat().st_mtime_ns == before
     assert list(json.loads((out / "results.json").read_text())["variants"]) == ["freeze", "full_prior"]
+    # The validation sequence: the same runs scored on VAL, into files of their own.
+    test_results = (out / "results.json").read_text()
+    assert main([*args, "--variants", "freeze", "--split", "validation"]) == 0
+    assert (out / "results.json").read_text() == test_results
+    validation = json.loads((out / "results_validation.json").read_text())
+    assert validation["split"] == "validation" and list(validation["variants"]) == ["freeze"]
+    run = validation["variants"]["freeze"]["seeds"]["0"]
+    assert list(run["protocols"]) == ["self_reenactment"] and "novel_view" in run["skipped"]
+    assert run["scored"]["self_reenactment"]["label"].endswith("unseen frames (VAL)")
+    assert "**Validation frames**" in (out / "results_validation.md").read_text()
+    assert (out / "figure_validation.png").stat().st_size > 0

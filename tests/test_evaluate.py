@@ -135,15 +135,17 @@ def test_eval_cli_with_driver(run, tmp_path, tmp_path_factory, capsys):
     from mogaface.core.io.image import read_image
 
     assert read_image(strip).shape == (2 * 48, 2 * 48, 3)
-    assert sorted(p.name for p in strip.parent.glob("0*.png")) == ["00000_cam00.png", "00000_cam02.png", "00015_cam00.png", "00015_cam02.png"]
+    last = Capture.open(driver).timesteps[-1]  # 17: the driver's last timestep (its validation sequence's)
+    assert sorted(p.name for p in strip.parent.glob("0*.png")) == ["00000_cam00.png", "00000_cam02.png",
+                                                                   f"{last:05d}_cam00.png", f"{last:05d}_cam02.png"]
     assert "novel view" in capsys.readouterr().out
     # What was written is subject A posed by B's motion, as the avatar renders it.
     avatar, own_capture = run.load_avatar(), Capture.open(run.capture_root)
     camera = own_capture.cameras["cam02"]
-    driven, _ = render_np(avatar, DrivenParams(run.identity_params(), Capture.open(driver)).params_for(15), camera)
-    written = read_image(strip.parent / "00015_cam02.png")
+    driven, _ = render_np(avatar, DrivenParams(run.identity_params(), Capture.open(driver)).params_for(last), camera)
+    written = read_image(strip.parent / f"{last:05d}_cam02.png")
     np.testing.assert_allclose(written, np.clip(driven, 0, 1), atol=1 / 255 + 1e-6)
-    own, _ = render_np(avatar, TrackedParams(own_capture, run).params_for(15), camera)
+    own, _ = render_np(avatar, TrackedParams(own_capture, run).params_for(last), camera)
     assert np.abs(np.clip(own, 0, 1) - written).max() > 0.05  # not A's own performance
 
 

@@ -23,7 +23,7 @@ EXPR_NUDGE = 0.5  # added to expr[0] of the run's timestep-0 parameters, as trai
 
 
 def tiny_capture(tmp_path_factory) -> pathlib.Path:
-    """3 views, 16 timesteps, 48 px (train: cam00/cam02 at 0-11; val: cam01; test: FREE 12-15)."""
+    """3 views, 16 timesteps + 2 of VAL, 48 px (train: cam00/cam02 at 0-11; val: cam01; test: FREE 12-15, VAL 16-17)."""
     if "capture" not in _CACHE:
         root = tmp_path_factory.mktemp("capture")
         _CACHE["capture"] = make_capture(root, CaptureSettings(views=3, timesteps=16, size=48, supersample=1), progress=False)

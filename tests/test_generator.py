@@ -29,16 +29,19 @@ def tiny_capture(tmp_path_factory):
 def test_capture_validates_with_the_documented_splits(tiny_capture):
     summary = validate_capture(tiny_capture)
     info = json.loads((tiny_capture / "capture_info.json").read_text())
-    assert summary.views == 4 and summary.timesteps == 16
-    assert set(summary.sequences) == {"EXP-1", "EXP-2", "SPEECH", "FREE"}
+    assert summary.views == 4 and summary.timesteps == 16 + 2  # the validation sequence comes on top
+    assert set(summary.sequences) == {"EXP-1", "EXP-2", "SPEECH", "FREE", "VAL"}
+    assert info["sequences"]["FREE"] == [12, 16] and info["sequences"]["VAL"] == [16, 18]
+    assert info["test_sequence"] == "FREE" and info["val_sequence"] == "VAL"
     capture = Capture.open(tiny_capture)
     val_cameras = {f.camera_id for f in capture.frames("val")}
     assert val_cameras == {info["val_camera"]}
-    assert {f.sequence for f in capture.frames("test")} == {"FREE"}
+    assert {f.sequence for f in capture.frames("test")} == {"FREE", "VAL"}  # neither is trained on
     assert len({f.camera_id for f in capture.frames("test")}) == 4
+    assert len([f for f in capture.frames("test") if f.sequence == "VAL"]) == 2 * 4
     train = capture.frames("train")
     assert info["val_camera"] not in {f.camera_id for f in train}
-    assert "FREE" not in {f.sequence for f in train}
+    assert not {"FREE", "VAL"} & {f.sequence for f in train}
     # Novel-view frames use exactly the training timesteps.
     assert {f.timestep_index for f in capture.frames("val")} == {f.timestep_index for f in train}
 
@@ -153,8 +156,8 @@ def test_one_bias_per_capture_shared_by_its_sequences(tmp_path):
 
 def test_sequences_exercise_every_component_smoothly():
     sequences = make_sequences(150, 4, 11, [9, 10], seed=0)
-    assert [s.name for s in sequences] == ["EXP-1", "EXP-2", "SPEECH", "FREE"]
-    assert sum(s.length for s in sequences) == 150
+    assert [s.name for s in sequences] == ["EXP-1", "EXP-2", "SPEECH", "FREE", "VAL"]
+    assert sum(s.length for s in sequences[:4]) == 150 and sequences[4].length == 8  # VAL: 5 % on top
     expression_runs = np.concatenate([sequences[0].params["expr"], sequences[1].params["expr"]])
     assert np.all(np.abs(expression_runs).max(0) > 0.5)  # every component exercised
     for s in sequences:
@@ -240,3 +243,25 @@ def test_make_capture_cli_noise_options(tmp_path):
                  "--expr-correlation", "8", "--translation-bias", "0.002", "--quiet"]) == 0
     written = json.loads((tmp_path / "slow" / "capture_info.json").read_text())["settings"]
     assert written["expr_correlation"] == 8 and written["translation_bias"] == 0.002
+
+
+def test_the_validation_sequence_is_a_script_of_its_own_and_leaves_the_others_as_they_were():
+    from mogaface.core.data import sequences as module
+
+    five = make_sequences(150, 4, 11, [9, 10], seed=0)
+    free, val = five[3].params["expr"], five[4].params["expr"]
+    active = lambda expr: (np.abs(expr) > 0.1).mean()  # noqa: E731  share of components in use
+    assert active(val) < 0.6 < active(free)  # a few components at a time, not all wandering together
+    assert np.abs(val).max() > 0.5 and np.abs(five[4].params["jaw_pose"]).max() > 0
+    # the draws of the other sequences come first: without VAL they are the same
+    original = module.validation_sequence
+    try:
+        module.validation_sequence = lambda rng, length, n_expr: original(np.random.default_rng(99), length, n_expr)
+        again = make_sequences(150, 4, 11, [9, 10], seed=0)
+    finally:
+        module.validation_sequence = original
+    for a, b in zip(five[:4], again[:4]):
+        for key in a.params:
+            np.testing.assert_array_equal(a.params[key], b.params[key])
+    assert not np.array_equal(again[4].params["expr"], val)
+    assert module.validation_timesteps(16) == 2 and module.validation_timesteps(150) == 8

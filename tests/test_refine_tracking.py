@@ -260,8 +260,8 @@ def test_the_command_and_its_worker(run_root, tmp_path):
     progress = worker.wait(interval=0.1, timeout=120)
     assert progress.state == "done", (progress.message, worker.stderr_tail())
     assert json.loads((out / RECORD_FILE).read_text())["fit_steps"] == 1
-    assert progress.stage == "frames" and progress.step == progress.steps == 16
-    assert progress.message == "refined 16 timesteps"
+    assert progress.stage == "frames" and progress.step == progress.steps == 18  # 16 + the validation sequence
+    assert progress.message == "refined 18 timesteps"
     done = [e for e in worker.events if e["event"] == "done"]
     assert done[0]["folders"] == [str(out / "flame_param")]
     failed = subprocess.run([sys.executable, "-m", "mogaface", "refine-tracking", str(tmp_path / "nothing")],
@@ -298,7 +298,7 @@ def test_errors_against_the_truth_are_zero_for_the_truth_and_its_gauge(run_root,
     assert record["truth_errors"]["tracked"]["unseen"]["vertex_mm"] == pytest.approx(direct, rel=1e-5)
     aligned = AlignedTrackedParams(capture, run).params_for  # the start: tracked + the mean fine-tuning offset
     moved = np.mean([frame_errors(model, aligned(t), truth[t])["vertex_mm"] for t in unseen])
-    assert moved != pytest.approx(direct, rel=1e-3)  # the fake run's nudge of timestep 0 moves it
+    assert moved != pytest.approx(direct, rel=1e-4)  # the fake run's nudge of timestep 0 moves it (a little)
     assert record["truth_errors"]["start"]["unseen"]["vertex_mm"] == pytest.approx(moved, rel=1e-5)
 
 

@@ -366,3 +366,29 @@ def test_eval_names_the_frames_and_cameras_it_scored(run, tmp_path):
         assert [f.split("/")[1] for f in summary["scored"]["frames"]] == [r["camera"] for r in rows], name
     assert written["self_reenactment"]["scored"]["label"].endswith("unseen frames (FREE)")
     assert written["novel_view"]["scored"]["label"].startswith("novel view: held-out camera cam01")
+
+
+def test_the_validation_split_scores_the_validation_sequence_only(capture, run, tmp_path):
+    """``split="validation"``: self-reenactment of VAL (every camera); the test frames never hold
+    VAL; the held-out camera at training timesteps has no validation frames (skipped, said why)."""
+    from mogaface.core.errors import InputError
+    from mogaface.core.evaluate.evaluation import evaluate_run
+    from mogaface.core.evaluate.protocols import protocol_unavailable, scored_views
+
+    val = protocol_frames(capture, "self_reenactment", split="validation")
+    test = protocol_frames(capture, "self_reenactment")
+    assert {f.sequence for f in val} == {"VAL"} and len(val) == 2 * 3
+    assert {f.sequence for f in test} == {"FREE"} and len(test) == 4 * 3
+    assert scored_views(capture, val)["label"].endswith("unseen frames (VAL)")
+    assert "only self_reenactment" in protocol_unavailable(capture, "novel_view", "validation")
+    with pytest.raises(InputError, match="split"):
+        protocol_frames(capture, "self_reenactment", split="FREE")
+    result = evaluate_run(run.root, ["novel_view", "self_reenactment"], None, lpips=False, out_dir=tmp_path,
+                          comparisons=0, split="validation")
+    written = json.loads((tmp_path / "metrics.json").read_text())
+    assert written["split"] == "validation" and list(written["protocols"]) == ["self_reenactment"]
+    assert "novel_view" in written["skipped"] and result["protocols"]["self_reenactment"]["frames"] == 6
+    assert {f.split("/")[0].split("_")[0] for f in written["protocols"]["self_reenactment"]["scored"]["frames"]} == {"VAL"}
+    scored = benchmark_run(run.root, max_frames=2, lpips=False, fit_steps=(1,), split="validation")
+    assert scored["split"] == "validation" and list(scored["protocols"]) == ["self_reenactment"]
+    assert "novel_view" in scored["skipped"] and scored["scored"]["self_reenactment"]["label"].endswith("(VAL)")

@@ -55,6 +55,15 @@ def step_counts(text: str) -> tuple[int, ...]:
     return counts
 
 
+def add_split_argument(parser) -> None:
+    """``--split``: which unseen frames ``eval``, ``ablate`` and ``bench refiner`` score."""
+    from ..evaluate.protocol_names import SCORE_SPLITS
+
+    parser.add_argument("--split", choices=SCORE_SPLITS, default="test",
+                        help="the test frames (the held-out sequence, default) or the validation sequence's "
+                             "(self-reenactment only): choose settings on validation, score test once")
+
+
 def _build_parser(argv: list[str]) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="python -m mogaface",

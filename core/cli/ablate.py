@@ -3,14 +3,15 @@
 Variants: Freeze, single-view, multi-view, multi-view + bank, multi-view + texture, full. Writes
 ``DIR/results.json``, ``DIR/results.md`` (every parameter source on unseen frames and the held-out
 camera, mean ± std over seeds) and ``DIR/figure.png``; run folders go to ``DIR/runs/NAME/seedS`` and
-are reused when complete, so an interrupted ablation continues.
+are reused when complete, so an interrupted ablation continues. ``--split validation`` scores the
+validation sequence instead (``results_validation.*``): choose settings there.
 """
 
 from __future__ import annotations
 
 import pathlib
 
-from . import step_counts
+from . import add_split_argument, step_counts
 
 
 def add_arguments(parser):
@@ -30,12 +31,13 @@ def add_arguments(parser):
     parser.add_argument("--variants", help=f"comma-separated subset of {','.join(LADDER)} (default: all)")
     parser.add_argument("--max-frames", type=int, help="score at most this many frames per protocol")
     parser.add_argument("--no-lpips", action="store_true", help="skip LPIPS")
+    add_split_argument(parser)
     parser.add_argument("--quiet", action="store_true", help="no progress output")
 
 
 def run(args) -> int:
     from ..errors import InputError
-    from ..mogaface.ablation import LADDER, run_ablation
+    from ..mogaface.ablation import LADDER, run_ablation, split_name
 
     variants = list(LADDER) if not args.variants else [v.strip() for v in args.variants.split(",") if v.strip()]
     for name in variants:
@@ -47,7 +49,9 @@ def run(args) -> int:
     result = run_ablation(args.capture, args.out, variants, seeds=[args.seed + i for i in range(args.seeds)],
                           preset=args.preset, config_path=args.config,
                           overrides=overrides if overrides["train"] else None, max_frames=args.max_frames,
-                          lpips=not args.no_lpips, fit_steps=args.fit_steps, progress=not args.quiet)
-    print((args.out / "results.md").read_text(encoding="utf-8"), end="")
-    print(f"wrote {args.out / 'results.json'}, {args.out / 'results.md'} and {args.out / 'figure.png'}")
+                          lpips=not args.no_lpips, fit_steps=args.fit_steps, progress=not args.quiet,
+                          split=args.split)
+    written = [args.out / split_name(name, args.split) for name in ("results.json", "results.md", "figure.png")]
+    print(written[1].read_text(encoding="utf-8"), end="")
+    print(f"wrote {written[0]}, {written[1]} and {written[2]}")
     return 0 if result else 1

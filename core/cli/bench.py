@@ -21,6 +21,8 @@ BENCHMARKS = {
 
 
 def add_arguments(parser):
+    from ..evaluate.protocol_names import SCORE_SPLITS
+
     parser.add_argument("name", choices=sorted(BENCHMARKS), help="which benchmark")
     parser.add_argument("--threads", type=int, default=2, help="CPU threads for numba and torch")
     parser.add_argument("--quick", action="store_true", help="fewer sizes and repeats (smoke run)")
@@ -30,6 +32,8 @@ def add_arguments(parser):
     parser.add_argument("--fit-steps", type=step_counts,
                         help="refiner only: fitting lengths to time, comma-separated (default 10,30,100); the "
                              "refiner's time is also set against the length that matches its PSNR")
+    parser.add_argument("--split", choices=SCORE_SPLITS,
+                        help="refiner only: score the test frames (default) or the validation sequence's")
     parser.add_argument("--scale", choices=["small", "real"],
                         help="train only: 'real' times the full method at 802x550, 16 cameras, 100k Gaussians")
 
@@ -49,7 +53,12 @@ def run(args) -> int:
     if args.fit_steps is not None and args.name != "refiner":
         print("error: --fit-steps applies to the refiner benchmark only", file=sys.stderr)
         return 2
+    if args.split is not None and args.name != "refiner":
+        print("error: --split applies to the refiner benchmark only", file=sys.stderr)
+        return 2
     options = {"scale": args.scale} if args.scale is not None else {}
+    if args.split is not None:
+        options["split"] = args.split
     if args.fit_steps is not None:
         options["fit_steps"] = args.fit_steps
     if args.avatar is not None:

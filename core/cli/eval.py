@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import pathlib
 
+from . import add_split_argument
+
 
 def add_arguments(parser) -> None:
     from ..evaluate.protocol_names import ALL_PROTOCOLS, PROTOCOLS
@@ -16,6 +18,7 @@ def add_arguments(parser) -> None:
     )
     parser.add_argument("--max-frames", type=int, help="score at most this many frames per protocol, evenly spread")
     parser.add_argument("--no-lpips", action="store_true", help="skip LPIPS (PSNR and SSIM only)")
+    add_split_argument(parser)
     parser.add_argument(
         "--driver", type=pathlib.Path, metavar="CAPTURE_B",
         help="also render cross-identity reenactment driven by this capture's tracked motion",
@@ -39,7 +42,7 @@ def run(args) -> int:
     result = evaluate_run(
         args.run, args.protocols, args.max_frames, lpips=not args.no_lpips, driver=args.driver,
         out_dir=args.out, capture=args.capture, progress=not args.quiet,
-        driver_cameras=args.driver_cameras.split(",") if args.driver_cameras else None,
+        driver_cameras=args.driver_cameras.split(",") if args.driver_cameras else None, split=args.split,
     )
     print(markdown_table(result), end="")
     out = args.out or args.run

@@ -29,7 +29,7 @@ from ..progress import ProgressBar
 from . import layout
 from .mesh_render import render_mesh, vertex_normals
 from .capture_settings import CaptureSettings
-from .sequences import TEST_SEQUENCE, add_tracking_noise, make_sequences, tracking_biases
+from .sequences import TEST_SEQUENCE, VAL_SEQUENCE, add_tracking_noise, make_sequences, tracking_biases
 from .landmarks import write_landmark_file
 from .writer import CaptureWriter, write_cameras
 
@@ -222,7 +222,8 @@ def make_capture(
                         vertices, arrays.faces, arrays.vt, arrays.ft, texture, camera, BACKGROUND,
                         supersample=settings.supersample, normals=normals,
                     )
-                    split = "test" if sequence.name == TEST_SEQUENCE else ("val" if index == frontal else "train")
+                    held_out = sequence.name in (TEST_SEQUENCE, VAL_SEQUENCE)  # never trained on: the test split
+                    split = "test" if held_out else ("val" if index == frontal else "train")
                     writer.add_frame(
                         timestep, written, rgb, alpha, split=split, sequence=sequence.name,
                         timestep_id=f"{sequence.name}_{local:04d}", camera_index=index,
@@ -243,6 +244,7 @@ def make_capture(
             "background": list(BACKGROUND),
             "val_camera": cameras[frontal].camera_id,
             "test_sequence": TEST_SEQUENCE,
+            "val_sequence": VAL_SEQUENCE,
             "sequences": ranges,
             "ground_truth": {"flame_param": GT_FLAME_DIR, "cameras": GT_CAMERAS_FILE},
             **({"camera_delays": {c.camera_id: d for c, d in zip(cameras, delays)}} if any(delays) else {}),

@@ -2,7 +2,9 @@
 
 A subject performs the kinds of sequences multi-view face captures record: expression
 sequences that exercise every expression component (plus jaw and eyes) with head motion, a
-speech-like sequence, and a free performance (held out for self-reenactment).
+speech-like sequence, and a free performance (held out for self-reenactment); then a short
+validation performance of its own script (``VAL``, also never trained on): settings are chosen on
+``VAL``, and ``FREE`` is scored once with them.
 """
 
 from __future__ import annotations
@@ -16,6 +18,11 @@ from ..errors import InputError
 # name, share of the timesteps
 SEQUENCES = (("EXP-1", 0.27), ("EXP-2", 0.27), ("SPEECH", 0.23), ("FREE", 0.23))
 TEST_SEQUENCE = "FREE"
+# The validation sequence: after the others, beyond their timesteps (so they stay as they were),
+# VAL_SHARE of their count long and at least VAL_MIN.
+VAL_SEQUENCE = "VAL"
+VAL_SHARE = 0.05
+VAL_MIN = 2
 POSE_SIZES = {"rotation": 3, "neck_pose": 3, "jaw_pose": 3, "eyes_pose": 6, "translation": 3}
 
 
@@ -30,10 +37,15 @@ class Sequence:
 
 
 def split_timesteps(total: int) -> list[int]:
-    """How many timesteps each sequence gets (at least 4 each)."""
+    """How many timesteps each sequence of :data:`SEQUENCES` gets (at least 4 each)."""
     counts = [max(4, int(round(total * share))) for _, share in SEQUENCES]
     counts[-1] = max(4, total - sum(counts[:-1]))
     return counts
+
+
+def validation_timesteps(total: int) -> int:
+    """How many timesteps :data:`VAL_SEQUENCE` adds to ``total``."""
+    return max(VAL_MIN, int(round(total * VAL_SHARE)))
 
 
 def _bump(t: np.ndarray, centre: float, width: float) -> np.ndarray:
@@ -118,8 +130,28 @@ def free_sequence(rng, length: int, n_expr: int) -> dict:
     return {"expr": expr, "jaw_pose": _jaw(jaw), "eyes_pose": _eyes(0.2 * gaze[:, 0], 0.1 * gaze[:, 1]), **_head_motion(rng, t, 0.22)}
 
 
+def validation_sequence(rng, length: int, n_expr: int) -> dict:
+    """A script of its own, unlike FREE's wandering: short expressions of two or three random
+    components each, one after another with a little overlap, the jaw opening under some of them
+    and the gaze jumping between them, over slow head motion."""
+    t = np.arange(length, dtype=np.float64)
+    expr = np.zeros((length, n_expr))
+    jaw = np.zeros(length)
+    centres = np.linspace(0.0, length - 1.0, max(2, length // 3))
+    width = max(1.5, 1.2 * (centres[1] - centres[0]))
+    for centre in centres:
+        pulse = _bump(t, centre, width)
+        components = rng.choice(n_expr, size=min(n_expr, int(rng.integers(2, 4))), replace=False)
+        expr[:, components] += rng.uniform(0.6, 1.5, size=len(components)) * rng.choice([1.0, -1.0], len(components)) * pulse[:, None]
+        jaw += rng.uniform(0.0, 0.2) * pulse
+    gaze = rng.uniform(-1.0, 1.0, size=(len(centres), 2))[np.argmin(np.abs(t[:, None] - centres[None]), axis=1)]
+    return {"expr": expr, "jaw_pose": _jaw(np.clip(jaw, 0.0, 0.3)), "eyes_pose": _eyes(0.2 * gaze[:, 0], 0.1 * gaze[:, 1]),
+            **_head_motion(rng, t, 0.15)}
+
+
 def make_sequences(total_timesteps: int, n_shape: int, n_expr: int, mouth: list[int], seed: int) -> list[Sequence]:
-    """The ground-truth parameters of every sequence of one subject.
+    """The ground-truth parameters of every sequence of one subject: :data:`SEQUENCES` over
+    ``total_timesteps``, then :data:`VAL_SEQUENCE` (:func:`validation_timesteps` more).
 
     ``mouth``: the expression components the speech moves
     (:func:`~mogaface.core.flame.expression_roles.mouth_components`).
@@ -132,9 +164,10 @@ def make_sequences(total_timesteps: int, n_shape: int, n_expr: int, mouth: list[
         expression_sequence(rng, counts[1], list(range(half, n_expr)), n_expr, with_jaw=True),
         speech_sequence(rng, counts[2], list(mouth), n_expr),
         free_sequence(rng, counts[3], n_expr),
+        validation_sequence(rng, validation_timesteps(total_timesteps), n_expr),  # last: the others' draws stay
     ]
     sequences = []
-    for (name, _), params in zip(SEQUENCES, raw):
+    for (name, _), params in zip([*SEQUENCES, (VAL_SEQUENCE, VAL_SHARE)], raw):
         length = len(params["expr"])
         full = {"shape": np.zeros((length, n_shape)), **params}
         sequences.append(Sequence(name, {k: np.asarray(v, dtype=np.float32) for k, v in full.items()}))

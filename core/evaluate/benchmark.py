@@ -18,7 +18,7 @@ import numpy as np
 
 from ..errors import InputError
 from .expression_error import frame_errors
-from .protocols import PROTOCOLS, protocol_frames, run_protocol, score, scored_views
+from .protocols import PROTOCOLS, check_split, protocol_frames, protocol_unavailable, run_protocol, score, scored_views
 from ..run.folder import RunFolder
 from .sources.base import ParamSource
 
@@ -80,8 +80,9 @@ def standard_sources(run: RunFolder, capture, avatar, fit_steps=FIT_STEPS,
         has_truth = True
     except InputError:
         has_truth = False
-    if has_truth:
-        held_out = [capture_info(capture.root).get("test_sequence")]
+    if has_truth:  # σ from the training sequences: neither the test nor the validation sequence
+        info = capture_info(capture.root)
+        held_out = [info.get("test_sequence"), info.get("val_sequence")]
         sources["smoothed"] = SmoothedParams(capture, tracked, choose_sigmas(capture, held_out))
     views = {"cameras": inputs, "input_cameras": training_cameras(capture)}
     for steps in fit_steps:
@@ -130,9 +131,12 @@ def score_source(avatar, capture, source: ParamSource, frames, background, lpips
 
 
 def benchmark_run(run_dir, protocols=PROTOCOLS, max_frames: int | None = None, lpips: bool = True,
-                  fit_steps=FIT_STEPS, sources: dict[str, ParamSource] | None = None, avatar=None) -> dict:
-    """``{"protocols": {protocol: {source: scores}}, "scored": {protocol: what it scored}, "sources":
-    {name: description}, "cameras": …}`` (``scored``: :func:`.protocols.scored_views`)."""
+                  fit_steps=FIT_STEPS, sources: dict[str, ParamSource] | None = None, avatar=None,
+                  split: str = "test") -> dict:
+    """``{"split": …, "protocols": {protocol: {source: scores}}, "scored": {protocol: what it
+    scored}, "sources": {name: description}, "cameras": …, "skipped": {protocol: why}}``
+    (``scored``: :func:`.protocols.scored_views`). ``split``: the test frames or the validation
+    frames (:data:`.protocol_names.SCORE_SPLITS`); protocols without frames there are skipped."""
     from .camera_error import camera_errors
 
     run = RunFolder(run_dir)
@@ -140,13 +144,19 @@ def benchmark_run(run_dir, protocols=PROTOCOLS, max_frames: int | None = None, l
     avatar = run.load_avatar() if avatar is None else avatar
     sources = standard_sources(run, capture, avatar, fit_steps) if sources is None else sources
     result = {"sources": {name: getattr(s, "description", type(s).__name__) for name, s in sources.items()},
-              "protocols": {}, "scored": {}, "cameras": camera_errors(capture, run.root)}
+              "split": check_split(split), "protocols": {}, "scored": {}, "skipped": {},
+              "cameras": camera_errors(capture, run.root)}
     for protocol in protocols:
-        frames = protocol_frames(capture, protocol, max_frames)
+        if split != "test" and (reason := protocol_unavailable(capture, protocol, split)) is not None:
+            result["skipped"][protocol] = reason
+            continue
+        frames = protocol_frames(capture, protocol, max_frames, split)
         result["scored"][protocol] = scored_views(capture, frames)
         result["protocols"][protocol] = {
             name: score_source(avatar, capture, source, frames, run.background, lpips) for name, source in sources.items()
         }
+    if not result["protocols"]:
+        raise InputError(capture.root, "split", "; ".join(f"{k}: {v}" for k, v in result["skipped"].items()))
     return result
 
 

@@ -14,7 +14,8 @@ from . import report
 from .camera_alignment import split_frames
 from .images import ScoringCameras
 from .protocols import (
-    PROTOCOLS, DrivenParams, ParamSource, TrackedParams, check_protocol, cross_identity, novel_view_aligned,
+    PROTOCOLS, DrivenParams, ParamSource, TrackedParams, check_protocol, check_split, cross_identity,
+    novel_view_aligned,
     protocol_frames, protocol_unavailable, run_protocol, score, scored_views,
 )
 from ..run.folder import RunFolder
@@ -43,6 +44,7 @@ def evaluate_run(
     avatar=None,
     source: ParamSource | None = None,
     driver_cameras: list[str] | None = None,
+    split: str = "test",
 ) -> dict:
     """Score a run on the protocols; write ``metrics.json``, ``metrics.md`` and ``eval/`` images.
 
@@ -50,13 +52,16 @@ def evaluate_run(
     breakdowns per camera and per sequence. With ``driver`` (another capture), also renders
     the cross-identity reenactment (images only; ``driver_cameras`` of the run's capture, default
     all). Outputs go to ``out_dir`` (default: the run). ``avatar`` and ``source`` replace the
-    run's avatar and :class:`TrackedParams`, e.g. for image-assisted inference.
+    run's avatar and :class:`TrackedParams`, e.g. for image-assisted inference. ``split``: the
+    test frames (default) or the validation sequence's (``--split validation``: settings are chosen
+    there, the test frames scored once with them).
     """
     from ..io.atomic import write_json, write_text
     from ..progress import ProgressBar
 
     run = RunFolder(run_dir, capture)
     protocols = [check_protocol(name) for name in protocols]
+    check_split(split)
     out = pathlib.Path(out_dir) if out_dir is not None else run.root
     cap = run.open_capture()
     if avatar is None and source is None:
@@ -67,10 +72,10 @@ def evaluate_run(
     avatar = run.load_avatar() if avatar is None else avatar
     source = TrackedParams(cap, run) if source is None else source
     shift = delayed_views(cap, avatar, run.delays_path)  # a run that learned its cameras' delays
-    skipped = {name: reason for name in protocols if (reason := protocol_unavailable(cap, name)) is not None}
+    skipped = {name: reason for name in protocols if (reason := protocol_unavailable(cap, name, split)) is not None}
     if skipped and len(skipped) == len(protocols):
         raise InputError(cap.root, "protocols", "; ".join(f"{k}: {v}" for k, v in skipped.items()))
-    plans = {name: protocol_frames(cap, name, max_frames) for name in protocols if name not in skipped}
+    plans = {name: protocol_frames(cap, name, max_frames, split) for name in protocols if name not in skipped}
     total = sum(len(split_frames(f)[1]) if name == "novel_view_aligned" else len(f) for name, f in plans.items())
     bar = ProgressBar(total, "eval") if progress and total else None
     keys = ("psnr", "ssim", "lpips") if lpips else ("psnr", "ssim")
@@ -80,6 +85,7 @@ def evaluate_run(
         "background": list(run.background),
         "inference": getattr(source, "description", type(source).__name__),
         "scoring_cameras": ScoringCameras(cap).source,
+        "split": split,
         "protocols": {},
         "skipped": skipped,
     }

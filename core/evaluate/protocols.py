@@ -28,11 +28,12 @@ from ..run.folder import capture_info
 from .sources.base import ParamSource, views_at
 from .sources.driven import DrivenParams
 from .sources.tracked import TrackedParams
-from .protocol_names import ALL_PROTOCOLS, OPTIONAL_PROTOCOLS, PROTOCOLS
+from .protocol_names import ALL_PROTOCOLS, OPTIONAL_PROTOCOLS, PROTOCOLS, SCORE_SPLITS
 
-__all__ = ["ALL_PROTOCOLS", "OPTIONAL_PROTOCOLS", "PROTOCOLS", "check_protocol", "DrivenParams", "ParamSource",
-           "Scored", "TrackedParams", "cross_identity", "novel_view", "novel_view_aligned", "protocol_frames",
-           "render_frame", "run_protocol", "score", "scored_views", "self_reenactment", "target_image", "views_at"]
+__all__ = ["ALL_PROTOCOLS", "OPTIONAL_PROTOCOLS", "PROTOCOLS", "SCORE_SPLITS", "check_protocol", "check_split",
+           "DrivenParams", "ParamSource", "Scored", "TrackedParams", "cross_identity", "novel_view",
+           "novel_view_aligned", "protocol_frames", "render_frame", "run_protocol", "score", "scored_views",
+           "self_reenactment", "target_image", "views_at"]
 
 
 # -- which frames a protocol scores --------------------------------------------------------------
@@ -46,12 +47,17 @@ def _spread(items: list, limit: int | None) -> list:
     return [items[i] for i in picks]
 
 
-def protocol_unavailable(capture: Capture, protocol: str) -> str | None:
-    """Why a protocol cannot be scored on this capture, or None when it can."""
+def protocol_unavailable(capture: Capture, protocol: str, split: str = "test") -> str | None:
+    """Why a protocol cannot be scored on this capture's ``split`` frames, or None when it can."""
     try:
-        frames = _protocol_candidates(capture, protocol)
+        frames = _protocol_candidates(capture, protocol, split)
     except InputError as error:
         return error.problem
+    if not frames and split == "validation":
+        if protocol != "self_reenactment":
+            return ("the validation frames are a sequence of their own: only self_reenactment scores them "
+                    "(the held-out camera at training timesteps has no validation counterpart)")
+        return "capture_info.json names no validation sequence (val_sequence), or it has no frames"
     if frames and protocol == "novel_view_aligned" and len(frames) == len({f.camera_id for f in frames}):
         return "the held-out camera has a single frame: aligning it on some frames and scoring others needs two"
     if frames:
@@ -63,17 +69,29 @@ def protocol_unavailable(capture: Capture, protocol: str) -> str | None:
     return f"the capture has no {split} split and capture_info.json names no {what}"
 
 
-def _protocol_candidates(capture: Capture, protocol: str) -> list[Frame]:
+def _protocol_candidates(capture: Capture, protocol: str, split: str = "test") -> list[Frame]:
     info = capture_info(capture.root)
+    validation = info.get("val_sequence")
+    if check_split(split) == "validation":
+        if check_protocol(protocol) != "self_reenactment" or not validation:
+            return []
+        return [f for f in capture.frames() if f.sequence == validation]
     if check_protocol(protocol) in ("novel_view", "novel_view_aligned"):
         if "val" in capture.splits:
             return capture.frames("val")
         camera = info.get("val_camera")
         return [f for f in capture.frames("train") if camera is not None and f.camera_id == camera]
-    if "test" in capture.splits:  # self_reenactment
-        return capture.frames("test")
+    if "test" in capture.splits:  # self_reenactment; the validation sequence shares the test split
+        return [f for f in capture.frames("test") if not validation or f.sequence != validation]
     sequence = info.get("test_sequence")
     return [f for f in capture.frames() if sequence is not None and f.sequence == sequence]
+
+
+def check_split(name: str) -> str:
+    """``name``, or an error naming the frames a protocol can score (:data:`SCORE_SPLITS`)."""
+    if name not in SCORE_SPLITS:
+        raise InputError(None, "split", f"unknown split {name!r} (have {', '.join(SCORE_SPLITS)})")
+    return name
 
 
 def check_protocol(name: str) -> str:
@@ -83,15 +101,17 @@ def check_protocol(name: str) -> str:
     return name
 
 
-def protocol_frames(capture: Capture, protocol: str, max_frames: int | None = None) -> list[Frame]:
+def protocol_frames(capture: Capture, protocol: str, max_frames: int | None = None, split: str = "test"
+                    ) -> list[Frame]:
     """The frames a protocol scores, in capture order (evenly thinned to ``max_frames``).
 
-    Captures without ``val``/``test`` splits fall back on ``capture_info.json``'s
-    ``val_camera`` and ``test_sequence``.
+    ``split``: ``test`` (the held-out sequence, the default) or ``validation`` (the validation
+    sequence, ``capture_info.json``'s ``val_sequence``: self-reenactment only). Captures without
+    ``val``/``test`` splits fall back on ``capture_info.json``'s ``val_camera`` and ``test_sequence``.
     """
-    frames = _protocol_candidates(capture, protocol)
+    frames = _protocol_candidates(capture, protocol, split)
     if not frames:
-        raise InputError(capture.root, protocol, protocol_unavailable(capture, protocol)
+        raise InputError(capture.root, protocol, protocol_unavailable(capture, protocol, split)
                          or "the capture holds no frames for this protocol")
     frames = sorted(frames, key=lambda f: (f.timestep_index, f.camera_index))
     return _spread(frames, max_frames)

@@ -91,6 +91,15 @@ def train_variant(capture, run_dir: pathlib.Path, name: str, preset, config_path
 SCORES_FILE = "ablation_scores.json"
 
 
+def split_name(name: str, split: str) -> str:
+    """A file of the test frames keeps its name; one of the validation frames gets ``_validation``
+    before the suffix (``results_validation.json``), so the two never overwrite or merge."""
+    if split == "test":
+        return name
+    stem, dot, suffix = name.partition(".")
+    return f"{stem}_{split}{dot}{suffix}"
+
+
 def run_folder(out: pathlib.Path, name: str, seed: int) -> pathlib.Path:
     return out / "runs" / name / f"seed{seed}"
 
@@ -110,12 +119,13 @@ def image_source(run_dir):
     return avatar, MoGaFaceParams(capture, run, avatar.model, True)
 
 
-def score_variant(run_dir: pathlib.Path, max_frames, lpips: bool, fit_steps) -> dict:
+def score_variant(run_dir: pathlib.Path, max_frames, lpips: bool, fit_steps, split: str = "test") -> dict:
     """Every parameter source on both protocols (:mod:`..evaluate.benchmark`), and the expression
     error of the training timesteps (tracked → as training left them). Kept in the run folder, so
     scoring several runs can go on side by side and the table be written again without rescoring;
     kept scores are used again only under the same options and the same scoring code (a hash of its
-    files, :func:`..evaluate.benchmark.scoring_code_hash`)."""
+    files, :func:`..evaluate.benchmark.scoring_code_hash`). ``split``: the test or the validation
+    frames, each kept in a file of its own (:func:`split_name`)."""
     from ..errors import InputError
     from ..evaluate.benchmark import benchmark_run, scoring_code_hash
     from ..evaluate.expression_error import expression_errors
@@ -131,8 +141,8 @@ def score_variant(run_dir: pathlib.Path, max_frames, lpips: bool, fit_steps) -> 
 
     options = {"max_frames": max_frames, "lpips": lpips, "fit_steps": list(fit_steps), "fitting": fitting_settings(),
                "refiner": changed(REFINER_FILE), "refined_cameras": changed(REFINED_CAMERAS_FILE),
-               "scoring_code": scoring_code_hash()}
-    cached = run_dir / SCORES_FILE
+               "scoring_code": scoring_code_hash(), "split": split}
+    cached = run_dir / split_name(SCORES_FILE, split)
     if cached.exists() and cached.stat().st_mtime >= (run_dir / "run.json").stat().st_mtime:
         try:
             earlier = json.loads(cached.read_text(encoding="utf-8"))
@@ -140,7 +150,7 @@ def score_variant(run_dir: pathlib.Path, max_frames, lpips: bool, fit_steps) -> 
             earlier = {}
         if earlier.get("options") == options:
             return earlier["scores"]
-    out = benchmark_run(run_dir, max_frames=max_frames, lpips=lpips, fit_steps=fit_steps)
+    out = benchmark_run(run_dir, max_frames=max_frames, lpips=lpips, fit_steps=fit_steps, split=split)
     try:
         out["training_expression"] = expression_errors(run_dir)
     except InputError as error:  # a capture without truth: report what is missing
@@ -156,8 +166,9 @@ def _train_summary(run_dir: pathlib.Path) -> dict:
             "gaussians": info.get("gaussians")}
 
 
-def write_figure(path: pathlib.Path, run_dirs: dict[str, pathlib.Path]) -> None:
-    """One novel-view and one self-reenactment frame (image-assisted): every variant, then the truth."""
+def write_figure(path: pathlib.Path, run_dirs: dict[str, pathlib.Path], split: str = "test") -> None:
+    """One novel-view and one self-reenactment frame (image-assisted): every variant, then the truth
+    (the validation frames: self-reenactment only)."""
     from PIL import Image, ImageDraw
 
     from ..evaluate.protocols import protocol_frames, render_frame, target_image
@@ -167,8 +178,8 @@ def write_figure(path: pathlib.Path, run_dirs: dict[str, pathlib.Path]) -> None:
     first = RunFolder(next(iter(run_dirs.values())))
     capture = first.open_capture()
     picks = []
-    for protocol in ("novel_view", "self_reenactment"):
-        frames = protocol_frames(capture, protocol)
+    for protocol in ("novel_view", "self_reenactment") if split == "test" else ("self_reenactment",):
+        frames = protocol_frames(capture, protocol, split=split)
         picks.append(frames[len(frames) // 2])
     rows = []
     for frame in picks:
@@ -194,9 +205,12 @@ def write_figure(path: pathlib.Path, run_dirs: dict[str, pathlib.Path]) -> None:
 
 
 def run_ablation(capture, out, variants, *, seeds=(0,), preset="mogaface-ablation", config_path=None, overrides=None,
-                 max_frames=None, lpips=True, fit_steps=None, progress=True) -> dict:
+                 max_frames=None, lpips=True, fit_steps=None, progress=True, split="test") -> dict:
     """Train and score ``variants`` of :data:`LADDER` with every seed; write results.json,
-    results.md (mean ± std over seeds, differences beyond noise marked) and figure.png (first seed)."""
+    results.md (mean ± std over seeds, differences beyond noise marked) and figure.png (first seed).
+    ``split="validation"`` scores the validation sequence instead, into ``results_validation.json``,
+    ``.md`` and ``figure_validation.png``: where settings are chosen before the test frames are
+    scored once."""
     from ..evaluate.benchmark import FIT_STEPS
 
     fit_steps = FIT_STEPS if fit_steps is None else tuple(fit_steps)
@@ -204,7 +218,7 @@ def run_ablation(capture, out, variants, *, seeds=(0,), preset="mogaface-ablatio
     out.mkdir(parents=True, exist_ok=True)
     results = {"capture": str(pathlib.Path(capture).resolve()), "preset": preset,
                "config": None if config_path is None else str(config_path), "overrides": overrides or {},
-               "max_frames": max_frames, "fit_steps": list(fit_steps), "cpu_count": os.cpu_count(),
+               "max_frames": max_frames, "fit_steps": list(fit_steps), "split": split, "cpu_count": os.cpu_count(),
                "load_average": _load_average(), "variants": {}}
     scored: dict[str, dict] = {}
     for seed in seeds:
@@ -212,15 +226,16 @@ def run_ablation(capture, out, variants, *, seeds=(0,), preset="mogaface-ablatio
             run_dir = run_folder(out, name, seed)
             seeded = _merge(overrides or {}, {"train": {"seed": int(seed)}})
             train_variant(capture, run_dir, name, preset, config_path, seeded, progress)
-            entry = {"train": _train_summary(run_dir), **score_variant(run_dir, max_frames, lpips, fit_steps)}
+            entry = {"train": _train_summary(run_dir), **score_variant(run_dir, max_frames, lpips, fit_steps, split)}
             scored.setdefault(name, {})[str(seed)] = entry
             results = _write_results(out, results, scored)
             if progress:
                 free = entry["protocols"].get("self_reenactment", {})
                 print(f"[ablate] {name} seed {seed}: " + json.dumps({k: v.get("psnr") for k, v in free.items()}), flush=True)
     first = str(seeds[0])
-    write_figure(out / "figure.png", {name: run_folder(out, name, first) for name in results["variants"]
-                                      if first in results["variants"][name]["seeds"]})
+    write_figure(out / split_name("figure.png", split), {name: run_folder(out, name, first)
+                                                         for name in results["variants"]
+                                                         if first in results["variants"][name]["seeds"]}, split)
     return results
 
 
@@ -238,7 +253,8 @@ def _write_results(out: pathlib.Path, results: dict, scored: dict) -> dict:
     from .ablation_table import markdown
 
     earlier = {}
-    path = out / "results.json"
+    split = results["split"]
+    path = out / split_name("results.json", split)
     if path.exists():
         try:
             earlier = json.loads(path.read_text(encoding="utf-8")).get("variants", {})
@@ -253,5 +269,5 @@ def _write_results(out: pathlib.Path, results: dict, scored: dict) -> dict:
             merged[name] = {"label": LABELS[name], "settings": LADDER[name], "seeds": seeds}
     results = {**results, "variants": merged}
     write_json(path, results)
-    write_text(out / "results.md", markdown(results))
+    write_text(out / split_name("results.md", split), markdown(results))
     return results

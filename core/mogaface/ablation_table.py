@@ -85,12 +85,17 @@ def markdown(results: dict) -> str:
     seeds = "; ".join(f"{e['label']} {', '.join(e['seeds'])}" for e in results["variants"].values())
     lines = [f"Seeds: {seeds}. Cells: mean ± std over seeds. Δ: paired by seed; "
              "* beyond noise (paired t-test, 5 %), (n.s.) within it, (n/a) the test cannot tell (one seed, or no "
-             "spread between seeds).", "",
-             "**Unseen frames** (self-reenactment of the held-out sequence, every camera; scored view never a "
-             "source's input):", ""]
+             "spread between seeds).", ""]
+    if results.get("split", "test") == "validation":
+        lines += ["**Validation frames** (self-reenactment of the validation sequence, every camera; where "
+                  "settings are chosen: the test frames are scored once, without --split validation):", ""]
+    else:
+        lines += ["**Unseen frames** (self-reenactment of the held-out sequence, every camera; scored view never "
+                  "a source's input):", ""]
     lines += _table(results, "self_reenactment", FREE_COLUMNS, against_freeze=True)
-    lines += ["", "**Held-out camera** (novel view at the training timesteps):", ""]
-    lines += _table(results, "novel_view", NOVEL_COLUMNS, against_freeze=True)
+    if results.get("split", "test") == "test":
+        lines += ["", "**Held-out camera** (novel view at the training timesteps):", ""]
+        lines += _table(results, "novel_view", NOVEL_COLUMNS, against_freeze=True)
     lines += ["", "**Training timesteps** (the run's own parameters against the truth; camera error of the "
               "calibration and of refined cameras where a run writes them):", "",
               "| variant | expr RMSE tracked → trained | expr vertex mm tracked → trained "

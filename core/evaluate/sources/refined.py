@@ -58,7 +58,8 @@ class RefinerInference:
     """A run's refiner as ``refine-tracking``, Blender's Improve Tracking and ``eval`` use it:
     ``passes`` refiner passes from :class:`AlignedTrackedParams` on every timestep, then, when
     asked, ``fit_steps`` of test-time fitting from the refiner's answer on the timesteps whose
-    parameters training did not fit (the unseen ones; every timestep of a run that kept the tracking).
+    parameters training did not fit (the unseen ones; every timestep of a run that kept the tracking),
+    to every other view of ``input_cameras`` (ids; None: any).
 
     No fitting by default: since a pass ends with full-size steps, fitting after it lowered the
     self-reenactment PSNR and moved the pose away
@@ -75,7 +76,7 @@ class RefinerInference:
         self.refined = RefinedParams(avatar, capture, self.start, refiner, run.background, passes=passes,
                                      max_views=views, cameras=cameras, input_cameras=input_cameras)
         self.fitted = (FittedParams(avatar, capture, self.refined, fit_steps, run.background, cameras=cameras,
-                                    views=views, input_cameras=input_cameras) if fit_steps else None)
+                                    input_cameras=input_cameras) if fit_steps else None)
         self.fitted_by_training = set(run.trained_timesteps) if self.start.offset else set()
         self.inputs: list[tuple[str | None, list[str]]] = []
         self.description = self.refined.description + (
