@@ -8,8 +8,11 @@
 # Steps: the pins resolve to wheels for Python 3.11 and 3.13; `blender --command extension build`;
 # `extension install-file` into a clean user folder; in a window under Xvfb (tests/real_blender/
 # ui_check.py): Install Dependencies (cancel, then the whole install), import a capture and a head,
-# train through the modal operator (cancel, resume), load the avatar, render a frame and a keyed
-# animation, export a PLY; headless: scripts/mogaface_blend.py with --factory-startup and with a
+# train through the modal operator (cancel, resume), load the avatar (its longest interface block
+# timed), render a frame and a keyed animation, export a PLY, the avatar in the viewport and in
+# F12; the pixels of each place read back against the core render, one line each
+# ("pixels PLACE: X dB against the core render"; below 35 dB under Standard fails), with
+# screenshots under AgX and Standard; headless: scripts/mogaface_blend.py with --factory-startup and with a
 # .blend; then disable and remove the extension (its user folder must be gone).
 #
 # Environment: MOGAFACE_CHECK_TORCH_INDEX: the torch index the add-on installs from ("" = PyPI's
