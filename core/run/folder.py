@@ -66,6 +66,10 @@ class RunFolder:
         if not self.root.is_dir():
             raise InputError(self.root, None, "not a run folder")
         if not self.avatar_path.is_file():
+            if self.avatar_path.exists():  # a FIFO, device or folder where the avatar should be
+                from ..io.files import check_regular_file
+
+                check_regular_file(self.avatar_path)
             raise InputError(self.avatar_path, None, "avatar file not found (is training finished?)")
         self.background  # noqa: B018 -- run.json is read and checked now, not at first use
 

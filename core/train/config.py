@@ -334,12 +334,24 @@ def resolve(preset: str | None = None, path: str | os.PathLike | None = None,
 
 
 def read_toml(path: str | os.PathLike) -> dict:
+    """A settings file: a regular file of at most :data:`MAX_SETTINGS_BYTES`, parsed as TOML."""
+    from ..io.files import check_regular_file
+    from ..limits import MAX_SETTINGS_BYTES
+
+    check_regular_file(path)
     try:
         with open(path, "rb") as handle:
-            return tomllib.load(handle)
+            data = handle.read(MAX_SETTINGS_BYTES + 1)
+        if len(data) > MAX_SETTINGS_BYTES:
+            raise InputError(path, None, f"a settings file over the limit of {MAX_SETTINGS_BYTES} bytes")
+        return tomllib.loads(data.decode("utf-8"))
     except FileNotFoundError:
         raise InputError(path, None, "file not found") from None
-    except (OSError, tomllib.TOMLDecodeError, UnicodeDecodeError) as error:
+    except RecursionError:
+        raise InputError(path, None, "nested too deeply to be a settings file") from None
+    except InputError:
+        raise
+    except (OSError, ValueError) as error:  # bad TOML, bad UTF-8, a number of 10 000 digits
         raise InputError(path, None, f"not a readable TOML file ({error})") from None
 
 

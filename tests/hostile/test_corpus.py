@@ -117,6 +117,15 @@ CASES = [
      ["mogaface.plane_size"]),
     ("lr-position-negative", lambda c, t: train(c, t, "--config", _config(t, "[lr]\nposition = -1\n")),
      ["lr.position"]),
+    ("run-config-is-a-fifo", lambda c, t: ((c["run"] / "config.toml").unlink(), os.mkfifo(c["run"] / "config.toml"),
+                                           _resume(c))[2], ["config.toml", "regular file"]),
+    ("run-config-links-to-dev-zero", lambda c, t: ((c["run"] / "config.toml").unlink(),
+                                                   (c["run"] / "config.toml").symlink_to("/dev/zero"), _resume(c))[2],
+     ["config.toml", "regular file"]),
+    ("run-config-over-the-size-limit", lambda c, t: (_pad(c["run"] / "config.toml", 2 * 2 ** 20), _resume(c))[1],
+     ["config.toml", "over the limit"]),
+    ("config-nested", lambda c, t: train(c, t, "--config", _config(t, "a = " + "[" * 100_000 + "]" * 100_000)),
+     ["bad.toml", "nested too deeply"]),
     # head models
     ("model-zero-faces", lambda c, t: ["preview-head", _model(t, f=np.zeros((0, 3), np.int64)), "--out", t / "p"],
      ["model.pkl", "'f'", "found none"]),
@@ -205,6 +214,8 @@ CASES = [
      ["avatar.pt", "field 'data.pkl'", "(1073741824,)", "limit"]),
     ("pt-runs-code", lambda c, t: (_pickle_in_avatar(c["run"], {"x": b.RunsCode()}), _render(c, t))[1],
      ["avatar.pt", "refused to load global", "system"]),
+    ("pt-is-a-fifo", lambda c, t: ((c["run"] / "avatar.pt").unlink(), os.mkfifo(c["run"] / "avatar.pt"),
+                                   _render(c, t))[2], ["avatar.pt", "expected a regular file"]),
     ("pt-truncated", lambda c, t: (b.truncate(c["run"] / "avatar.pt"), _render(c, t))[1],
      ["avatar.pt", "not a readable avatar file"]),
     ("pt-not-a-zip", lambda c, t: ((c["run"] / "avatar.pt").write_bytes(b"\x80\x02}q\x00."), _render(c, t))[1],
@@ -271,6 +282,10 @@ CASES = [
                                                                    (10 ** 12,)), _render(c, t))[1],
      ["00000.npz", "expr", "declares"]),
 ]
+
+
+def _resume(c):
+    return ["train", c["capture"], "--out", c["run"], "--resume", "--steps", "4", "--quiet"]
 
 
 def _export(c, out):
