@@ -27,3 +27,4 @@ MAX_JSON_BYTES = 128 * 1024 ** 2  # one JSON file: ~120 000 frames of a split fi
 MAX_JSON_VALUES = 10_000_000  # values in one JSON file (~40 a frame: 250 000 frames), counted by separators: at most ~0.4 GB of Python objects
 MIN_IMAGE_SIDE = 11  # px, width or height of an image or camera: the SSIM window of the image loss and metric (2 x 5 + 1 taps)
 MAX_SETTINGS_BYTES = 1024 ** 2  # one settings file (a run's config.toml, every key written: ~8 kB)
+MAX_NPZ_MEMBERS = 1024  # arrays in one .npz (a FLAME model: ~15, a parameter file: ~8); each costs ~500 bytes before it is read

@@ -8,7 +8,8 @@ import zipfile
 import numpy as np
 
 from ..errors import InputError
-from ..limits import MAX_ARRAY_BYTES, MAX_ARRAY_ELEMENTS
+from ..limits import MAX_ARRAY_BYTES, MAX_ARRAY_ELEMENTS, MAX_NPZ_MEMBERS
+from .archive import check_member_count
 from .atomic import atomic_path
 from .files import check_regular_file
 
@@ -39,6 +40,7 @@ def load_npz(path: str | os.PathLike, max_bytes: int = MAX_ARRAY_BYTES) -> dict[
     above :data:`~mogaface.core.limits.MAX_ARRAY_ELEMENTS`, and ``max_bytes`` for all together.
     """
     check_regular_file(path)
+    check_member_count(path, MAX_NPZ_MEMBERS, "an .npz (zip) archive")
     try:
         with zipfile.ZipFile(path) as archive:
             arrays, total = {}, 0

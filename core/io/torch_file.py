@@ -21,6 +21,7 @@ import numpy as np
 from ..errors import InputError, UnsafePickleError
 from ..limits import (MAX_ARRAY_ELEMENTS, MAX_TORCH_FILE_BYTES, MAX_TORCH_PICKLE_BYTES, MAX_TORCH_RECORDS,
                       TORCH_BYTES_PER_FILE_BYTE)
+from .archive import check_member_count
 from .files import check_regular_file
 from .pickle_budget import object_budget, scan_opcodes, short_repr
 from .restricted_pickle import RestrictedUnpickler
@@ -70,12 +71,11 @@ def check_torch_archive(path: str | os.PathLike, what: str) -> None:
     record, every tensor view within its storage and at most :data:`MAX_ARRAY_ELEMENTS` elements.
     """
     check_regular_file(path)
+    check_member_count(path, MAX_TORCH_RECORDS, f"a torch archive ({_article(what)} {what} is one)")
     size = os.stat(path).st_size
     try:
         with zipfile.ZipFile(path) as archive:
             infos = archive.infolist()
-            if len(infos) > MAX_TORCH_RECORDS:
-                raise InputError(path, None, f"a {what} with {len(infos)} records; the limit is {MAX_TORCH_RECORDS}")
             declared = 0
             for info in infos:
                 declared += info.file_size
@@ -103,6 +103,10 @@ def check_torch_archive(path: str | os.PathLike, what: str) -> None:
     except (zipfile.BadZipFile, zipfile.LargeZipFile, OSError, EOFError, ValueError) as error:
         raise InputError(path, None, f"not a readable {what} (not a torch archive: {error})") from None
     _scan_pickle(path, data, records, what)
+
+
+def _article(what: str) -> str:
+    return "an" if what[:1] in "aeiou" else "a"
 
 
 def _scan_pickle(path, data: bytes, records: dict, what: str) -> None:
@@ -168,8 +172,7 @@ class _TorchDeclarations(RestrictedUnpickler):
                              "_rebuild_parameter_with_state": self._parameter}.get,
             "collections": {"OrderedDict": collections.OrderedDict}.get,
         }
-        super().__init__(handle, path, allowed, ("an " if what[:1] in "aeiou" else "a ") + what, budget,
-                         encoding="utf-8")
+        super().__init__(handle, path, allowed, f"{_article(what)} {what}", budget, encoding="utf-8")
         self._records = records
         self._storages: dict[str, _Storage] = {}
         self._view_bytes = 0

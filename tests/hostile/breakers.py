@@ -180,3 +180,22 @@ def avatar_with(run, tensor_name, make, **kwargs):
     state = torch.load(run / "avatar.pt", weights_only=True)
     state["gaussians"][tensor_name] = make()
     return torch_declaring(run / "avatar.pt", state, **kwargs)
+
+
+def zip_of_empty_members(path, count):
+    """A zip64 archive of ``count`` empty members (about 90 bytes each on disk; ~500 each once
+    :mod:`zipfile` has built an entry object for every one)."""
+    out, central = bytearray(), bytearray()
+    for index in range(count):
+        name, offset = f"{index}.npy".encode(), len(out)
+        out += struct.pack("<IHHHHHIIIHH", 0x04034B50, 20, 0, 0, 0, 0x21, 0, 0, 0, len(name), 0) + name
+        central += struct.pack("<IHHHHHHIIIHHHHHII", 0x02014B50, 20, 20, 0, 0, 0, 0x21, 0, 0, 0, len(name), 0, 0, 0, 0,
+                               0, offset) + name
+    start = len(out)
+    out += central
+    end64 = len(out)
+    out += struct.pack("<IQHHIIQQQQ", 0x06064B50, 44, 45, 45, 0, 0, count, count, len(central), start)
+    out += struct.pack("<IIQI", 0x07064B50, 0, end64, 1)
+    out += struct.pack("<IHHHHIIH", 0x06054B50, 0, 0, 0xFFFF, 0xFFFF, 0xFFFFFFFF, 0xFFFFFFFF, 0)
+    path.write_bytes(bytes(out))
+    return path

@@ -217,7 +217,7 @@ CASES = [
     ("pt-is-a-fifo", lambda c, t: ((c["run"] / "avatar.pt").unlink(), os.mkfifo(c["run"] / "avatar.pt"),
                                    _render(c, t))[2], ["avatar.pt", "expected a regular file"]),
     ("pt-truncated", lambda c, t: (b.truncate(c["run"] / "avatar.pt"), _render(c, t))[1],
-     ["avatar.pt", "not a readable avatar file"]),
+     ["avatar.pt", "not a torch archive", "truncated"]),
     ("pt-not-a-zip", lambda c, t: ((c["run"] / "avatar.pt").write_bytes(b"\x80\x02}q\x00."), _render(c, t))[1],
      ["avatar.pt", "not a torch archive"]),
     ("pt-active-sh-degree-7", lambda c, t: (_avatar_edit(c["run"], lambda s: s.update(active_sh_degree=7)),
@@ -276,6 +276,9 @@ CASES = [
     ("npz-expression-empty", lambda c, t: (_param_edit(c["capture"] / "flame_param" / "00000.npz",
                                                        expr=np.zeros(0, np.float32)), cap(c))[1],
      ["00000.npz", "'expr'", "(no values)"]),
+    ("npz-60000-members", lambda c, t: (b.write_zip(c["capture"] / "flame_param" / "00000.npz", [
+        (f"{i}.npy", b"", 0, 0, 0) for i in range(60_000)]), cap(c))[1],
+     ["00000.npz", "declares 60000 zip members", "limit is 1024"]),
     ("npz-member-not-npy", lambda c, t: (_zip_member(c["capture"] / "flame_param" / "00000.npz", b"garbage"),
                                          cap(c))[1], ["00000.npz", "not a plain numpy archive"]),
     ("npz-declares-1e12-in-the-run", lambda c, t: (b.npz_declaring(c["run"] / "flame_param" / "00000.npz", "expr",
