@@ -155,7 +155,7 @@ def test_the_spy_catches_a_source_that_reads_the_answers(capture, trained):
     assert answers(seen) and all(GT_FLAME_DIR in p for p in answers(seen))
     with opened_files() as seen:
         ScoringCameras(capture)
-    assert [pathlib.PurePath(p).name for p in answers(seen)] == [GT_CAMERAS_FILE]
+    assert {pathlib.PurePath(p).name for p in answers(seen)} == {GT_CAMERAS_FILE}
 
 
 # -- the ablation's kept scores ------------------------------------------------------------------
