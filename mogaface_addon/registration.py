@@ -10,7 +10,7 @@ on ``sys.path``. :func:`unregister` removes every one of them.
 
 import bpy
 
-from ..operators.head_rig import update_heads_on_edit, update_heads_on_frame_change
+from ..operators.handlers.head_rig import update_heads_on_edit, update_heads_on_frame_change
 from ..operators.import_capture import MOGAFACE_OT_import_capture, MOGAFACE_OT_use_capture_camera
 from ..operators.import_head import MOGAFACE_OT_import_head
 from ..operators.import_tracking import MOGAFACE_OT_import_tracking
@@ -25,7 +25,7 @@ from ..operators.avatar import (
     MOGAFACE_OT_export_ply, MOGAFACE_OT_load_avatar, MOGAFACE_OT_render_animation, MOGAFACE_OT_render_cancel,
     MOGAFACE_OT_render_frame, cancel_render_job,
 )
-from ..operators import viewport
+from ..operators.handlers import viewport
 from ..operators.compositor import MOGAFACE_OT_setup_render_layer, render_avatar_layers
 from ..operators.gaussian_points import MOGAFACE_OT_gaussians_to_mesh
 from ..operators.train import MOGAFACE_OT_train, MOGAFACE_OT_train_cancel, cancel_running_job

@@ -15,7 +15,7 @@ from bpy.props import BoolProperty, EnumProperty, IntProperty, StringProperty
 
 from .common import clear_status_text, core_or_report, redraw_areas, run_core
 from .dependencies import LazyModule
-from .head_rig import AVATAR_PATH_PROPERTY, expression_values, head_objects, is_head, pose_values, rig_of
+from .handlers.head_rig import AVATAR_PATH_PROPERTY, expression_values, head_objects, is_head, pose_values, rig_of
 
 np = LazyModule("numpy")  # imported on first use: registering needs no numpy
 

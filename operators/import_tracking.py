@@ -12,7 +12,7 @@ from bpy.props import BoolProperty, StringProperty
 from .animation import fcurve_container, write_fcurve
 from .common import core_or_report, run_core
 from .animation import id_fcurves
-from .head_rig import is_head, rig_of, update_head
+from .handlers.head_rig import is_head, rig_of, update_head
 
 
 def existing_keys(obj) -> int:

@@ -15,7 +15,7 @@ from bpy.props import IntProperty, StringProperty
 from .child_job import FollowsChildJob, cancel_and_wait, end_job, job_progress, new_job, refuse_if_busy
 from .common import core_or_report
 from .dependencies import interpreter, worker_paths
-from .head_rig import is_head
+from .handlers.head_rig import is_head
 from .import_tracking import existing_keys, head_or_report, key_tracking
 from .train import preferred_threads
 

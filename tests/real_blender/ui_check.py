@@ -459,7 +459,7 @@ def avatar_in_scene_stages(head):
     """The avatar drawn live in the viewport at two keyed frames, then in an F12 render."""
     import numpy as np
 
-    viewport = module("operators.viewport")
+    viewport = module("operators.handlers.viewport")
     for other in bpy.context.scene.objects:  # the first imported head stands where the avatar is
         if other.type == "MESH" and other != head:
             other.hide_set(True)

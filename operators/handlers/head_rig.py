@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import bpy
 
-from .dependencies import FILE_MODULES, LazyModule, missing_modules
+from ..dependencies import FILE_MODULES, LazyModule, missing_modules
 
 np = LazyModule("numpy")  # imported on first use: registering needs no numpy
 
@@ -39,7 +39,7 @@ def head_objects(scene) -> list:
 
 def rig_of(obj):
     """The core :class:`HeadRig` of a head object (model loaded once per file)."""
-    from ..core import scene_conversion as sc
+    from ...core import scene_conversion as sc
 
     shape = np.asarray(obj.get(sc.SHAPE_PROPERTY, []), np.float64)
     offset = obj.get(sc.STATIC_OFFSET_PROPERTY)
@@ -59,7 +59,7 @@ def expression_values(obj, n_expr: int) -> np.ndarray:
 
 def pose_values(obj) -> dict:
     """The pose custom properties as FLAME parameters."""
-    from ..core.scene_conversion import POSE_PROPERTIES
+    from ...core.scene_conversion import POSE_PROPERTIES
 
     return {name: np.asarray(obj.get(prop, [0.0] * size), np.float64) for name, (prop, size) in POSE_PROPERTIES.items()}
 
@@ -100,7 +100,7 @@ def _update_heads(scene, only_if_changed: bool) -> None:
     heads = head_objects(scene)
     if not heads or missing_modules(FILE_MODULES):
         return
-    from ..core.errors import MogafaceError
+    from ...core.errors import MogafaceError
 
     for obj in heads:
         try:

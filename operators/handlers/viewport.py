@@ -22,7 +22,7 @@ import time
 import bpy
 from bpy.props import BoolProperty
 
-from .dependencies import LazyModule
+from ..dependencies import LazyModule
 from .head_rig import is_head
 
 np = LazyModule("numpy")  # imported on first use: registering needs no numpy
@@ -66,9 +66,9 @@ def viewport_request(head, view_matrix, projection, size: tuple[int, int], frame
 
     ``view_matrix``/``projection``: ``RegionView3D.view_matrix`` / ``window_matrix``.
     """
-    from ..core import scene_conversion as sc
-    from ..core.scene_render import RenderRequest, view_camera
-    from .avatar import head_values
+    from ...core import scene_conversion as sc
+    from ...core.scene_render import RenderRequest, view_camera
+    from ..avatar import head_values
 
     view = view_camera(np.array(view_matrix), np.array(projection), np.array(head.matrix_world), *size)
     request = RenderRequest(head[sc.AVATAR_PATH_PROPERTY], head_values(head), view.camera, None, view.scale, frame)
@@ -84,7 +84,7 @@ def viewport_image(result, view, projection) -> ViewportImage:
     colours under every view transform, exactly as the capture photo a camera shows as its
     background image (checked in Blender 4.3 by reading the screen back).
     """
-    from ..core.scene_render import blender_rgba, depth_buffer_values
+    from ...core.scene_render import blender_rgba, depth_buffer_values
 
     height, width = result.alpha.shape
     rgba = blender_rgba(result)
@@ -97,7 +97,7 @@ def viewport_image(result, view, projection) -> ViewportImage:
 
 def shown_heads(scene) -> list:
     """Heads of ``scene`` whose avatar is switched on for the viewport."""
-    from .avatar import avatar_heads
+    from ..avatar import avatar_heads
 
     return [obj for obj in avatar_heads(scene) if getattr(obj, SHOW_PROPERTY, False) and obj.visible_get()]
 
@@ -115,7 +115,7 @@ class ViewState:
         self.error: str | None = None
 
     def submit(self, request, view, projection) -> None:
-        from ..core.scene_render import render
+        from ...core.scene_render import render
 
         projection = np.array(projection)
 
@@ -127,7 +127,7 @@ class ViewState:
 
     def collect(self) -> bool:
         """Take a finished render; True if a new image arrived."""
-        from ..core.errors import MogafaceError
+        from ...core.errors import MogafaceError
 
         if self.future is None or not self.future.done():
             return False
