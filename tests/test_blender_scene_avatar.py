@@ -100,7 +100,7 @@ def viewport_render(scene_data, frame=1, size=(SIZE, SIZE)):
 
     view, projection = camera_matrices(scene_data["camera"], *size)
     bpy.context.scene.frame_set(frame)
-    request, view_cam = ops("viewport").viewport_request(scene_data["head"], view, projection, size, frame)
+    request, view_cam = ops("handlers.viewport").viewport_request(scene_data["head"], view, projection, size, frame)
     return render(request), view_cam, np.array(projection)
 
 
@@ -132,13 +132,13 @@ def test_viewport_request_renders_what_the_scene_camera_renders(scene):
 
 def test_viewport_depth_meets_the_mesh_and_is_what_opengl_writes(scene):
     result, view_cam, projection = viewport_render(scene)
-    image = ops("viewport").viewport_image(result, view_cam, projection)
+    image = ops("handlers.viewport").viewport_image(result, view_cam, projection)
     depth_window = image.depth.reshape(SIZE, SIZE)[::-1]  # back to top row first
     rgba = image.rgba.reshape(SIZE, SIZE, 4)[::-1]
     straight = np.divide(result.rgb, result.alpha[..., None], out=np.zeros_like(result.rgb),
                          where=result.alpha[..., None] > 0)
     srgb_decoded = np.where(straight > 0.04045, ((straight + 0.055) / 1.055) ** 2.4, straight / 12.92)
-    opaque = result.alpha >= ops("viewport").OPAQUE_ALPHA  # drawn with alpha 1: nothing shows through
+    opaque = result.alpha >= ops("handlers.viewport").OPAQUE_ALPHA  # drawn with alpha 1: nothing shows through
     shown_alpha = np.where(opaque, 1.0, result.alpha)
     assert np.allclose(rgba[..., :3], srgb_decoded * shown_alpha[..., None], atol=1e-5)  # linear, premultiplied
     assert np.allclose(rgba[..., 3], shown_alpha) and opaque.sum() > 50 and (~opaque & (result.alpha > 0.1)).any()
@@ -170,7 +170,7 @@ def test_an_orthographic_view_draws_the_avatar_where_the_mesh_is(scene):
     camera.data.ortho_scale = 0.4
     try:
         result, view_cam, projection = viewport_render(scene)
-        image = ops("viewport").viewport_image(result, view_cam, projection)
+        image = ops("handlers.viewport").viewport_image(result, view_cam, projection)
         depth_window = image.depth.reshape(SIZE, SIZE)[::-1]
         view = camera.matrix_world.inverted()
         origin = camera.matrix_world.translation
@@ -197,7 +197,7 @@ def settle(state, timeout=900.0):  # the first render compiles the extension cop
 
 
 def test_the_view_refreshes_on_frame_keys_head_and_view_and_sharpens_when_still(scene):
-    viewport = ops("viewport")
+    viewport = ops("handlers.viewport")
     scn, head, camera = bpy.context.scene, scene["head"], scene["camera"]
     scn.mogaface.viewport_resolution, scn.mogaface.viewport_navigate_resolution = 100, 32
     region, region_3d = fake_view(camera, 64, 64)
@@ -246,7 +246,7 @@ def test_the_view_refreshes_on_frame_keys_head_and_view_and_sharpens_when_still(
 
 
 def test_shown_heads_follow_the_per_object_switch(scene):
-    viewport = ops("viewport")
+    viewport = ops("handlers.viewport")
     head = scene["head"]
     assert viewport.shown_heads(bpy.context.scene) == [head] and head.display_type == "BOUNDS"
     head.mogaface_show_avatar = False
