@@ -77,6 +77,13 @@ class BoundGaussians(torch.nn.Module):
         """Every per-Gaussian tensor by name (parameters and ``binding``), for saving and editing."""
         return {"binding": self.binding, **{name: getattr(self, name) for name in PARAMETER_NAMES}}
 
+    def param_groups(self, lr, position_lr: float) -> list[dict]:
+        """The optimiser's groups, one per parameter and named after it (densification edits them
+        by name). ``lr``: the ``[lr]`` settings; ``position_lr``: the position rate of this step."""
+        rates = {"local_position": position_lr, "local_log_scale": lr.scaling, "local_rotation": lr.rotation,
+                 "opacity_logit": lr.opacity, "sh_dc": lr.color, "sh_rest": lr.color * lr.color_rest_ratio}
+        return [{"params": [getattr(self, name)], "lr": rates[name], "name": name} for name in PARAMETER_NAMES]
+
     def colors(self) -> torch.Tensor:
         """SH coefficients of the active degree, ``(N,(d+1)²,3)``."""
         used = (self.active_sh_degree + 1) ** 2 - 1

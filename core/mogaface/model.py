@@ -69,6 +69,16 @@ class MoGaFace(nn.Module):
         self.register_buffer("correction_mean", torch.zeros(spec["n_expr"]))
         self._canonical_frames = None  # the neutral mesh's triangle frames, computed once
 
+    def param_groups(self, settings) -> list[dict]:
+        """The optimiser's groups (``settings``: the ``[mogaface]`` section): ``correction`` (encoder,
+        fusion, head) and, with the texture attention, ``texture``. The bank is no parameter: it
+        follows the corrections by its moving average."""
+        groups = [{"params": [*self.encoder.parameters(), *self.fusion.parameters(), *self.head.parameters()],
+                   "lr": settings.lr, "name": "correction"}]
+        if self.texture is not None:
+            groups.append({"params": list(self.texture.parameters()), "lr": settings.texture_lr, "name": "texture"})
+        return groups
+
     @property
     def mode(self) -> str:
         return self.spec["mode"]

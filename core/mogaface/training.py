@@ -58,12 +58,7 @@ class CorrectionTraining:
             torch.manual_seed(seed)
             self.model = MoGaFace(spec_from_settings(settings, n_expr), timesteps, cameras, canonical_vertices)
         self.views = ViewImages(capture, settings.input_size)
-        groups = [{"params": [*self.model.encoder.parameters(), *self.model.fusion.parameters(),
-                              *self.model.head.parameters()], "lr": settings.lr, "name": "correction"}]
-        if self.model.texture is not None:
-            groups.append({"params": list(self.model.texture.parameters()), "lr": settings.texture_lr,
-                           "name": "texture"})
-        self.optimizer = torch.optim.Adam(groups, fused=True)
+        self.optimizer = torch.optim.Adam(self.model.param_groups(settings), fused=True)
 
     def encoder_frames(self, frame, generator: torch.Generator) -> list:
         """Other training views of the frame's timestamp: one (single) or up to ``encoder_views`` (multi)."""

@@ -51,6 +51,10 @@ class CameraDelays(nn.Module):
         bend = ahead - 2.0 * posed(timestep).detach() + behind
         return delay * velocity + 0.5 * delay * delay * bend
 
+    def param_groups(self, cameras) -> list[dict]:
+        """The optimiser's group ``cameras.delay`` (``cameras``: the ``[cameras]`` settings)."""
+        return [{"params": list(self.delay), "lr": cameras.delay_lr, "name": "cameras.delay"}]
+
     def values(self) -> dict[str, float]:
         return {cid: float(self.delay[i].detach()) for cid, i in self.index.items()}
 

@@ -112,6 +112,12 @@ class CameraOffsets(nn.Module):
             self.rotation[i].copy_(_axis_angle(turn))
             self.translation[i].copy_(torch.as_tensor(start.center - calibrated.center))
 
+    def param_groups(self, cameras) -> list[dict]:
+        """The optimiser's groups ``cameras.rotation`` and ``cameras.translation`` (``cameras``: the
+        ``[cameras]`` settings); one parameter per camera."""
+        return [{"params": list(self.rotation), "lr": cameras.rotation_lr, "name": "cameras.rotation"},
+                {"params": list(self.translation), "lr": cameras.translation_lr, "name": "cameras.translation"}]
+
     def refined_camera(self, camera_id: str) -> Camera:
         """The calibrated camera moved by its offset (float64 numbers, same intrinsics)."""
         camera = self.calibrated[camera_id]

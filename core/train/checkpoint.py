@@ -16,6 +16,7 @@ from __future__ import annotations
 import os
 import pathlib
 import re
+from typing import TYPE_CHECKING
 
 from ..errors import InputError
 from ..io.torch_file import check_format, load_torch_state, save_torch_state
@@ -26,6 +27,10 @@ CHECKPOINT_VERSION = 1
 LATEST = "latest"
 REFUSED = ".refused"  # the suffix of a checkpoint set aside because it did not load
 _NAME = re.compile(r"^step_(\d{6,})\.pt$")
+
+if TYPE_CHECKING:  # the lock takes this module's remove_partials: no import back at run time
+    from ..run.folder import RunFolder
+    from .run_lock import RunLock
 
 
 def checkpoint_name(step: int) -> str:
@@ -113,3 +118,35 @@ def set_aside_newer(folder: str | os.PathLike, used: pathlib.Path) -> list[str]:
         path.rename(aside)
         notes.append(f"kept the checkpoint that did not load as {aside.name}")
     return notes
+
+
+def resume_notes(folder: pathlib.Path, used: pathlib.Path, skipped: list[str], lock: RunLock) -> list[str]:
+    """What a resumed run should tell its user: stale lock, cleaned temporary files, skipped checkpoints."""
+    notes = []
+    if lock.previous_owner is not None:
+        notes.append(f"took over the lock of process {lock.previous_owner}, which is no longer running")
+    if lock.removed_partials:
+        notes.append(f"removed {len(lock.removed_partials)} unfinished temporary file(s) of a killed run")
+    for problem in skipped:
+        notes.append(f"skipped a damaged checkpoint ({problem})")
+    if skipped:
+        notes.append(f"resuming from {used.name}, the newest intact checkpoint in {folder}")
+    return notes
+
+
+def starting_state(run_folder: RunFolder, resume: bool, lock: RunLock | None) -> tuple[dict | None, list[str]]:
+    """Where a run in ``run_folder`` starts: ``(None, [])`` for a fresh run, after checking that the
+    folder holds no run yet; for ``resume``, the state of the newest checkpoint that loads and what
+    to tell the user. The writer (``lock``: the folder's lock it holds; None on other ranks) also
+    sets each newer checkpoint that did not load aside (:func:`set_aside_newer`)."""
+    folder = run_folder.checkpoint_dir
+    if not resume:
+        if latest_checkpoint(folder) is not None or run_folder.avatar_path.exists():
+            raise InputError(run_folder.root, None, "already holds a run (resume it with --resume, "
+                                                    "or choose another folder)")
+        return None, []
+    path, state, skipped = newest_intact_checkpoint(folder)
+    notes = []
+    if lock is not None:
+        notes = resume_notes(folder, path, skipped, lock) + set_aside_newer(folder, path)
+    return state, notes

@@ -9,7 +9,7 @@ import numpy as np
 import torch
 
 from ..data.capture import Capture, Frame
-from ..errors import CaptureError
+from ..errors import CaptureError, MogafaceError
 from ..io.files import file_inside
 from ..io.jsonfile import read_json_object
 
@@ -43,6 +43,18 @@ def capture_head_file(root: pathlib.Path) -> pathlib.Path:
     return path
 
 
+def principal_point_notes(capture, head) -> list[str]:
+    """A warning when the masks fit the other reading of ``cy`` better (a capture written with
+    ``cy`` from the top edge and no ``"cy_origin": "top"``): training would go on, misaligned."""
+    from ..data.cy_check import check_cy
+
+    try:
+        report = check_cy(capture, head)
+    except MogafaceError:  # an unreadable image: training reports it where it meets it, with a checkpoint
+        return []
+    return [f"{capture.root}: {report.line()}"] if report.verdict == "mirrored" else []
+
+
 def camera_extent(cameras) -> float:
     """3DGS's scene extent: 1.1 × the largest distance of a camera centre from their mean."""
     centres = np.stack([np.linalg.inv(c.w2c)[:3, 3] for c in cameras])
@@ -72,6 +84,17 @@ class FlameTable(torch.nn.Module):
 
     def trainable(self) -> dict[str, torch.nn.Parameter]:
         return {name: getattr(self, name) for name in ("expr", *JOINTS, "translation")}
+
+    def param_groups(self, flame) -> list[dict]:
+        """The optimiser's groups (``flame.<name>``) when ``flame.finetune`` (the ``[flame]``
+        settings) is on, else none; marks the parameters trainable or fixed accordingly."""
+        groups = []
+        for name, value in self.trainable().items():
+            value.requires_grad_(flame.finetune)
+            if flame.finetune:
+                rate = {"expr": flame.expression_lr, "translation": flame.translation_lr}.get(name, flame.joints_lr)
+                groups.append({"params": [value], "lr": rate, "name": f"flame.{name}"})
+        return groups
 
     def params(self, timestep: int | None = None) -> dict[str, torch.Tensor]:
         """The model's keyword arguments for one timestep (batch 1), or for all (batch T)."""

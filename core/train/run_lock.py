@@ -102,17 +102,3 @@ def take_run_folder(root: pathlib.Path) -> RunLock:
     lock = RunLock(root).acquire()
     lock.removed_partials = remove_partials(root / "checkpoints") + remove_partials(root)
     return lock
-
-
-def resume_notes(folder: pathlib.Path, used: pathlib.Path, skipped: list[str], lock: RunLock) -> list[str]:
-    """What a resumed run should tell its user: stale lock, cleaned temporary files, skipped checkpoints."""
-    notes = []
-    if lock.previous_owner is not None:
-        notes.append(f"took over the lock of process {lock.previous_owner}, which is no longer running")
-    if lock.removed_partials:
-        notes.append(f"removed {len(lock.removed_partials)} unfinished temporary file(s) of a killed run")
-    for problem in skipped:
-        notes.append(f"skipped a damaged checkpoint ({problem})")
-    if skipped:
-        notes.append(f"resuming from {used.name}, the newest intact checkpoint in {folder}")
-    return notes

@@ -7,6 +7,10 @@ opacities and raises the SH degree on its schedule. Optionally the per-timestep 
 parameters are fine-tuned too. Everything that decides what happens next (step, parameters,
 Adam moments, densification statistics, random state, frame order) is in :meth:`Trainer.state`,
 so a resumed run continues exactly where its checkpoint left it.
+
+The trainer holds the loop and gathers the parts: each trainable part gives its own optimiser
+groups (``param_groups``), :mod:`.training_view` renders and scores a view, :mod:`.camera_start`
+starts the cameras, :mod:`.checkpoint` says where a run starts, :mod:`.results` writes what it ends with.
 """
 
 from __future__ import annotations
@@ -23,28 +27,23 @@ import torch
 from ..avatar.avatar import Avatar
 from ..avatar.binding import triangle_frames
 from ..avatar.densify import DensifySchedule, DensifyStrategy
-from ..data import layout
 from ..errors import InputError, MogafaceError
 from ..run.folder import RunFolder
-from ..run.names import DELAYS_FILE, LANDMARK_CAMERAS_FILE, REFINED_CAMERAS_FILE, RUN_FORMAT, RUN_VERSION
-from ..io.atomic import atomic_path, write_json, write_text
-from ..io.npz import save_npz
+from ..run.names import LANDMARK_CAMERAS_FILE
+from ..io.atomic import atomic_path, write_text
 from ..splat import cancel
 from ..splat.cancel import RenderCancelled
 from . import config as config_module
-from .camera_refine import CameraOffsets, write_refined_cameras
-from .checkpoint import latest_checkpoint, newest_intact_checkpoint, save_checkpoint, set_aside_newer
-from .run_lock import resume_notes, take_run_folder
-from .config import LANDMARKS_START, TrainConfig
-from .camera_delays import CameraDelays, read_delays
-from .data import TrainingData, capture_head_file
+from .camera_start import build_camera_delays, build_camera_offsets, load_cameras
+from .checkpoint import save_checkpoint, starting_state
+from .run_lock import take_run_folder
+from .config import TrainConfig
+from .data import TrainingData, capture_head_file, principal_point_notes
 from .distributed import Communicator
 from .events import EventLog, Listener
-from .losses import image_loss, position_hinge, psnr, scaling_hinge
-from .mogaface_part import build_mogaface, finish_mogaface, mogaface_render
-from ..mogaface.avatar import render_world
-
-GAUSSIAN_GROUPS = ("local_position", "local_log_scale", "local_rotation", "opacity_logit", "sh_dc", "sh_rest")
+from .mogaface_part import build_mogaface
+from .results import quick_check, write_learned_cameras, write_results, write_run_json
+from .training_view import ViewRenderer, ViewResult
 
 
 def set_threads(threads: int) -> None:
@@ -86,18 +85,6 @@ def hold_still(optimizer, holds) -> None:
                 param.grad = None
 
 
-def principal_point_notes(capture, head) -> list[str]:
-    """A warning when the masks fit the other reading of ``cy`` better (a capture written with
-    ``cy`` from the top edge and no ``"cy_origin": "top"``): training would go on, misaligned."""
-    from ..data.cy_check import check_cy
-
-    try:
-        report = check_cy(capture, head)
-    except MogafaceError:  # an unreadable image: training reports it where it meets it, with a checkpoint
-        return []
-    return [f"{capture.root}: {report.line()}"] if report.verdict == "mirrored" else []
-
-
 class Trainer:
     """A training run in a run folder: create it fresh, or resume it from its latest checkpoint.
 
@@ -113,17 +100,9 @@ class Trainer:
         self.run_folder = RunFolder.at(run)
         # One writer per run folder: rank 0 holds the lock for every rank of a data-parallel run.
         self.lock = take_run_folder(self.run_folder.root) if self.comm.is_writer else None
-        checkpoint, self._notes = None, []
-        if resume:
-            path, checkpoint, skipped = newest_intact_checkpoint(self.run_folder.checkpoint_dir)
-            if self.lock is not None:
-                self._notes = resume_notes(self.run_folder.checkpoint_dir, path, skipped, self.lock)
-                self._notes += set_aside_newer(self.run_folder.checkpoint_dir, path)
-            if config is None:
-                config = config_module.load(self.run_folder.config_path)
-        elif latest_checkpoint(self.run_folder.checkpoint_dir) is not None or self.run_folder.avatar_path.exists():
-            raise InputError(self.run_folder.root, None, "already holds a run (resume it with --resume, "
-                                                         "or choose another folder)")
+        checkpoint, self._notes = starting_state(self.run_folder, resume, self.lock)
+        if resume and config is None:
+            config = config_module.load(self.run_folder.config_path)
         self.config = (config or TrainConfig()).check()
         set_threads(self.config.train.threads)
         self.data = TrainingData(capture)
@@ -135,8 +114,6 @@ class Trainer:
         self._order = torch.zeros(0, dtype=torch.long)
         self._position = 0
         self._stop_signal: int | None = None
-        self._posed_cache: dict[int, torch.Tensor] = {}
-        self._step_posed: dict[int, torch.Tensor] = {}
 
         writer = self.comm.is_writer
         if writer:
@@ -145,6 +122,8 @@ class Trainer:
             self._start_fresh(head_file)
         else:
             self._restore(checkpoint)
+        self.views = ViewRenderer(self.config, self.data, self.avatar, self.table, self.background,
+                                  self.camera_offsets, self.camera_delays, self.mogaface)
         self.events = EventLog(self.run_folder.events_path if writer else None, listeners if writer else None)
         for note in self._notes:
             self.events.emit("warning", message=note)
@@ -160,14 +139,15 @@ class Trainer:
         self.comm.barrier()  # the other ranks read the head model rank 0 copied
         self.table = self.data.flame_table()
         self.avatar = Avatar.initial(head, self.config.densify.max_sh_degree, n_vertices=self.table.n_vertices)
-        self.camera_offsets = self._build_camera_offsets(source)
-        self.camera_delays = self._build_camera_delays(fresh=True)
+        landmarks_file = self.run_folder.root / LANDMARK_CAMERAS_FILE if self.comm.is_writer else None
+        self.camera_offsets = build_camera_offsets(self.config, self.data, source, landmarks_file)
+        self.camera_delays = build_camera_delays(self.config, self.data, self.table.timesteps, fresh=True)
         self._build_optimizer()
         self.mogaface = build_mogaface(self.config, self.data, self.table, self.avatar)
         self.strategy = DensifyStrategy(densify_schedule(self.config), len(self.avatar.gaussians),
                                         len(self.avatar.flame.faces))
         if self.comm.is_writer:
-            self._write_run_json(complete=False)
+            write_run_json(self, complete=False)
             self._notes.extend(principal_point_notes(self.data.capture, head))
 
     def _restore(self, state: dict) -> None:
@@ -179,18 +159,9 @@ class Trainer:
         with torch.no_grad():
             for name, value in self.table.trainable().items():
                 value.copy_(state["table"][name])
-        self.camera_offsets = self._build_camera_offsets()
-        self.camera_delays = self._build_camera_delays()
-        if self.camera_delays is not None:
-            if "delays" not in state:
-                raise InputError(self.run_folder.checkpoint_dir, "delays",
-                                 "the checkpoint holds no camera delays (the run was started without [cameras] delays)")
-            self.camera_delays.load(state["delays"], self.run_folder.checkpoint_dir)
-        if self.camera_offsets is not None:
-            if "cameras" not in state:
-                raise InputError(self.run_folder.checkpoint_dir, "cameras", "the checkpoint holds no camera offsets "
-                                                                        "(the run was started without [cameras] refine)")
-            self.camera_offsets.load(state["cameras"], self.run_folder.checkpoint_dir)
+        self.camera_offsets = build_camera_offsets(self.config, self.data)
+        self.camera_delays = build_camera_delays(self.config, self.data, self.table.timesteps)
+        load_cameras(state, self.camera_offsets, self.camera_delays, self.run_folder.checkpoint_dir)
         self._build_optimizer()
         self.optimizer.load_state_dict(state["optimizer"])
         self.mogaface = build_mogaface(self.config, self.data, self.table, self.avatar)
@@ -210,81 +181,13 @@ class Trainer:
         if self.comm.is_writer:
             write_text(self.run_folder.config_path, config_module.to_toml(self.config))  # e.g. a new --steps
 
-    def _build_camera_offsets(self, head_source: pathlib.Path | None = None) -> CameraOffsets | None:
-        """The training cameras' offsets when ``[cameras] refine`` is on (each camera as first met).
-        ``head_source``: the head model a fresh run starts from (its start is set here; a restored
-        run reloads its offsets from the checkpoint)."""
-        if not self.config.cameras.refine:
-            return None
-        cameras = {}
-        for frame in self.data.frames:
-            cameras.setdefault(frame.camera_id, self.data.capture.camera(frame))
-        offsets = CameraOffsets(cameras, self.config.cameras.gauge)
-        start = self.config.cameras.start
-        if start and head_source is not None:
-            offsets.start_from(self._start_cameras(start, head_source), start)
-            offsets.fix_gauge()
-        return offsets
-
-    def _build_camera_delays(self, fresh: bool = False) -> CameraDelays | None:
-        """The training cameras' delays when ``[cameras] delays`` is on. A fresh run whose cameras
-        start from a file (an earlier round's, or run's) starts from the delays beside it: a new
-        round keeps what the last one learned, as its cameras do."""
-        if not self.config.cameras.delays:
-            return None
-        delays = CameraDelays({f.camera_id for f in self.data.frames}, self.table.timesteps,
-                              self.data.capture.sequences)
-        start = self.config.cameras.start
-        if fresh and start and start != LANDMARKS_START:
-            beside = pathlib.Path(start).parent / DELAYS_FILE
-            if beside.exists():
-                delays.start_from(read_delays(beside))
-        return delays
-
-    def _start_cameras(self, start: str, head_source: pathlib.Path) -> dict:
-        """The cameras a refining run starts from: a cameras file, or ``"landmarks"``: solved from the
-        capture's landmark files (written to ``RUN/cameras_landmarks.json``) on ``head_source``, the
-        model file as the user gave it (an embedding file may lie beside it)."""
-        if start != LANDMARKS_START:
-            from ..evaluate.images import read_cameras
-
-            return read_cameras(pathlib.Path(start))
-        from ..data.writer import write_cameras
-        from ..flame.landmarks import read_embedding
-        from .landmark_cameras import solve_cameras
-
-        embedding = self.config.cameras.embedding
-        solved = solve_cameras(self.data.capture, head_source, read_embedding(embedding) if embedding else None,
-                               gauge=self.config.cameras.gauge).cameras
-        if self.comm.is_writer:
-            write_cameras(self.run_folder.root / LANDMARK_CAMERAS_FILE, solved)
-        return solved
-
     def _build_optimizer(self) -> None:
-        lr = self.config.lr
-        rates = {
-            "local_position": position_lr(self.config, self.extent, self.step),
-            "local_log_scale": lr.scaling,
-            "local_rotation": lr.rotation,
-            "opacity_logit": lr.opacity,
-            "sh_dc": lr.color,
-            "sh_rest": lr.color * lr.color_rest_ratio,
-        }
-        groups = [{"params": [getattr(self.avatar.gaussians, n)], "lr": rates[n], "name": n} for n in GAUSSIAN_GROUPS]
-        flame = self.config.flame
-        for name, value in self.table.trainable().items():
-            value.requires_grad_(flame.finetune)
-            if flame.finetune:
-                rate = {"expr": flame.expression_lr, "translation": flame.translation_lr}.get(name, flame.joints_lr)
-                groups.append({"params": [value], "lr": rate, "name": f"flame.{name}"})
-        if self.camera_offsets is not None:
-            groups.append({"params": list(self.camera_offsets.rotation), "lr": self.config.cameras.rotation_lr,
-                           "name": "cameras.rotation"})
-            groups.append({"params": list(self.camera_offsets.translation), "lr": self.config.cameras.translation_lr,
-                           "name": "cameras.translation"})
-        if self.camera_delays is not None:
-            groups.append({"params": list(self.camera_delays.delay), "lr": self.config.cameras.delay_lr,
-                           "name": "cameras.delay"})
+        """One Adam over the groups each trainable part gives (Gaussians, FLAME table, cameras)."""
+        groups = [*self.avatar.gaussians.param_groups(self.config.lr, position_lr(self.config, self.extent, self.step)),
+                  *self.table.param_groups(self.config.flame)]
+        for cameras in (self.camera_offsets, self.camera_delays):
+            if cameras is not None:
+                groups += cameras.param_groups(self.config.cameras)
         self.optimizer = torch.optim.Adam(groups, lr=0.0, eps=1e-15, fused=True)  # one kernel per group
 
     # -- state ----------------------------------------------------------------------------------
@@ -313,7 +216,7 @@ class Trainer:
         if self.comm.is_writer:
             path = save_checkpoint(self.run_folder.checkpoint_dir, self.step, self.state(),
                                    keep=self.config.train.keep_checkpoints)
-            self._write_refined_cameras()
+            write_learned_cameras(self.run_folder.root, self.camera_offsets, self.camera_delays)
             self.events.emit("checkpoint", step=self.step, path=str(path.relative_to(self.run_folder.root)))
         self.comm.keep_statistics_once(self.strategy)
         return path
@@ -328,20 +231,6 @@ class Trainer:
         self._position += 1
         return frame
 
-    def _posed_vertices(self, timestep: int) -> torch.Tensor:
-        """The mesh of a timestep; cached when the FLAME parameters are fixed."""
-        if self.config.flame.finetune:  # evaluated once per timestep per step, shared by its views
-            vertices = self._step_posed.get(timestep)
-            if vertices is None:
-                vertices = self._step_posed[timestep] = self.avatar.posed_vertices(self.table.params(timestep))
-            return vertices
-        vertices = self._posed_cache.get(timestep)
-        if vertices is None:
-            with torch.no_grad():
-                vertices = self.avatar.posed_vertices(self.table.params(timestep))
-            self._posed_cache[timestep] = vertices
-        return vertices
-
     def view_generator(self, index: int) -> torch.Generator:
         """The random source of view ``index`` of the current step (encoder views, rendered offsets).
 
@@ -350,53 +239,9 @@ class Trainer:
         """
         return torch.Generator().manual_seed(hash((self.config.train.seed, self.step, index)) & (2**63 - 1))
 
-    def _loss_names(self) -> list[str]:
-        names = ["l1", "ssim", "rgb", "position", "scaling"]
-        if self.mogaface is not None:
-            names.append("consistency")
-            names += ["centring"] if self.config.mogaface.centring_weight else []
-            names += ["rendered"] if self.config.mogaface.rendered_weight else []
-        return [*names, "loss", "psnr"]
-
-    def _render_view(self, frame, index: int) -> dict:
-        """Render one training image of the step and score it; returns its losses and render."""
-        cfg = self.config
-        gaussians = self.avatar.gaussians
-        camera = self.data.capture.camera(frame)
-        target = self.data.target(frame)
-        correction = None
-        offsets = self.camera_offsets
-        move = None if offsets is None else (lambda world: offsets.move_scene(world, frame.camera_id, camera.center))
-        shift = None if self.camera_delays is None else self.camera_delays.shift(
-            frame.camera_id, frame.timestep_index, self._posed_vertices)
-        if self.mogaface is None:
-            vertices = self._posed_vertices(frame.timestep_index)
-            if shift is not None:
-                vertices = vertices + shift
-            if move is None:
-                out = self.avatar.render_posed(vertices, camera, self.background)
-            else:
-                out = render_world(move(gaussians.world(vertices, self.avatar.flame.faces)), camera, self.background)
-        else:
-            _, out, correction = mogaface_render(self.mogaface, self.avatar, self.table, frame, camera,
-                                                 self.background, self.step, self.view_generator(index), move, shift)
-        losses = image_loss(out.rgb, target, cfg.loss.ssim_weight)
-        visible = out.visible
-        losses["position"] = position_hinge(gaussians.local_position, cfg.loss.position_threshold, visible)
-        losses["scaling"] = scaling_hinge(gaussians.local_log_scale, cfg.loss.scaling_threshold, visible)
-        total = losses["rgb"] + cfg.loss.position_weight * losses["position"] \
-            + cfg.loss.scaling_weight * losses["scaling"]
-        if correction is not None:
-            losses["consistency"] = correction.consistency
-            total = total + cfg.mogaface.consistency_weight * correction.consistency
-            if cfg.mogaface.centring_weight:
-                losses["centring"] = correction.centring
-                total = total + cfg.mogaface.centring_weight * correction.centring
-            if correction.rendered is not None:
-                losses["rendered"] = correction.rendered
-                total = total + cfg.mogaface.rendered_weight * correction.rendered
-        losses["loss"] = total
-        return {"losses": losses, "out": out, "camera": camera, "target": target, "correction": correction}
+    def _render_view(self, frame, index: int) -> ViewResult:
+        """Render view ``index`` of the step (training image ``frame``) and score it."""
+        return self.views.render(frame, self.step, self.view_generator(index))
 
     def _trainable(self) -> list[torch.Tensor]:
         """Every parameter an optimiser steps, in the same order on every rank."""
@@ -442,25 +287,19 @@ class Trainer:
         gaussians.active_sh_degree = self.strategy.schedule.sh_degree(self.step)
         batch = cfg.train.batch
         frames = [self._next_frame() for _ in range(batch)]
-        names = self._loss_names()
+        names = self.views.terms.names  # the same on every rank, one without a view included
         views = {j: self._render_view(frames[j], j) for j in comm.share(batch)}
         settling = self._settling()
         sums = torch.zeros(len(names), dtype=torch.float64)
         if views:
-            total = sum(view["losses"]["loss"] for view in views.values()) / batch
+            total = sum(view.losses["loss"] for view in views.values()) / batch
             total.backward()
-            self._step_posed.clear()  # the step's meshes (and their graphs) are spent
+            self.views.step_done()
             for view in views.values():
-                values = {k: float(v.detach()) for k, v in view["losses"].items()}
-                values["psnr"] = psnr(view["out"].rgb, view["target"])
+                values = view.logged()
                 sums += torch.tensor([values[name] for name in names], dtype=torch.float64)
-                grad = view["out"].means2d.grad
-                camera = view["camera"]
-                if settling:
-                    continue  # the Gaussians hold still: their densification statistics too
-                # Each view's own screen gradient (the batch mean divides it by ``batch``), as gsplat.
-                self.strategy.observe(self.step + 1, None if grad is None else grad * batch, view["out"].radii,
-                                      camera.width, camera.height)
+                if not settling:  # settling, the Gaussians hold still: their densification statistics too
+                    view.observe(self.strategy, self.step + 1, batch)
         sums = comm.reduce_step(self._trainable(), sums)
         if self.camera_offsets is not None and self.step < cfg.cameras.begin * cfg.train.steps:
             hold_still(self.optimizer, lambda name: name in ("cameras.rotation", "cameras.translation"))
@@ -479,7 +318,7 @@ class Trainer:
                 self.mogaface.optimizer_step()
             records = torch.zeros(batch, self.mogaface.record_size())
             for j, view in views.items():
-                records[j] = self.mogaface.record(view["correction"])
+                records[j] = self.mogaface.record(view.correction)
             for record in comm.reduce_rows(records):
                 self.mogaface.commit(record)
         self.step += 1
@@ -602,66 +441,8 @@ class Trainer:
                 self.lock.release()
 
     def _quick_check(self) -> None:
-        """A few val frames' PSNR/SSIM as a 'val' event (not counted in the training time)."""
-        if "val" not in self.data.capture.splits:
-            return
-        from .config import EvalSection
-        from .quick_eval import evaluate_val
+        quick_check(self)
 
-        self.avatar.gaussians.active_sh_degree = self.strategy.schedule.sh_degree(self.step)
-        settings = EvalSection(max_frames=self.config.eval.every_frames, lpips=False)
-        metrics = evaluate_val(self.avatar, self.data, self.table, settings)
-        self.events.emit("val", step=self.step, **{k: metrics[k] for k in ("frames", "psnr", "ssim", "psnr_masked",
-                                                                         "ssim_masked")})
-
-    # -- results --------------------------------------------------------------------------------
     def finish(self) -> None:
         """Write the final avatar, the FLAME parameters used, run.json and the quick val metrics."""
-        self.avatar.gaussians.active_sh_degree = self.strategy.schedule.sh_degree(self.step)
-        self.avatar.save(self.run_folder.avatar_path)
-        self._write_refined_cameras()
-        table, avatar = self.table, self.avatar
-        if self.mogaface is not None:  # the corrected expressions and the modules
-            table, avatar = finish_mogaface(self.mogaface, self.avatar, self.table, self.run_folder.root)
-        for t in self.table.timesteps:
-            save_npz(self.run_folder.root / layout.flame_param_path(t), layout.batched_flame_params(table.numpy(t)))
-        metrics = None
-        if self.config.eval.at_end and "val" in self.data.capture.splits:
-            from .quick_eval import evaluate_val
-
-            start = time.monotonic()
-            metrics = evaluate_val(avatar, self.data, table, self.config.eval)
-            metrics["step"] = self.step
-            metrics["seconds"] = round(time.monotonic() - start, 3)
-            write_json(self.run_folder.metrics_path, metrics)
-        self._write_run_json(complete=True)
-        self.events.emit("done", step=self.step, gaussians=len(self.avatar.gaussians), elapsed_s=self.elapsed,
-                         metrics=metrics)
-
-    def _write_refined_cameras(self) -> None:
-        if self.camera_offsets is not None:
-            write_refined_cameras(self.run_folder.root / REFINED_CAMERAS_FILE, self.camera_offsets)
-        if self.camera_delays is not None:
-            self.camera_delays.write(self.run_folder.root / DELAYS_FILE)
-
-    def _write_run_json(self, complete: bool) -> None:
-        write_json(self.run_folder.run_json_path, {
-            "format": RUN_FORMAT,
-            "version": RUN_VERSION,
-            "capture": str(self.data.root),
-            "head_file": self.avatar.head_file.name,
-            "background": list(self.data.background),
-            "scene_extent": self.extent,
-            "splits": self.data.split_summary(),
-            "train_timesteps": list(self.table.timesteps),
-            "flame_finetuned": self.config.flame.finetune,
-            "cameras_refined": self.config.cameras.refine,
-            "mogaface": {k: getattr(self.config.mogaface, k) for k in ("mode", "bank", "texture")},
-            "steps": self.config.train.steps,
-            "final_step": self.step,
-            "wall_time_s": round(self.elapsed, 3),
-            "gaussians": len(self.avatar.gaussians),
-            "complete": complete,
-            "time_limited": complete and self.step < self.config.train.steps,
-        })
-
+        write_results(self)

@@ -1,0 +1,93 @@
+"""What a training run writes besides its checkpoints: the final avatar and the FLAME parameters
+it used, the cameras it learned, ``run.json``, and its val checks (the quick one during training,
+the one at the end).
+
+Functions of the :class:`~mogaface.core.train.trainer.Trainer` they write for (imported for type
+checking only: the trainer imports this module).
+"""
+
+from __future__ import annotations
+
+import pathlib
+import time
+from typing import TYPE_CHECKING
+
+from ..data import layout
+from ..io.atomic import write_json
+from ..io.npz import save_npz
+from ..run.names import DELAYS_FILE, REFINED_CAMERAS_FILE, RUN_FORMAT, RUN_VERSION
+from .camera_refine import write_refined_cameras
+from .mogaface_part import finish_mogaface
+
+if TYPE_CHECKING:
+    from .trainer import Trainer
+
+
+def write_learned_cameras(root: pathlib.Path, offsets, delays) -> None:
+    """``RUN/cameras_refined.json`` and ``RUN/camera_delays.json``, for the parts a run learns."""
+    if offsets is not None:
+        write_refined_cameras(root / REFINED_CAMERAS_FILE, offsets)
+    if delays is not None:
+        delays.write(root / DELAYS_FILE)
+
+
+def write_results(trainer: Trainer) -> None:
+    """Write the final avatar, the FLAME parameters used, run.json and the val metrics; emit ``done``."""
+    run_folder, config = trainer.run_folder, trainer.config
+    trainer.avatar.gaussians.active_sh_degree = trainer.strategy.schedule.sh_degree(trainer.step)
+    trainer.avatar.save(run_folder.avatar_path)
+    write_learned_cameras(run_folder.root, trainer.camera_offsets, trainer.camera_delays)
+    table, avatar = trainer.table, trainer.avatar
+    if trainer.mogaface is not None:  # the corrected expressions and the modules
+        table, avatar = finish_mogaface(trainer.mogaface, trainer.avatar, trainer.table, run_folder.root)
+    for t in trainer.table.timesteps:
+        save_npz(run_folder.root / layout.flame_param_path(t), layout.batched_flame_params(table.numpy(t)))
+    metrics = None
+    if config.eval.at_end and "val" in trainer.data.capture.splits:
+        from .quick_eval import evaluate_val
+
+        start = time.monotonic()
+        metrics = evaluate_val(avatar, trainer.data, table, config.eval)
+        metrics["step"] = trainer.step
+        metrics["seconds"] = round(time.monotonic() - start, 3)
+        write_json(run_folder.metrics_path, metrics)
+    write_run_json(trainer, complete=True)
+    trainer.events.emit("done", step=trainer.step, gaussians=len(trainer.avatar.gaussians),
+                        elapsed_s=trainer.elapsed, metrics=metrics)
+
+
+def write_run_json(trainer: Trainer, complete: bool) -> None:
+    config = trainer.config
+    write_json(trainer.run_folder.run_json_path, {
+        "format": RUN_FORMAT,
+        "version": RUN_VERSION,
+        "capture": str(trainer.data.root),
+        "head_file": trainer.avatar.head_file.name,
+        "background": list(trainer.data.background),
+        "scene_extent": trainer.extent,
+        "splits": trainer.data.split_summary(),
+        "train_timesteps": list(trainer.table.timesteps),
+        "flame_finetuned": config.flame.finetune,
+        "cameras_refined": config.cameras.refine,
+        "mogaface": {k: getattr(config.mogaface, k) for k in ("mode", "bank", "texture")},
+        "steps": config.train.steps,
+        "final_step": trainer.step,
+        "wall_time_s": round(trainer.elapsed, 3),
+        "gaussians": len(trainer.avatar.gaussians),
+        "complete": complete,
+        "time_limited": complete and trainer.step < config.train.steps,
+    })
+
+
+def quick_check(trainer: Trainer) -> None:
+    """A few val frames' PSNR/SSIM as a 'val' event (not counted in the training time)."""
+    if "val" not in trainer.data.capture.splits:
+        return
+    from .config import EvalSection
+    from .quick_eval import evaluate_val
+
+    trainer.avatar.gaussians.active_sh_degree = trainer.strategy.schedule.sh_degree(trainer.step)
+    settings = EvalSection(max_frames=trainer.config.eval.every_frames, lpips=False)
+    metrics = evaluate_val(trainer.avatar, trainer.data, trainer.table, settings)
+    trainer.events.emit("val", step=trainer.step, **{k: metrics[k] for k in ("frames", "psnr", "ssim", "psnr_masked",
+                                                                         "ssim_masked")})
