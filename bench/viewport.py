@@ -70,8 +70,8 @@ def run(threads: int = 2, quick: bool = False, avatar: str | None = None) -> dic
     import numpy as np
     import torch
 
-    from mogaface.core.scene_conversion import avatar_location, load_avatar, render_avatar
-    from mogaface.core.scene_render import RenderRequest, depth_buffer_values, render, view_camera
+    from mogaface.core.scene.avatar import avatar_location, load_avatar, render_avatar
+    from mogaface.core.scene.render import RenderRequest, depth_buffer_values, render, view_camera
 
     torch.set_num_threads(threads)
     try:
@@ -103,7 +103,7 @@ def run(threads: int = 2, quick: bool = False, avatar: str | None = None) -> dic
 
         warm = viewport_frame()  # numba kernels load or compile
         camera = view_camera(view, projection, np.eye(4), size, size).camera
-        from mogaface.core.scene_render import fitted_params
+        from mogaface.core.scene.render import fitted_params
 
         params = fitted_params(values, model)
         fps, best = _median_fps(viewport_frame, repeats)

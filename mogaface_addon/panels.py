@@ -182,7 +182,7 @@ class MOGAFACE_PT_avatar(_SubPanel, bpy.types.Panel):
 
 def draw_render_buttons(layout, context) -> None:
     """Render buttons, or the running animation render's progress and Cancel."""
-    from ..operators.avatar import current_render_job
+    from ..operators.render import current_render_job
 
     job = current_render_job()
     if job is not None:

@@ -10,25 +10,25 @@ on ``sys.path``. :func:`unregister` removes every one of them.
 
 import bpy
 
+from ..operators.compositor import MOGAFACE_OT_setup_render_layer, render_avatar_layers
+from ..operators.dependencies import add_site_packages, remove_site_packages
+from ..operators.export import MOGAFACE_OT_export_ply
+from ..operators.gaussian_points import MOGAFACE_OT_gaussians_to_mesh
+from ..operators.handlers import viewport
 from ..operators.handlers.head_rig import update_heads_on_edit, update_heads_on_frame_change
 from ..operators.import_capture import MOGAFACE_OT_import_capture, MOGAFACE_OT_use_capture_camera
 from ..operators.import_head import MOGAFACE_OT_import_head
 from ..operators.import_tracking import MOGAFACE_OT_import_tracking
-from ..operators.improve_tracking import (
-    MOGAFACE_OT_improve_tracking, MOGAFACE_OT_improve_tracking_cancel, cancel_running_job as cancel_improving,
-)
+from ..operators.improve_tracking import MOGAFACE_OT_improve_tracking, MOGAFACE_OT_improve_tracking_cancel
 from ..operators.install_dependencies import (
     MOGAFACE_OT_install_dependencies, MOGAFACE_OT_install_dependencies_cancel, cancel_running_install,
 )
-from ..operators.dependencies import add_site_packages, remove_site_packages
-from ..operators.avatar import (
-    MOGAFACE_OT_export_ply, MOGAFACE_OT_load_avatar, MOGAFACE_OT_render_animation, MOGAFACE_OT_render_cancel,
-    MOGAFACE_OT_render_frame, cancel_render_job,
+from ..operators.jobs import cancel_child_jobs
+from ..operators.load_avatar import MOGAFACE_OT_load_avatar
+from ..operators.render import (
+    MOGAFACE_OT_render_animation, MOGAFACE_OT_render_cancel, MOGAFACE_OT_render_frame, cancel_render_job,
 )
-from ..operators.handlers import viewport
-from ..operators.compositor import MOGAFACE_OT_setup_render_layer, render_avatar_layers
-from ..operators.gaussian_points import MOGAFACE_OT_gaussians_to_mesh
-from ..operators.train import MOGAFACE_OT_train, MOGAFACE_OT_train_cancel, cancel_running_job
+from ..operators.train import MOGAFACE_OT_train, MOGAFACE_OT_train_cancel
 from . import panels
 from .preferences import MoGaFacePreferences
 from .properties import MoGaFaceSceneSettings
@@ -86,8 +86,7 @@ def _same_function(a, b) -> bool:
 
 
 def unregister():
-    cancel_running_job()  # a training child never outlives the extension
-    cancel_improving()
+    cancel_child_jobs()  # a training or tracking child never outlives the extension
     cancel_render_job()
     cancel_running_install()
     viewport.unregister()

@@ -5,18 +5,16 @@ from __future__ import annotations
 from .dependencies import REQUIRED_MODULES, missing_modules, report
 
 
-def core_or_report(operator, context, needs=REQUIRED_MODULES):
-    """``core.scene_conversion`` if the packages ``needs`` import here, else report and return None.
+def dependencies_ready(operator, context, needs=REQUIRED_MODULES) -> bool:
+    """True if the packages ``needs`` import here, else report which are missing and return False.
 
     Reading files needs numpy only (``dependencies.FILE_MODULES``); training and the avatar need torch.
     """
     missing = missing_modules(needs)
     if missing:
         operator.report({"ERROR"}, report(missing))
-        return None
-    from ..core import scene_conversion
-
-    return scene_conversion
+        return False
+    return True
 
 
 def run_core(operator, function, *args, **kwargs):

@@ -2,7 +2,7 @@
 
 ``mogaface.setup_render_layer`` sets up the compositor once: per head with an avatar, two
 Image nodes (the avatar layer's RGBA, scene-linear premultiplied from
-:func:`core.scene_render.blender_rgba`, and its depth), an Alpha Over node that lays the layer
+:func:`core.scene.render.blender_rgba`, and its depth), an Alpha Over node that lays the layer
 over the render (premultiplied: ``avatar + (1 - alpha) · render``) and a Z Combine node that
 takes that blend where the avatar is nearer than the render layer's Depth pass and the render
 elsewhere; the result goes to the compositor's output. (Z Combine's own "Use Alpha" mixes with
@@ -24,8 +24,8 @@ from __future__ import annotations
 
 import bpy
 
-from .common import core_or_report, run_core
-from .avatar import SCENE_LINEAR
+from .common import dependencies_ready, run_core
+from .images import SCENE_LINEAR
 from .dependencies import LazyModule
 
 np = LazyModule("numpy")  # imported on first use: registering needs no numpy
@@ -142,9 +142,9 @@ def layer_heads(scene) -> list:
 
 def layer_pixels(result) -> tuple[np.ndarray, np.ndarray]:
     """A transparent render as the compositor wants it, in Blender's flat pixel order (rows from
-    the bottom): :func:`core.scene_render.blender_rgba`, and the depth (:data:`FAR` where the
+    the bottom): :func:`core.scene.render.blender_rgba`, and the depth (:data:`FAR` where the
     avatar is not)."""
-    from ..core.scene_render import blender_rgba
+    from ..core.scene.render import blender_rgba
 
     rgba = blender_rgba(result)
     depth = np.where(np.isfinite(result.depth), result.depth, FAR)[..., None]
@@ -161,8 +161,8 @@ def fill_image(image, width: int, height: int, pixels) -> None:
 
 def render_layer(scene, head) -> None:
     """Render ``head``'s avatar layer at the scene's frame from its camera into the layer images."""
-    from ..core.scene_render import render
-    from .avatar import camera_of, head_request
+    from ..core.scene.render import render
+    from .avatar_head import camera_of, head_request
 
     frame = scene.frame_current
     request = head_request(scene, head, camera_of(scene, scene.camera, head), frame, transparent=True, keyed=True)
@@ -202,9 +202,9 @@ class MOGAFACE_OT_setup_render_layer(bpy.types.Operator):
     bl_options = {"REGISTER", "UNDO"}
 
     def execute(self, context):
-        from .avatar import avatar_heads
+        from .avatar_head import avatar_heads
 
-        if core_or_report(self, context) is None:
+        if not dependencies_ready(self, context):
             return {"CANCELLED"}
         scene = context.scene
         heads = avatar_heads(scene)

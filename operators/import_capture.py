@@ -8,7 +8,7 @@ import bpy
 from bpy.props import BoolProperty, StringProperty
 from mathutils import Matrix
 
-from .common import core_or_report, run_core
+from .common import dependencies_ready, run_core
 from .dependencies import FILE_MODULES
 
 COLLECTION_NAME = "MoGaFace Capture"
@@ -93,7 +93,7 @@ def frame_views(context, points) -> None:
     """Point every perspective 3D view of the open windows at ``points`` (the capture's cameras and
     the head at the origin), as View Selected would, without changing the selection. Nothing
     happens without a window (background mode)."""
-    from ..core.scene_render import view_framing
+    from ..core.scene.render import view_framing
 
     for window in getattr(context.window_manager, "windows", ()):
         for area in window.screen.areas:
@@ -136,14 +136,15 @@ class MOGAFACE_OT_import_capture(bpy.types.Operator):
         return {"RUNNING_MODAL"}
 
     def execute(self, context):
-        core = core_or_report(self, context, needs=FILE_MODULES)
-        if core is None:
+        if not dependencies_ready(self, context, needs=FILE_MODULES):
             return {"CANCELLED"}
         folder = bpy.path.abspath(self.filepath)
         if os.path.isfile(folder):  # a file of the capture was picked: use its folder
             folder = os.path.dirname(folder)
         refined = bpy.path.abspath(self.refined_cameras) if self.refined_cameras else None
-        description = run_core(self, core.capture_scene, folder, refined)
+        from ..core.scene.cameras import capture_scene
+
+        description = run_core(self, capture_scene, folder, refined)
         if description is None:
             return {"CANCELLED"}
         scene = context.scene

@@ -5,7 +5,7 @@ from __future__ import annotations
 import bpy
 from bpy.props import StringProperty
 
-from .common import core_or_report, run_core
+from .common import dependencies_ready, run_core
 from .dependencies import FILE_MODULES, LazyModule
 from .handlers.head_rig import MODEL_PATH_PROPERTY, POSE_KEY_NAME
 
@@ -47,16 +47,20 @@ def build_material(name: str, head):
     return material
 
 
-def add_pose_properties(obj, core) -> None:
+def add_pose_properties(obj) -> None:
     """The pose as animatable custom vectors on the object (FLAME axis-angle, translation in m)."""
-    for name, (prop, size) in core.POSE_PROPERTIES.items():
+    from ..core.scene.head_rig import POSE_PROPERTIES
+
+    for name, (prop, size) in POSE_PROPERTIES.items():
         obj[prop] = [0.0] * size
         unit = "metres" if name == "translation" else "axis-angle, radians, FLAME axes"
         obj.id_properties_ui(prop).update(description=f"FLAME {name} ({unit})", soft_min=-3.0, soft_max=3.0)
 
 
-def build_head(context, head, core):
+def build_head(context, head):
     """The head object: mesh, material, shape keys (basis, expressions, pose) and properties."""
+    from ..core.scene.head_rig import EXPRESSION_SLIDER_RANGE, SHAPE_PROPERTY, STATIC_OFFSET_PROPERTY
+
     mesh = build_mesh(head.name, head)
     if head.texture_pixels is not None:
         mesh.materials.append(build_material(head.name, head))
@@ -65,17 +69,17 @@ def build_head(context, head, core):
     obj.shape_key_add(name="Basis", from_mix=False)
     for name, co in zip(head.expression_names, head.expression_keys):
         block = obj.shape_key_add(name=name, from_mix=False)
-        block.slider_min = -core.EXPRESSION_SLIDER_RANGE
-        block.slider_max = core.EXPRESSION_SLIDER_RANGE
+        block.slider_min = -EXPRESSION_SLIDER_RANGE
+        block.slider_max = EXPRESSION_SLIDER_RANGE
         block.data.foreach_set("co", co.astype(np.float32).reshape(-1))
     pose = obj.shape_key_add(name=POSE_KEY_NAME, from_mix=False)
     pose.data.foreach_set("co", head.pose_key.astype(np.float32).reshape(-1))
     pose.value = 1.0
     obj[MODEL_PATH_PROPERTY] = head.model_path
-    obj[core.SHAPE_PROPERTY] = head.rig.shape.tolist()
+    obj[SHAPE_PROPERTY] = head.rig.shape.tolist()
     if head.rig.static_offset is not None:
-        obj[core.STATIC_OFFSET_PROPERTY] = head.rig.static_offset.reshape(-1).tolist()
-    add_pose_properties(obj, core)
+        obj[STATIC_OFFSET_PROPERTY] = head.rig.static_offset.reshape(-1).tolist()
+    add_pose_properties(obj)
     for other in context.view_layer.objects:
         other.select_set(False)
     obj.select_set(True)
@@ -105,14 +109,15 @@ class MOGAFACE_OT_import_head(bpy.types.Operator):
         return {"RUNNING_MODAL"}
 
     def execute(self, context):
-        core = core_or_report(self, context, needs=FILE_MODULES)
-        if core is None:
+        if not dependencies_ready(self, context, needs=FILE_MODULES):
             return {"CANCELLED"}
         shape_file = bpy.path.abspath(self.shape_file) if self.shape_file else None
-        head = run_core(self, core.head_import, bpy.path.abspath(self.filepath), shape_file)
+        from ..core.scene.head_rig import head_import
+
+        head = run_core(self, head_import, bpy.path.abspath(self.filepath), shape_file)
         if head is None:
             return {"CANCELLED"}
-        obj = build_head(context, head, core)
+        obj = build_head(context, head)
         context.scene.mogaface.head_file = head.model_path
         counts = f"{len(head.basis)} vertices, {len(head.expression_names)} expressions"
         self.report({"INFO"}, f"Imported {obj.name}: {counts}")

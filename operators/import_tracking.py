@@ -10,7 +10,7 @@ import bpy
 from bpy.props import BoolProperty, StringProperty
 
 from .animation import fcurve_container, write_fcurve
-from .common import core_or_report, run_core
+from .common import dependencies_ready, run_core
 from .animation import id_fcurves
 from .handlers.head_rig import is_head, rig_of, update_head
 
@@ -53,7 +53,7 @@ class MOGAFACE_OT_import_tracking(bpy.types.Operator):
 
     def execute(self, context):
         obj = self._target(context)
-        if not head_or_report(self, obj) or core_or_report(self, context) is None:
+        if not head_or_report(self, obj) or not dependencies_ready(self, context):
             return {"CANCELLED"}
         return {"FINISHED"} if key_tracking(self, context, obj, bpy.path.abspath(self.directory)) else {"CANCELLED"}
 
@@ -70,7 +70,7 @@ def head_or_report(operator, obj) -> bool:
 def key_tracking(operator, context, obj, folder: str) -> bool:
     """Key head ``obj``'s expressions and pose from a ``flame_param`` folder, one key per timestep;
     what goes wrong is reported through ``operator``. The scene's Tracking field becomes ``folder``."""
-    from ..core import scene_conversion as core
+    from ..core.scene.tracking import tracking_channels
 
     replaced = existing_keys(obj)
     key = obj.data.shape_keys
@@ -78,7 +78,7 @@ def key_tracking(operator, context, obj, folder: str) -> bool:
     if rig is None:
         return False
     n_expr = rig.model.n_expr  # expression keys are key blocks 1…n_expr, after Basis
-    channels = run_core(operator, core.tracking_channels, folder, n_expr)
+    channels = run_core(operator, tracking_channels, folder, n_expr)
     if channels is None:
         return False
     container = fcurve_container(obj, f"{obj.name} MoGaFace pose")

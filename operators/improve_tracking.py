@@ -12,8 +12,8 @@ import os
 import bpy
 from bpy.props import IntProperty, StringProperty
 
-from .child_job import FollowsChildJob, cancel_and_wait, end_job, job_progress, new_job, refuse_if_busy
-from .common import core_or_report
+from .jobs import FollowsChildJob, cancel_operator, end_job, job_progress, new_job, refuse_if_busy
+from .common import dependencies_ready
 from .dependencies import interpreter, worker_paths
 from .handlers.head_rig import is_head
 from .import_tracking import existing_keys, head_or_report, key_tracking
@@ -29,10 +29,6 @@ def current_worker():
 
 def last_progress():
     return job_progress(_job)
-
-
-def cancel_running_job() -> None:
-    cancel_and_wait(_job)
 
 
 def folder_to_key(folders: list[str], out: str, capture: str, tracking: str) -> str:
@@ -86,7 +82,7 @@ class MOGAFACE_OT_improve_tracking(FollowsChildJob, bpy.types.Operator):
         if refuse_if_busy(self):
             return {"CANCELLED"}
         obj = self._target(context)
-        if not head_or_report(self, obj) or core_or_report(self, context) is None:
+        if not head_or_report(self, obj) or not dependencies_ready(self, context):
             return {"CANCELLED"}
         run = bpy.path.abspath(self.run or context.scene.mogaface.run_folder)
         if not run or not os.path.isfile(os.path.join(run, "avatar.pt")):
@@ -130,18 +126,8 @@ class MOGAFACE_OT_improve_tracking(FollowsChildJob, bpy.types.Operator):
         return {"FINISHED"}
 
 
-class MOGAFACE_OT_improve_tracking_cancel(bpy.types.Operator):
-    """Stop improving the tracking: the head's keys and any earlier result stay as they were"""
-
-    bl_idname = "mogaface.improve_tracking_cancel"
-    bl_label = "Cancel Improving"
-    bl_options = {"REGISTER"}
-
-    @classmethod
-    def poll(cls, context):
-        return _job["worker"] is not None
-
-    def execute(self, context):
-        _job["worker"].cancel()
-        self.report({"INFO"}, "Stopping the tracking improvement")
-        return {"FINISHED"}
+MOGAFACE_OT_improve_tracking_cancel = cancel_operator(
+    "mogaface.improve_tracking_cancel", "Cancel Improving",
+    "Stop improving the tracking: the head's keys and any earlier result stay as they were",
+    current_worker, "Stopping the tracking improvement",
+)

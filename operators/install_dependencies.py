@@ -12,6 +12,7 @@ import bpy
 
 from . import dependencies
 from .common import redraw_areas
+from .jobs import cancel_operator
 
 OFFLINE_MESSAGE = "Online access is off: allow it in Preferences › System › Network, then try again"
 
@@ -102,18 +103,8 @@ class MOGAFACE_OT_install_dependencies(bpy.types.Operator):
         return {"FINISHED"}
 
 
-class MOGAFACE_OT_install_dependencies_cancel(bpy.types.Operator):
-    """Stop installing the dependencies; the packages folder stays as it was"""
-
-    bl_idname = "mogaface.install_dependencies_cancel"
-    bl_label = "Cancel Install"
-    bl_options = {"INTERNAL"}
-
-    @classmethod
-    def poll(cls, context):
-        return _install["job"] is not None
-
-    def execute(self, context):
-        _install["job"].cancel()
-        self.report({"INFO"}, "Stopping the installation")
-        return {"FINISHED"}
+MOGAFACE_OT_install_dependencies_cancel = cancel_operator(
+    "mogaface.install_dependencies_cancel", "Cancel Install",
+    "Stop installing the dependencies; the packages folder stays as it was",
+    current_install, "Stopping the installation", options={"INTERNAL"},
+)

@@ -14,8 +14,8 @@ import os
 import bpy
 from bpy.props import EnumProperty, IntProperty, StringProperty
 
-from .child_job import FollowsChildJob, cancel_and_wait, end_job, job_progress, new_job, refuse_if_busy
-from .common import core_or_report
+from .jobs import FollowsChildJob, cancel_operator, end_job, job_progress, new_job, refuse_if_busy
+from .common import dependencies_ready
 from .dependencies import interpreter, top_package, worker_paths
 
 #: Training presets (core.train.config.PRESETS) offered in the UI, with a one-line description each.
@@ -71,11 +71,6 @@ def finish_job(operator, progress, settings=None) -> set:
     return {"CANCELLED"}
 
 
-def cancel_running_job() -> None:
-    """Cancel a running training and wait for its checkpoint (the extension is being disabled)."""
-    cancel_and_wait(_job)
-
-
 class MOGAFACE_OT_train(FollowsChildJob, bpy.types.Operator):
     """Train an avatar on a capture in a separate process, showing its progress"""
 
@@ -103,7 +98,7 @@ class MOGAFACE_OT_train(FollowsChildJob, bpy.types.Operator):
     def _start(self, context):
         if refuse_if_busy(self):
             return None
-        if core_or_report(self, context) is None:
+        if not dependencies_ready(self, context):
             return None
         from ..core.worker import TrainWorker, train_command
 
@@ -153,19 +148,8 @@ class MOGAFACE_OT_train(FollowsChildJob, bpy.types.Operator):
         return finish_job(self, progress, context.scene.mogaface)
 
 
-class MOGAFACE_OT_train_cancel(bpy.types.Operator):
-    """Stop the running training cleanly: it writes a checkpoint, and can be resumed later"""
-
-    bl_idname = "mogaface.train_cancel"
-    bl_label = "Cancel Training"
-    bl_options = {"REGISTER"}
-
-    @classmethod
-    def poll(cls, context):
-        return _job["worker"] is not None
-
-    def execute(self, context):
-        worker = _job["worker"]
-        worker.cancel()
-        self.report({"INFO"}, "Stopping training after a checkpoint")
-        return {"FINISHED"}
+MOGAFACE_OT_train_cancel = cancel_operator(
+    "mogaface.train_cancel", "Cancel Training",
+    "Stop the running training cleanly: it writes a checkpoint, and can be resumed later",
+    current_worker, "Stopping training after a checkpoint",
+)

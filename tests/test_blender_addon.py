@@ -35,13 +35,16 @@ from bpy_extras.object_utils import world_to_camera_view  # noqa: E402
 from mathutils import Vector  # noqa: E402
 
 from conftest import make_toy_model  # noqa: E402
-from mogaface.core import scene_conversion as sc  # noqa: E402
 from mogaface.core.camera import Camera  # noqa: E402
 from mogaface.core.data.capture import Capture  # noqa: E402
 from mogaface.core.data.writer import CaptureWriter  # noqa: E402
 from mogaface.core.flame.model import FlameModel  # noqa: E402
 from mogaface.core.flame.model_file import write_model_file  # noqa: E402
 from mogaface.core.io.npz import save_npz  # noqa: E402
+from mogaface.core.scene.axes import blender_to_flame, flame_to_blender  # noqa: E402
+from mogaface.core.scene.head_rig import (  # noqa: E402
+    AVATAR_PATH_PROPERTY, MODEL_PATH_PROPERTY, POSE_KEY_NAME, POSE_PROPERTIES, HeadRig, load_head_model,
+)
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 MODULE = "bl_ext.user_default.mogaface"
@@ -65,7 +68,7 @@ def blender_ext_tool():
 
 def random_params(rng, n_shape, n_expr, scale=0.3):
     params = {"shape": rng.normal(size=n_shape), "expr": rng.normal(size=n_expr)}
-    params.update({k: rng.normal(scale=scale * 0.3, size=size) for k, (_, size) in sc.POSE_PROPERTIES.items()})
+    params.update({k: rng.normal(scale=scale * 0.3, size=size) for k, (_, size) in POSE_PROPERTIES.items()})
     return params
 
 
@@ -171,13 +174,13 @@ def test_installing_registers_the_operators_panels_settings_and_handler(scenario
     assert bpy.types.MOGAFACE_PT_main.bl_category == "MoGaFace"
     head_rig = importlib.import_module(MODULE + ".operators.handlers.head_rig")
     assert (head_rig.MODEL_PATH_PROPERTY, head_rig.POSE_KEY_NAME, head_rig.AVATAR_PATH_PROPERTY) \
-        == (sc.MODEL_PATH_PROPERTY, sc.POSE_KEY_NAME, sc.AVATAR_PATH_PROPERTY)
+        == (MODEL_PATH_PROPERTY, POSE_KEY_NAME, AVATAR_PATH_PROPERTY)
 
 
 def test_imported_cameras_project_the_head_like_the_core(scenario):
     bpy.context.scene.frame_set(2)
     head = evaluated_vertices(scenario["head_object"])
-    flame_points = sc.blender_to_flame(head)
+    flame_points = blender_to_flame(head)
     capture = Capture.open(scenario["capture"])
     collection = bpy.data.collections["MoGaFace Capture"]
     cameras = {obj["mogaface_camera_id"]: obj for obj in collection.objects}
@@ -236,7 +239,7 @@ def test_refined_cameras_of_a_run_replace_the_calibrated_poses(scenario, tmp_pat
         == {"FINISHED"}
     bpy.context.scene.frame_set(2)
     head = evaluated_vertices(scenario["head_object"])
-    flame_points = sc.blender_to_flame(head)
+    flame_points = blender_to_flame(head)
     cameras = {obj["mogaface_camera_id"]: obj for obj in bpy.data.collections["MoGaFace Capture"].objects}
     entries = json.loads(refined.read_text())
     scene = bpy.context.scene
@@ -285,7 +288,7 @@ def test_keyframes_evaluate_to_the_imported_values(scenario):
     obj = scenario["head_object"]
     rows = scenario["rows"]
     bag = obj.animation_data.action.layers[0].strips[0].channelbag(obj.animation_data.action_slot)
-    for name, (prop, size) in sc.POSE_PROPERTIES.items():
+    for name, (prop, size) in POSE_PROPERTIES.items():
         for index in range(size):
             curve = bag.fcurves.find(f'["{prop}"]', index=index)
             values = [curve.evaluate(t + 1) for t in range(len(rows))]
@@ -301,7 +304,7 @@ def test_keyframes_evaluate_to_the_imported_values(scenario):
 def test_handler_posed_mesh_equals_the_core_flame_evaluation(scenario, t):
     bpy.context.scene.frame_set(t + 1)
     got = evaluated_vertices(scenario["head_object"])
-    expected = sc.flame_to_blender(core_vertices(scenario, t))
+    expected = flame_to_blender(core_vertices(scenario, t))
     assert np.abs(got - expected).max() < 1e-5
 
 
@@ -315,10 +318,10 @@ def test_editing_sliders_and_pose_reposes_the_head(scenario):
         key.key_blocks["jaw_drop"].value = 2.5
         obj["mogaface_jaw_pose"] = [0.4, 0.0, 0.1]
         bpy.context.view_layer.update()
-        head = sc.HeadRig(sc.load_head_model(scenario["head"]), np.load(scenario["identity"])["shape"])
+        head = HeadRig(load_head_model(scenario["head"]), np.load(scenario["identity"])["shape"])
         expr = [b.value for b in key.key_blocks[1:4]]
-        pose = {name: list(obj[prop]) for name, (prop, _) in sc.POSE_PROPERTIES.items()}
-        expected = sc.flame_to_blender(head.evaluate(expr, pose))
+        pose = {name: list(obj[prop]) for name, (prop, _) in POSE_PROPERTIES.items()}
+        expected = flame_to_blender(head.evaluate(expr, pose))
         assert np.abs(evaluated_vertices(obj) - expected).max() < 1e-5
     finally:
         key.animation_data.action, obj.animation_data.action = saved
@@ -632,7 +635,7 @@ def test_saved_blend_reopens_with_everything(scenario):
     assert bpy.context.scene.mogaface.capture_folder
     assert obj.data.shape_keys.animation_data.action and obj.animation_data.action
     bpy.context.scene.frame_set(3)
-    assert np.abs(evaluated_vertices(obj) - sc.flame_to_blender(core_vertices(scenario, 2))).max() < 1e-5
+    assert np.abs(evaluated_vertices(obj) - flame_to_blender(core_vertices(scenario, 2))).max() < 1e-5
 
 
 def test_disabling_leaves_nothing_registered(scenario):

@@ -21,12 +21,16 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
 from conftest import make_toy_model  # noqa: E402
-from mogaface.core import scene_conversion as sc  # noqa: E402
-from mogaface.core.flame.model_file import write_model_file  # noqa: E402
 from mogaface.core.avatar.avatar import Avatar  # noqa: E402
 from mogaface.core.data.capture import Capture  # noqa: E402
 from mogaface.core.data.generator import CaptureSettings, make_capture  # noqa: E402
+from mogaface.core.flame.model_file import write_model_file  # noqa: E402
 from mogaface.core.run.folder import RunFolder  # noqa: E402
+from mogaface.core.scene.avatar import load_avatar, render_avatar  # noqa: E402
+from mogaface.core.scene.axes import timestep_to_frame  # noqa: E402
+from mogaface.core.scene.head_rig import AVATAR_PATH_PROPERTY, POSE_PROPERTIES  # noqa: E402
+from mogaface.core.scene.render import render_image_name  # noqa: E402
+from mogaface.core.scene.tracking import read_tracking  # noqa: E402
 from mogaface.core.worker import TrainWorker, train_command  # noqa: E402
 
 MODULE = addon_test.MODULE
@@ -157,7 +161,7 @@ def use_camera(camera_id: str):
 def core_render(run: pathlib.Path, timestep: int, camera) -> np.ndarray:
     """The core's render (Blender's pixel order) of a run's avatar at a training timestep."""
     folder = RunFolder(run)
-    rgb, alpha = sc.render_avatar(Avatar.load(run / "avatar.pt"), folder.flame_params(timestep), camera,
+    rgb, alpha = render_avatar(Avatar.load(run / "avatar.pt"), folder.flame_params(timestep), camera,
                                   folder.background)
     return blender_image(rgb)
 
@@ -178,12 +182,12 @@ def image_array(image) -> np.ndarray:
 def test_render_frame_equals_the_core_render(scene):
     capture = Capture.open(scene["capture"])
     timestep = RunFolder(scene["run"]).trained_timesteps[1]
-    frame = sc.timestep_to_frame(timestep)
+    frame = timestep_to_frame(timestep)
     for camera_id, camera in capture.cameras.items():
         obj = use_camera(camera_id)
         bpy.context.scene.frame_set(frame)
         assert bpy.ops.mogaface.render_frame() == {"FINISHED"}
-        got = image_array(bpy.data.images[sc.render_image_name(obj.name, frame)])
+        got = image_array(bpy.data.images[render_image_name(obj.name, frame)])
         expected = core_render(scene["run"], timestep, camera)
         assert got.shape == expected.shape
         # Blender keeps camera settings in float32: pixel positions move by ~1e-6 px, which changes
@@ -206,16 +210,16 @@ def test_a_mogaface_run_renders_with_its_modules(scene):
     assert bpy.ops.mogaface.load_avatar(filepath=str(run), target=head.name) == {"FINISHED"}
     try:
         avatar = RunFolder(run).load_avatar()
-        assert isinstance(avatar, ModulatedAvatar) and isinstance(sc.load_avatar(run / "avatar.pt"), ModulatedAvatar)
+        assert isinstance(avatar, ModulatedAvatar) and isinstance(load_avatar(run / "avatar.pt"), ModulatedAvatar)
         timestep = RunFolder(run).trained_timesteps[0]
-        frame = sc.timestep_to_frame(timestep)
+        frame = timestep_to_frame(timestep)
         camera_id, camera = next(iter(Capture.open(scene["capture"]).cameras.items()))
         obj = use_camera(camera_id)
         bpy.context.scene.frame_set(frame)
         assert bpy.ops.mogaface.render_frame(head=head.name) == {"FINISHED"}
-        got = image_array(bpy.data.images[sc.render_image_name(obj.name, frame)])
+        got = image_array(bpy.data.images[render_image_name(obj.name, frame)])
         folder = RunFolder(run)
-        rgb, alpha = sc.render_avatar(avatar, folder.flame_params(timestep), camera, folder.background)
+        rgb, alpha = render_avatar(avatar, folder.flame_params(timestep), camera, folder.background)
         expected = blender_image(rgb)
         assert np.abs(got - expected).max() < 1e-4
     finally:  # back to the plain run for the tests below
@@ -227,8 +231,8 @@ def test_a_mogaface_run_renders_with_its_modules(scene):
 def test_blender_camera_converts_back_to_the_capture_camera(scene):
     for camera_id, camera in Capture.open(scene["capture"]).cameras.items():
         obj = use_camera(camera_id)
-        avatar_ops = importlib.import_module(MODULE + ".operators.avatar")
-        back = avatar_ops.camera_of(bpy.context.scene, obj, scene["head"])
+        avatar_head = importlib.import_module(MODULE + ".operators.avatar_head")
+        back = avatar_head.camera_of(bpy.context.scene, obj, scene["head"])
         assert np.abs(back.K - camera.K).max() < 1e-3 and np.abs(back.w2c - camera.w2c).max() < 1e-5
         assert (back.width, back.height) == (camera.width, camera.height)
 
@@ -238,16 +242,16 @@ def test_what_is_keyframed_is_what_is_rendered(scene):
     use_camera(next(iter(Capture.open(scene["capture"]).cameras)))
     head = scene["head"]
     frame = bpy.context.scene.frame_start
-    avatar_ops = importlib.import_module(MODULE + ".operators.avatar")
-    rgb_before = avatar_ops.render_head(bpy.context, head, bpy.context.scene.camera, frame).rgb
+    avatar_head = importlib.import_module(MODULE + ".operators.avatar_head")
+    rgb_before = avatar_head.render_head(bpy.context, head, bpy.context.scene.camera, frame).rgb
     fcurves = head.data.shape_keys.animation_data.action.layers[0].strips[0].channelbags[0].fcurves
     curve = next(c for c in fcurves if "key_blocks" in c.data_path)
     point = next(p for p in curve.keyframe_points if p.co[0] == frame)
     old = point.co[1]
     point.co[1] = old + 3.0
     try:
-        rgb_after = avatar_ops.render_head(bpy.context, head, bpy.context.scene.camera, frame).rgb
-        params = avatar_ops.head_params(head, sc.load_avatar(head[sc.AVATAR_PATH_PROPERTY]))
+        rgb_after = avatar_head.render_head(bpy.context, head, bpy.context.scene.camera, frame).rgb
+        params = avatar_head.head_params(head, load_avatar(head[AVATAR_PATH_PROPERTY]))
     finally:
         point.co[1] = old
     assert np.abs(rgb_after - rgb_before).max() > 1e-3
@@ -264,7 +268,7 @@ def test_render_animation_writes_images_and_files(scene, tmp_path):
     assert result == {"FINISHED"}
     camera = bpy.context.scene.camera.name
     for frame in range(start, start + 3):
-        image = bpy.data.images[sc.render_image_name(camera, frame)]
+        image = bpy.data.images[render_image_name(camera, frame)]
         assert image.packed_file is not None
         stem = f"{camera}_{frame:04d}".replace(" ", "_")
         # the files hold the image's pixels (the core render, as the test above checks), read back
@@ -328,13 +332,13 @@ def test_improve_tracking_keys_the_head_with_the_refined_tracking(scene, tmp_pat
     bpy.context.view_layer.objects.active = head
     with pytest.raises(RuntimeError, match="not a finished run"):
         bpy.ops.mogaface.improve_tracking(run=str(tmp_path / "nothing"))
-    original = sc.read_tracking(scene["run"] / "flame_param")
+    original = read_tracking(scene["run"] / "flame_param")
     try:
         assert bpy.ops.mogaface.improve_tracking(run=str(run), passes=1, views=2, fit_steps=1) == {"FINISHED"}
         folder = run / "refined_tracking" / "flame_param"
         assert json.loads((run / "refined_tracking" / "refined_tracking.json").read_text())["fit_steps"] == 1
         assert bpy.context.scene.mogaface.tracking_folder == str(folder)
-        refined = sc.read_tracking(folder)
+        refined = read_tracking(folder)
         assert len(refined.frames) == len(Capture.open(scene["capture"]).timesteps)
         keys = head.data.shape_keys.key_blocks
         n_expr = refined.params["expr"].shape[1]  # the head's expression keys follow Basis
@@ -342,7 +346,7 @@ def test_improve_tracking_keys_the_head_with_the_refined_tracking(scene, tmp_pat
             bpy.context.scene.frame_set(int(frame))
             shown = np.array([keys[i + 1].value for i in range(n_expr)])
             np.testing.assert_allclose(shown, refined.params["expr"][index, :n_expr], atol=1e-5)
-            for name, (prop, _) in sc.POSE_PROPERTIES.items():
+            for name, (prop, _) in POSE_PROPERTIES.items():
                 np.testing.assert_allclose(np.array(head[prop]), refined.params[name][index], atol=1e-5)
         improving = importlib.import_module(MODULE + ".operators.improve_tracking")
         assert improving.last_progress().state == "done" and improving.current_worker() is None
@@ -373,9 +377,9 @@ def test_headless_script_builds_a_scene_that_reopens_with_everything(scene, tmp_
     bpy.ops.wm.open_mainfile(filepath=str(blend))
     cameras = [o for o in bpy.data.objects if o.type == "CAMERA"]
     assert len(cameras) == 3 and bpy.context.scene.camera.name == "Camera cam01"
-    head = next(o for o in bpy.data.objects if sc.AVATAR_PATH_PROPERTY in o)
+    head = next(o for o in bpy.data.objects if AVATAR_PATH_PROPERTY in o)
     assert head.data.shape_keys.animation_data.action and head.animation_data.action
-    images = [bpy.data.images[sc.render_image_name("Camera cam01", f)] for f in (2, 3, 4)]
+    images = [bpy.data.images[render_image_name("Camera cam01", f)] for f in (2, 3, 4)]
     assert all(image.packed_file is not None and tuple(image.size) == (48, 48) for image in images)
     assert image_array(images[0])[..., 3].max() > 0.5  # pixels survived the round trip
     bpy.context.scene.frame_set(3)

@@ -19,10 +19,10 @@ import pytest  # noqa: E402
 import torch  # noqa: E402
 from mathutils import Matrix, Vector  # noqa: E402
 
-from mogaface.core import scene_conversion as sc  # noqa: E402
-from mogaface.core.scene_render import blender_rgba  # noqa: E402
 from mogaface.core.avatar.avatar import Avatar  # noqa: E402
 from mogaface.core.avatar.gaussians import rgb_to_sh_dc  # noqa: E402
+from mogaface.core.scene.axes import FLAME_TO_BLENDER, flame_to_blender  # noqa: E402
+from mogaface.core.scene.render import blender_rgba, render_image_name  # noqa: E402
 
 MODULE = addon_test.MODULE
 SIZE = 64
@@ -87,16 +87,16 @@ def camera_matrices(camera, width=SIZE, height=SIZE):
 
 
 def camera_render(scene_data, frame=1):
-    from mogaface.core.scene_render import render
+    from mogaface.core.scene.render import render
 
-    avatar = ops("avatar")
+    avatar_head = ops("avatar_head")
     scn, head = bpy.context.scene, scene_data["head"]
-    camera = avatar.camera_of(scn, scene_data["camera"], head)
-    return render(avatar.head_request(scn, head, camera, frame, transparent=True, keyed=True))
+    camera = avatar_head.camera_of(scn, scene_data["camera"], head)
+    return render(avatar_head.head_request(scn, head, camera, frame, transparent=True, keyed=True))
 
 
 def viewport_render(scene_data, frame=1, size=(SIZE, SIZE)):
-    from mogaface.core.scene_render import render
+    from mogaface.core.scene.render import render
 
     view, projection = camera_matrices(scene_data["camera"], *size)
     bpy.context.scene.frame_set(frame)
@@ -257,12 +257,12 @@ def test_shown_heads_follow_the_per_object_switch(scene):
 
 
 def test_render_request_key_names_what_changes_the_picture(scene):
-    avatar = ops("avatar")
+    avatar_head = ops("avatar_head")
     scn, head = bpy.context.scene, scene["head"]
-    camera = avatar.camera_of(scn, scene["camera"], head)
-    one = avatar.head_request(scn, head, camera, 1, transparent=True, keyed=True)
-    again = avatar.head_request(scn, head, camera, 1, transparent=True, keyed=True)
-    other = avatar.head_request(scn, head, camera, 2, transparent=True, keyed=True)
+    camera = avatar_head.camera_of(scn, scene["camera"], head)
+    one = avatar_head.head_request(scn, head, camera, 1, transparent=True, keyed=True)
+    again = avatar_head.head_request(scn, head, camera, 1, transparent=True, keyed=True)
+    other = avatar_head.head_request(scn, head, camera, 2, transparent=True, keyed=True)
     assert one.key() == again.key() != other.key()
     assert other.params["jaw_pose"][0] == pytest.approx(0.35, abs=1e-6) and other.params["expr"][0] == pytest.approx(3.0)
     assert bpy.context.scene.frame_current == 1  # keyed values never move the timeline
@@ -394,7 +394,7 @@ def test_gaussians_to_mesh_writes_point_meshes_geometry_nodes_can_read(scene, tm
         cloud = trimesh.load(ply)
         co = np.zeros(len(mesh.vertices) * 3, np.float32)
         mesh.vertices.foreach_get("co", co)
-        assert np.abs(co.reshape(-1, 3) - sc.flame_to_blender(np.asarray(cloud.vertices))).max() < 1e-5
+        assert np.abs(co.reshape(-1, 3) - flame_to_blender(np.asarray(cloud.vertices))).max() < 1e-5
         vertex = cloud.metadata["_ply_raw"]["vertex"]["data"]
         quat = np.zeros(len(mesh.vertices) * 4, np.float32)
         mesh.attributes["rotation"].data.foreach_get("value", quat)
@@ -403,7 +403,7 @@ def test_gaussians_to_mesh_writes_point_meshes_geometry_nodes_can_read(scene, tm
         from scipy.spatial.transform import Rotation
 
         ours = Rotation.from_quat(quat.reshape(-1, 4)[:, [1, 2, 3, 0]]).as_matrix()
-        theirs = sc.FLAME_TO_BLENDER @ Rotation.from_quat(ply_quat[:, [1, 2, 3, 0]]).as_matrix()
+        theirs = FLAME_TO_BLENDER @ Rotation.from_quat(ply_quat[:, [1, 2, 3, 0]]).as_matrix()
         assert np.abs(ours - theirs).max() < 1e-4
         opacity = np.zeros(len(mesh.vertices), np.float32)
         mesh.attributes["opacity"].data.foreach_get("value", opacity)
@@ -452,28 +452,26 @@ def test_render_frame_shows_its_image_in_an_image_editor(scene):
     try:
         bpy.context.scene.frame_set(1)
         assert bpy.ops.mogaface.render_frame() == {"FINISHED"}
-        assert area.spaces.active.image.name == sc.render_image_name("Camera", 1)
+        assert area.spaces.active.image.name == render_image_name("Camera", 1)
     finally:
         area.type = old
-    assert ops("avatar").image_editor_area(bpy.context.window_manager) == (None, None)
-    assert ops("avatar").image_editor_area(bpy.context.window_manager, (10**6, 10**6)) == (None, None)
+    assert ops("images").image_editor_area(bpy.context.window_manager) == (None, None)
+    assert ops("images").image_editor_area(bpy.context.window_manager, (10**6, 10**6)) == (None, None)
 
 
 def test_render_animation_job_renders_each_frames_keys_and_cancels(scene):
-    avatar = ops("avatar")
     scn = bpy.context.scene
     scn.frame_set(1)
     assert bpy.ops.mogaface.render_animation(frame_start=1, frame_end=2) == {"FINISHED"}
-    assert scn.frame_current == 1 and avatar.current_render_job() is None
-    animated = addon_test_image(sc.render_image_name("Camera", 2))
+    assert scn.frame_current == 1 and ops("render").current_render_job() is None
+    animated = addon_test_image(render_image_name("Camera", 2))
     scn.frame_set(2)
     assert bpy.ops.mogaface.render_frame() == {"FINISHED"}
-    assert np.abs(addon_test_image(sc.render_image_name("Camera", 2)) - animated).max() < 1e-6
+    assert np.abs(addon_test_image(render_image_name("Camera", 2)) - animated).max() < 1e-6
     scn.frame_set(1)
     # a job cancelled after its first frame stops there
-    render_job = ops("render_job")
     seen = []
-    job = render_job.RenderJob(range(1, 6), lambda frame: frame, seen.append, render=lambda request: request)
+    job = ops("jobs").RenderJob(range(1, 6), lambda frame: frame, seen.append, render=lambda request: request)
     while job.step():
         if seen:
             job.cancel()
@@ -508,11 +506,11 @@ def test_disabling_mid_training_clears_the_status_bar(scene, monkeypatch):
     train = ops("train")
     cleared, calls = [], []
     workspace_type = type(bpy.context.window.workspace)
-    monkeypatch.setattr(ops("child_job"), "clear_status_text", lambda: cleared.append(True))
+    monkeypatch.setattr(ops("jobs"), "clear_status_text", lambda: cleared.append(True))
     worker = types.SimpleNamespace(cancel=lambda: calls.append("cancel"), kill=lambda: calls.append("kill"),
                                    wait=lambda **kwargs: calls.append("wait"))
     train._job["worker"] = worker
-    train.cancel_running_job()
+    ops("jobs").cancel_child_jobs()
     assert cleared == [True] and calls == ["cancel", "wait", "kill"] and train.current_worker() is None
     common = ops("common")
     bpy.context.window.workspace.status_text_set("MoGaFace training: step 3/10")

@@ -4,7 +4,7 @@ A tiny run is trained with the full method, then its texture attention is made t
 Gaussians visibly (so a consumer that dropped the modules would fail by far). The same camera and
 timestep are then drawn through each path and compared with the core render:
 
-- ``render`` (the command) and Blender's request path (``scene_render``): the same code, exact;
+- ``render`` (the command) and Blender's request path (``core.scene.render``): the same code, exact;
 - ``export-ply`` world space, read by trimesh and drawn by an independent 3DGS renderer written
   here from the 3DGS reference (EWA splatting, 0.3 px low-pass, front-to-back alpha, alpha cut
   1/255, transmittance stop 1e-4): ≥ 40 dB;
@@ -13,7 +13,7 @@ timestep are then drawn through each path and compared with the core render:
   ``bmm(face_orien_mat, xyz) * face_scaling + face_center``, ``exp(scaling) * face_scaling``) with
   the mesh of ``flame_param.npz`` row ``t``: rotations within 0.1°, ≥ 40 dB;
 - ``import-ply`` of that file, then the core render: exact;
-- ``scene_points`` (Gaussians to Mesh): the world Gaussians, exact.
+- ``core.scene.points`` (Gaussians to Mesh): the world Gaussians, exact.
 """
 
 import math
@@ -22,13 +22,14 @@ import numpy as np
 import pytest
 import torch
 
-from mogaface.core import scene_conversion as sc
 from mogaface.core.avatar.avatar import Avatar, flame_params_to_torch
 from mogaface.core.cli import main
 from mogaface.core.evaluate.images import render_frame
 from mogaface.core.evaluate.protocols import TrackedParams
 from mogaface.core.mogaface.avatar import ModulatedAvatar
 from mogaface.core.run.folder import RunFolder
+from mogaface.core.scene.avatar import avatar_location, load_avatar
+from mogaface.core.scene.axes import blender_to_flame
 
 TIMESTEP = 3  # a trained timestep (its corrected parameters come from the run)
 HELD_OUT = 13  # a timestep of the held-out sequence (tracked parameters)
@@ -242,7 +243,7 @@ def our_world(m, timestep):
 def test_the_run_loads_with_its_modules_and_they_change_the_picture(modulated):
     m = modulated
     assert isinstance(m["avatar"], ModulatedAvatar)
-    assert isinstance(sc.load_avatar(m["run"].root), ModulatedAvatar)
+    assert isinstance(load_avatar(m["run"].root), ModulatedAvatar)
     plain = core_render(m, TIMESTEP, Avatar.load(m["run"].avatar_path))
     assert psnr(plain, core_render(m, TIMESTEP)) < 30  # a consumer without the modules would fail below
 
@@ -320,14 +321,14 @@ def test_import_ply_then_render_is_exact(modulated, tmp_path):
     out = tmp_path / "imported" / "avatar.pt"
     head = m["run"].head_path()
     assert main(["import-ply", str(ply), "--head", str(head), "--out", str(out)]) == 0
-    imported = sc.load_avatar(out)
+    imported = load_avatar(out)
     assert not isinstance(imported, ModulatedAvatar)  # the exported timestep's offsets are in the file
     np.testing.assert_allclose(core_render(m, TIMESTEP, imported), core_render(m, TIMESTEP), atol=1e-5)
 
 
 def test_blender_request_and_points_show_the_same_avatar(modulated):
-    from mogaface.core.scene_points import gaussian_points
-    from mogaface.core.scene_render import RenderRequest, render
+    from mogaface.core.scene.points import gaussian_points
+    from mogaface.core.scene.render import RenderRequest, render
 
     m = modulated
     avatar_path = str(m["run"].avatar_path)
@@ -336,7 +337,7 @@ def test_blender_request_and_points_show_the_same_avatar(modulated):
     np.testing.assert_allclose(result.rgb, core_render(m, TIMESTEP), atol=1e-6)
     points = gaussian_points(avatar_path, params)
     ours = our_world(m, TIMESTEP)
-    np.testing.assert_allclose(sc.blender_to_flame(points["position"]), ours["means"], atol=1e-6)
+    np.testing.assert_allclose(blender_to_flame(points["position"]), ours["means"], atol=1e-6)
     np.testing.assert_allclose(points["scale"], ours["scales"], rtol=1e-6)
     np.testing.assert_allclose(points["opacity"], ours["opacities"], atol=1e-6)
 
@@ -349,16 +350,16 @@ def test_blender_reads_run_json_as_every_consumer_does(modulated, tmp_path):
     from mogaface.core.errors import InputError
 
     m = modulated
-    path, background = sc.avatar_location(m["run"].root)
+    path, background = avatar_location(m["run"].root)
     assert path == m["run"].avatar_path.resolve() and background == m["run"].background
     copy = tmp_path / "run"
     copy.mkdir()
     for name in ("avatar.pt", "head.pkl"):
         shutil.copy(m["run"].root / name, copy / name)
-    assert sc.avatar_location(copy / "avatar.pt")[1] == (1.0, 1.0, 1.0)  # no run.json: white
-    assert not isinstance(sc.load_avatar(copy), ModulatedAvatar)  # no mogaface.pt: the plain avatar
+    assert avatar_location(copy / "avatar.pt")[1] == (1.0, 1.0, 1.0)  # no run.json: white
+    assert not isinstance(load_avatar(copy), ModulatedAvatar)  # no mogaface.pt: the plain avatar
     (copy / "run.json").write_text(json.dumps({"background": [0, 0, 2]}))
     with pytest.raises(InputError, match="run.json.*background"):
-        sc.avatar_location(copy)
+        avatar_location(copy)
     with pytest.raises(InputError, match="avatar file not found"):
-        sc.load_avatar(copy / "missing.pt")
+        load_avatar(copy / "missing.pt")

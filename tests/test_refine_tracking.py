@@ -22,7 +22,7 @@ from mogaface.core.evaluate.sources.refined import RefinedParams, run_refiner
 from mogaface.core.evaluate.sources.tracked import AlignedTrackedParams, TrackedParams
 from mogaface.core.refiner.tracking import RECORD_FILE, refine_tracking
 from mogaface.core.refiner.training import RefinerSettings, frozen_avatar, train_refiner
-from mogaface.core.scene_conversion import read_tracking
+from mogaface.core.scene.tracking import read_tracking
 from mogaface.core.worker import RefineTrackingWorker
 from test_evaluate_fixtures import fake_run, tiny_capture
 

@@ -23,7 +23,7 @@ import bpy
 from bpy.props import BoolProperty
 
 from ..dependencies import LazyModule
-from .head_rig import is_head
+from .head_rig import AVATAR_PATH_PROPERTY, is_head
 
 np = LazyModule("numpy")  # imported on first use: registering needs no numpy
 
@@ -66,25 +66,24 @@ def viewport_request(head, view_matrix, projection, size: tuple[int, int], frame
 
     ``view_matrix``/``projection``: ``RegionView3D.view_matrix`` / ``window_matrix``.
     """
-    from ...core import scene_conversion as sc
-    from ...core.scene_render import RenderRequest, view_camera
-    from ..avatar import head_values
+    from ...core.scene.render import RenderRequest, view_camera
+    from ..avatar_head import head_values
 
     view = view_camera(np.array(view_matrix), np.array(projection), np.array(head.matrix_world), *size)
-    request = RenderRequest(head[sc.AVATAR_PATH_PROPERTY], head_values(head), view.camera, None, view.scale, frame)
+    request = RenderRequest(head[AVATAR_PATH_PROPERTY], head_values(head), view.camera, None, view.scale, frame)
     return request, view
 
 
 def viewport_image(result, view, projection) -> ViewportImage:
     """A finished render as the draw's pixel buffers (rows flipped, depth in window units).
 
-    The colours are :func:`core.scene_render.blender_rgba`'s, as everywhere. A ``POST_VIEW``
+    The colours are :func:`core.scene.render.blender_rgba`'s, as everywhere. A ``POST_VIEW``
     handler draws into the view's overlay buffer, which holds linear values encoded as sRGB and
     is laid over the scene after its view transform: the avatar is shown with the core's sRGB
     colours under every view transform, exactly as the capture photo a camera shows as its
     background image (checked in Blender 4.3 by reading the screen back).
     """
-    from ...core.scene_render import blender_rgba, depth_buffer_values
+    from ...core.scene.render import blender_rgba, depth_buffer_values
 
     height, width = result.alpha.shape
     rgba = blender_rgba(result)
@@ -97,7 +96,7 @@ def viewport_image(result, view, projection) -> ViewportImage:
 
 def shown_heads(scene) -> list:
     """Heads of ``scene`` whose avatar is switched on for the viewport."""
-    from ..avatar import avatar_heads
+    from ..avatar_head import avatar_heads
 
     return [obj for obj in avatar_heads(scene) if getattr(obj, SHOW_PROPERTY, False) and obj.visible_get()]
 
@@ -115,7 +114,7 @@ class ViewState:
         self.error: str | None = None
 
     def submit(self, request, view, projection) -> None:
-        from ...core.scene_render import render
+        from ...core.scene.render import render
 
         projection = np.array(projection)
 

@@ -314,12 +314,12 @@ def scene_stages():
         head.data.shape_keys.key_blocks[1].keyframe_insert("value", frame=2)
     # Render Animation runs in the background like training: progress in the status bar, Esc cancels.
     frames = WORK / "frames"
-    avatar_ops = module("operators.avatar")
+    render_ops = module("operators.render")
     with override():
         result = bpy.ops.mogaface.render_animation("INVOKE_DEFAULT", head=head.name, frame_start=1, frame_end=2,
                                                    directory=str(frames))
         check(result == {"RUNNING_MODAL"}, f"render animation gave {result}")
-    yield from wait_until(lambda: avatar_ops.current_render_job() is None, 600, "render animation")
+    yield from wait_until(lambda: render_ops.current_render_job() is None, 600, "render animation")
     check(len(list(frames.glob("*.png"))) == 2, f"expected 2 frames in {frames}")
     for frame, path in zip((1, 2), sorted(frames.glob("*.png"))):
         core = core_render(head, camera, frame, transparent=False)
@@ -349,22 +349,22 @@ def scene_stages():
 def core_render(head, camera, frame, transparent):
     """The core's own render of what ``head`` shows at ``frame`` (its keys) from ``camera``."""
     scene = bpy.context.scene
-    avatar_ops = module("operators.avatar")
-    request = avatar_ops.head_request(scene, head, avatar_ops.camera_of(scene, camera, head), frame,
-                                      transparent=transparent, keyed=True)
-    return module("core.scene_render").render(request)
+    avatar_head = module("operators.avatar_head")
+    request = avatar_head.head_request(scene, head, avatar_head.camera_of(scene, camera, head), frame,
+                                       transparent=transparent, keyed=True)
+    return module("core.scene.render").render(request)
 
 
 def render_frame_pixels(head, camera):
     """Render Frame's image saved through the view transform: under Standard the core render."""
     scene = bpy.context.scene
     frame = scene.frame_current
-    image = bpy.data.images[module("core.scene_conversion").render_image_name(camera.name, frame)]
+    image = bpy.data.images[module("core.scene.render").render_image_name(camera.name, frame)]
     core = core_render(head, camera, frame, transparent=False)
     mask = core.alpha > 1 / 255
     check(scene.view_settings.view_transform == "Standard", "Import Capture did not set Standard")
     compare("Render Frame", saved_pixels(image, "render-frame-standard")[..., :3], core.rgb, mask)
-    area = module("operators.avatar").image_editor_area(bpy.context.window_manager)[0]
+    area = module("operators.images").image_editor_area(bpy.context.window_manager)[0]
     RESULTS["render_frame_editor"] = None if area is None else [area.width, area.height]
     check(area is not None and area.width >= 400 and area.height >= 300, f"Image Editor {RESULTS['render_frame_editor']}")
     yield 1.0
@@ -424,7 +424,7 @@ def viewport_pixels(head, viewport):
     yield from wait_until(full_size, 300, "the still viewport at the region's size")
     request, _ = viewport.viewport_request(head, np.array(region_3d.view_matrix), np.array(region_3d.window_matrix),
                                            (region.width, region.height), bpy.context.scene.frame_current)
-    core = module("core.scene_render").render(request)
+    core = module("core.scene.render").render(request)
     alpha = np.where(core.alpha >= viewport.OPAQUE_ALPHA, 1.0, core.alpha)[..., None]
     straight = np.divide(core.rgb, core.alpha[..., None], out=np.zeros_like(core.rgb), where=core.alpha[..., None] > 0)
     RESULTS["viewport_size"] = [region.width, region.height]

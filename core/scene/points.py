@@ -9,7 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .scene_conversion import flame_to_blender, load_avatar
+from .avatar import load_avatar
+from .axes import flame_to_blender
 
 #: The FLAME → Blender axis change (+90° about x) as a unit quaternion (w, x, y, z).
 FLAME_TO_BLENDER_QUAT = np.array([np.sqrt(0.5), np.sqrt(0.5), 0.0, 0.0])
@@ -32,8 +33,8 @@ def gaussian_points(avatar_path, values: dict) -> dict:
     """
     import torch
 
-    from .avatar.avatar import flame_params_to_torch
-    from .scene_render import fitted_params
+    from ..avatar.avatar import flame_params_to_torch
+    from .render import fitted_params
 
     avatar = load_avatar(avatar_path)
     with torch.no_grad():

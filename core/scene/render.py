@@ -17,11 +17,11 @@ import hashlib
 
 import numpy as np
 
-from .camera import Camera
-from .errors import InputError
-from .scene_conversion import (
-    _CV_TO_BLENDER_CAMERA, POSE_PROPERTIES, flame_to_blender_matrix, head_flame_params, load_avatar,
-)
+from ..camera import Camera
+from ..errors import InputError
+from .avatar import load_avatar
+from .axes import CV_TO_BLENDER_CAMERA, flame_to_blender_matrix
+from .head_rig import POSE_PROPERTIES, head_flame_params
 
 #: Alpha below which a pixel holds no avatar: its depth is "nothing there" (infinitely far).
 EMPTY_ALPHA = 1.0 / 255.0
@@ -90,7 +90,7 @@ def render(request: RenderRequest) -> RenderResult:
     """
     import torch
 
-    from .avatar.avatar import flame_params_to_torch
+    from ..avatar.avatar import flame_params_to_torch
 
     avatar = load_avatar(request.avatar_path)
     params = fitted_params(request.params, avatar)
@@ -106,6 +106,10 @@ def render(request: RenderRequest) -> RenderResult:
     return RenderResult(request, rgb, alpha, depth)
 
 
+def render_image_name(camera_name: str, frame: int) -> str:
+    """The image datablock a render of ``camera_name`` at ``frame`` goes to."""
+    return f"MoGaFace {camera_name} {frame:04d}"
+
 def blender_rgba(result: RenderResult) -> np.ndarray:
     """``(H,W,4)`` float32, top row first: the one conversion of a render's colours for Blender.
 
@@ -119,7 +123,7 @@ def blender_rgba(result: RenderResult) -> np.ndarray:
     pixels keep their colour (neither darkened nor whitened). A render over a background is
     opaque: alpha 1.
     """
-    from .io.image import srgb_to_linear
+    from ..io.image import srgb_to_linear
 
     if result.request.background is None:
         alpha = result.alpha[..., None]
@@ -136,7 +140,7 @@ def srgb_from_blender(rgba) -> np.ndarray:
     """``(H,W,4)`` scene-linear premultiplied RGBA (as :func:`blender_rgba` gives, or as read back
     from Blender) → the sRGB colour premultiplied by alpha that the core renders, ``(H,W,3)``;
     what the "Standard" view transform shows over black."""
-    from .io.image import linear_to_srgb
+    from ..io.image import linear_to_srgb
 
     rgba = np.asarray(rgba, np.float32)
     alpha = rgba[..., 3:4]
@@ -194,7 +198,7 @@ def view_camera(view_matrix, projection, head_matrix, width: int, height: int,
     head_rigid[:3, :3] /= np.linalg.norm(head_rigid[:3, :3], axis=0)
     relative = np.linalg.inv(head_rigid) @ c2w
     relative[:3, 3] /= scale  # avatar units
-    c2w_cv = flame_to_blender_matrix(np.eye(4)).T @ relative @ _CV_TO_BLENDER_CAMERA
+    c2w_cv = flame_to_blender_matrix(np.eye(4)).T @ relative @ CV_TO_BLENDER_CAMERA
     if not is_perspective(proj):
         fx, fy = fx / scale, fy / scale
     K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
