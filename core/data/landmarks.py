@@ -80,7 +80,8 @@ def capture_landmarks(capture, cameras: dict) -> dict[str, np.ndarray]:
     """Every camera's landmarks as rows of ``capture``'s timestep indices (rows of weight 0 where
     no file covers the frame): the capture's own ``landmark2d/``, or, for a union of sequences,
     each sequence folder's (see the module's docstring)."""
-    from .capture import Capture, union_path
+    from .capture import Capture
+    from .capture_entries import union_path
 
     steps = max(f.timestep_index for f in capture.frames()) + 1
     own = read_landmarks(capture.root, cameras, steps)
