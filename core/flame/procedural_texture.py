@@ -14,11 +14,12 @@ import numpy as np
 from scipy.ndimage import gaussian_filter, zoom
 
 from .procedural_ear import ear_relief
-from .procedural_mesh import (
-    EAR_UV_BOXES, EYE_UV_BOXES, EYE_UV_POWER, IRIS_ANGLE, LID_LINING_UV_BOX, MOUTH_ROW_ANGLE, MOUTH_UV_BOX, SKIN_UV_BOTTOM, HeadMesh,
-)
+from .procedural_inner import EYE_UV_POWER, IRIS_ANGLE
+from .procedural_mesh import HeadMesh
 from .procedural_rig import smoothstep
 from .procedural_sdf import EAR_CENTRE, EYE_CENTRE, hairline_height
+from .procedural_skin import MOUTH_ROW_ANGLE
+from .procedural_uv import EAR_UV_BOXES, EYE_UV_BOXES, LID_LINING_UV_BOX, MOUTH_UV_BOX, SKIN_UV_BOTTOM
 
 TEXTURE_SIZE = 1024
 
