@@ -90,8 +90,9 @@ class MOGAFACE_OT_load_avatar(bpy.types.Operator):
             return {"CANCELLED"}
         obj[AVATAR_PATH_PROPERTY] = str(path)
         obj[BACKGROUND_PROPERTY] = list(background)
-        if getattr(obj, "mogaface_show_avatar", False):
-            obj.display_type = "BOUNDS"  # the avatar is drawn in the viewport; the mesh would cover it
+        from .handlers.viewport import display_for_avatar
+
+        display_for_avatar(obj)  # the avatar is drawn in the viewport; the mesh would cover it
         context.scene.mogaface.avatar_file = str(path)
         redraw_areas(context, ("VIEW_3D", "PROPERTIES"))
         self.report({"INFO"}, f"{obj.name}: avatar with {len(avatar.gaussians)} Gaussians")

@@ -248,12 +248,16 @@ def test_the_view_refreshes_on_frame_keys_head_and_view_and_sharpens_when_still(
 def test_shown_heads_follow_the_per_object_switch(scene):
     viewport = ops("handlers.viewport")
     head = scene["head"]
+    # shown: the mesh as its bounds, in front (its edges never cut the avatar, drawn after the overlays)
     assert viewport.shown_heads(bpy.context.scene) == [head] and head.display_type == "BOUNDS"
+    assert head.show_in_front and not head.hide_select
     head.mogaface_show_avatar = False
     try:
         assert viewport.shown_heads(bpy.context.scene) == [] and head.display_type == "TEXTURED"
+        assert not head.show_in_front
     finally:
         head.mogaface_show_avatar = True
+    assert head.display_type == "BOUNDS" and head.show_in_front
 
 
 def test_render_request_key_names_what_changes_the_picture(scene):

@@ -303,11 +303,20 @@ def _ensure_poll() -> None:
 # -- the per-object switch and registration -------------------------------------------------------
 
 
+def display_for_avatar(obj) -> None:
+    """While its avatar is shown, the head mesh is drawn as its bounds only (the mesh would cover
+    the avatar) and in front: the overlay draws in-front objects against a depth buffer of their
+    own, so the box's edges leave the scene's depth alone and the avatar, drawn after the
+    overlays, covers them where it is opaque instead of being cut by them. The box stays a
+    selectable, movable outline. Otherwise the textured mesh, as imported."""
+    shown = bool(getattr(obj, SHOW_PROPERTY, False))
+    obj.display_type = "BOUNDS" if shown else "TEXTURED"
+    obj.show_in_front = shown
+
+
 def _show_changed(obj, context) -> None:
-    """Showing the avatar draws the head mesh as its bounds only, so the mesh does not cover the
-    avatar (the head stays selectable and movable)."""
     if is_head(obj):
-        obj.display_type = "BOUNDS" if getattr(obj, SHOW_PROPERTY) else "TEXTURED"
+        display_for_avatar(obj)
 
 
 _handle = {"draw": None}
