@@ -228,7 +228,7 @@ def _project_with_file_fields(fields: dict, points: np.ndarray) -> np.ndarray:
 
 def test_refined_cameras_of_a_run_replace_the_calibrated_poses(scenario, tmp_path):
     from mogaface.core.data.generator import perturb_camera
-    from mogaface.core.data.writer import camera_fields
+    from mogaface.core.data.camera_file import camera_fields
 
     capture = Capture.open(scenario["capture"])
     rng = np.random.default_rng(3)

@@ -12,7 +12,7 @@ from mogaface.core.avatar.avatar import Avatar
 from mogaface.core.data.capture import Capture
 from mogaface.core.data.generator import perturb_camera
 from mogaface.core.evaluate.camera_error import camera_errors, pose_error
-from mogaface.core.evaluate.images import read_cameras
+from mogaface.core.data.camera_file import read_cameras
 from mogaface.core.mogaface.avatar import render_world
 from mogaface.core.train import config as C
 from mogaface.core.train.camera_refine import CameraOffsets

@@ -79,7 +79,7 @@ def image_assisted_sources(capture, run):
     """name → source: every source an image-assisted result is made of, as the benchmark and
     ``refine-tracking`` build them (smoothing with fixed σ: choosing σ reads the truth of the
     training sequences by design, see :func:`..sources.smoothed.choose_sigmas`)."""
-    from mogaface.core.evaluate.sources.base import InputCameras
+    from mogaface.core.run.cameras import InputCameras
     from mogaface.core.evaluate.sources.fitted import FittedParams
     from mogaface.core.evaluate.sources.mogaface import MoGaFaceParams
     from mogaface.core.evaluate.sources.refined import RefinedParams, RefinerInference, run_refiner
@@ -183,7 +183,7 @@ def test_scoring_code_hash_covers_the_scoring_modules(tmp_path):
 
 def test_ablation_scores_are_not_reused_after_the_scoring_code_changed(tmp_path, monkeypatch):
     from mogaface.core.evaluate import expression_error
-    from mogaface.core.mogaface.ablation import SCORES_FILE, score_variant
+    from mogaface.core.workflows.ablation import SCORES_FILE, score_variant
 
     code = tmp_path / "code"
     (code / "evaluate").mkdir(parents=True)

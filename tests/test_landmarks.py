@@ -13,7 +13,7 @@ from mogaface.core.data.generator import CaptureSettings, make_capture
 from mogaface.core.data.landmarks import landmark_files, read_landmark_file, read_landmarks, write_landmark_file
 from mogaface.core.errors import InputError, UnsafePickleError
 from mogaface.core.evaluate.camera_error import pose_error
-from mogaface.core.evaluate.images import read_cameras
+from mogaface.core.data.camera_file import read_cameras
 from mogaface.core.flame.landmarks import IBUG_COUNT, STATIC_IBUG, procedural_embedding, read_embedding
 from mogaface.core.flame.procedural_mesh import build_mesh
 from mogaface.core.train.camera_refine import CameraOffsets

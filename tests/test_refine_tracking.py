@@ -16,14 +16,14 @@ import pytest
 
 from mogaface.core.data.capture import Capture
 from mogaface.core.errors import InputError
+from mogaface.core.run.cameras import InputCameras
 from mogaface.core.run.folder import RunFolder
-from mogaface.core.evaluate.sources.base import InputCameras
 from mogaface.core.evaluate.sources.refined import RefinedParams, run_refiner
 from mogaface.core.evaluate.sources.tracked import AlignedTrackedParams, TrackedParams
-from mogaface.core.refiner.tracking import RECORD_FILE, refine_tracking
 from mogaface.core.refiner.training import RefinerSettings, frozen_avatar, train_refiner
 from mogaface.core.scene.tracking import read_tracking
 from mogaface.core.worker import RefineTrackingWorker
+from mogaface.core.workflows.refine_tracking import RECORD_FILE, refine_tracking
 from test_evaluate_fixtures import fake_run, tiny_capture
 
 TINY = dict(starts=2, offsets_per_start=2, gap_timesteps=2, threads=1,
@@ -77,7 +77,7 @@ def test_fitting_from_the_refiners_answer_lowers_the_image_error_on_unseen_times
     import torch
 
     from mogaface.core.avatar.avatar import flame_params_to_torch
-    from mogaface.core.evaluate.images import target_image
+    from mogaface.core.data.target import target_image
     from mogaface.core.run.folder import capture_info, load_flame_file
     from mogaface.core.evaluate.sources.fitted import FittedParams
 

@@ -278,7 +278,7 @@ def test_image_assisted_sources_see_their_input_views_through_the_runs_refined_c
     import shutil
 
     from mogaface.core.camera import Camera
-    from mogaface.core.data.writer import camera_fields
+    from mogaface.core.data.camera_file import camera_fields
     from mogaface.core.evaluate.sources import refined as refined_module
 
     root = tmp_path / "run"

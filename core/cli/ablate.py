@@ -15,7 +15,7 @@ from . import add_split_argument, step_counts
 
 
 def add_arguments(parser):
-    from ..mogaface.ablation import LADDER
+    from ..workflows.ablation import LADDER
 
     parser.add_argument("capture", type=pathlib.Path, help="capture folder (GaussianAvatars/VHAP layout)")
     parser.add_argument("--out", type=pathlib.Path, required=True, help="output folder (created)")
@@ -37,7 +37,7 @@ def add_arguments(parser):
 
 def run(args) -> int:
     from ..errors import InputError
-    from ..mogaface.ablation import LADDER, run_ablation, split_name
+    from ..workflows.ablation import LADDER, run_ablation, split_name
 
     variants = list(LADDER) if not args.variants else [v.strip() for v in args.variants.split(",") if v.strip()]
     for name in variants:

@@ -31,7 +31,7 @@ def _say_stopped(event) -> None:
 
 def run(args) -> int:
     from ..progress import stage_bars
-    from ..refiner.tracking import refine_tracking
+    from ..workflows.refine_tracking import refine_tracking
     from ..train.events import EventLog
     from ..worker import RefineTrackingWorker
 

@@ -27,7 +27,7 @@ def run(args) -> int:
     import numpy as np
 
     from ..data.capture import Capture
-    from ..data.writer import write_cameras
+    from ..data.camera_file import write_cameras
     from ..evaluate.camera_error import camera_summary, pose_error
     from ..evaluate.images import ScoringCameras
     from ..flame.landmarks import IBUG_COUNT, STATIC_IBUG, read_embedding

@@ -31,7 +31,8 @@ from .mesh_render import render_mesh, vertex_normals
 from .capture_settings import CaptureSettings
 from .sequences import TEST_SEQUENCE, VAL_SEQUENCE, add_tracking_noise, make_sequences, tracking_biases
 from .landmarks import write_landmark_file
-from .writer import CaptureWriter, write_cameras
+from .camera_file import write_cameras
+from .writer import CaptureWriter
 
 GT_FLAME_DIR = "flame_param_gt"
 GT_CAMERAS_FILE = "cameras_gt.json"

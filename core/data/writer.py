@@ -12,37 +12,18 @@ import pathlib
 
 import numpy as np
 
-from ..camera import Camera, opencv_w2c_to_opengl_c2w
+from ..camera import Camera
 from ..errors import CaptureError
 from ..io.atomic import write_json
 from ..io.files import check_plain_name
 from ..io.image import write_png
 from ..io.npz import save_npz
 from . import layout
+from .camera_file import camera_fields
+from .camera_file import write_cameras  # noqa: F401  core/train's import path, until it imports .camera_file
 
 # Per-frame camera fields that are also written at the top level when all frames agree.
 _UNIFORM_FIELDS = ("fl_x", "fl_y", "cx", "cy", "w", "h", "camera_angle_x", "camera_angle_y")
-
-
-def camera_fields(camera: Camera) -> dict:
-    """A frame's camera entries: intrinsics, image size, fields of view, OpenGL ``transform_matrix``."""
-    return {
-        "fl_x": camera.fx,
-        "fl_y": camera.fy,
-        "cx": camera.cx,
-        "cy": layout.cy_to_file(camera.cy, camera.height),
-        "w": camera.width,
-        "h": camera.height,
-        "camera_angle_x": camera.fov_x,
-        "camera_angle_y": camera.fov_y,
-        "transform_matrix": opencv_w2c_to_opengl_c2w(camera.w2c).tolist(),
-    }
-
-
-def write_cameras(path, cameras: dict[str, Camera]) -> None:
-    """A cameras file: camera id → the camera fields above (``cameras_gt.json``, refined or solved
-    cameras; ``read_cameras`` in ``core/evaluate/images.py`` reads it), written atomically."""
-    write_json(path, {camera_id: camera_fields(camera) for camera_id, camera in cameras.items()})
 
 
 class CaptureWriter:

@@ -31,7 +31,7 @@ PARAMETER_METRICS = ("expr_rmse", "expr_vertex_mm", "vertex_mm")
 # disk are stale once any of these files changes (:func:`scoring_code_hash`).
 SCORING_CODE = ("evaluate/benchmark.py", "evaluate/protocols.py", "evaluate/metrics.py", "evaluate/lpips_alex.py",
                 "evaluate/images.py", "evaluate/expression_error.py", "evaluate/camera_error.py",
-                "evaluate/sources/*.py", "refiner/*.py")
+                "evaluate/sources/*.py", "refiner/*.py", "data/target.py", "data/camera_file.py", "run/cameras.py")
 CORE = pathlib.Path(__file__).resolve().parents[1]
 
 
@@ -60,7 +60,8 @@ def standard_sources(run: RunFolder, capture, avatar, fit_steps=FIT_STEPS,
     (:class:`.sources.tracked.AlignedTrackedParams`) and read the same views: per frame
     :data:`.sources.base.INPUT_VIEWS` other views of the training cameras, spread over the rig (the
     held-out camera's images are the novel-view protocols' to score, never an input)."""
-    from .sources.base import INPUT_VIEWS, InputCameras, training_cameras
+    from ..run.cameras import InputCameras
+    from .sources.base import INPUT_VIEWS, training_cameras
     from .sources.fitted import FittedParams
     from .sources.mogaface import MoGaFaceParams
     from .sources.refined import RefinedParams, RefinerInference, run_refiner

@@ -126,7 +126,8 @@ def evaluate_run(
 def _with_refiner(run, capture, avatar, source):
     """A run with a refiner (``RUN/refiner.pt``) is scored with it as ``refine-tracking`` applies it
     (:class:`.sources.refined.RefinerInference`, its defaults): what is scored is what a user gets."""
-    from .sources.base import InputCameras, training_cameras
+    from ..run.cameras import InputCameras
+    from .sources.base import training_cameras
     from .sources.refined import RefinerInference, run_refiner
 
     avatar = run.load_avatar() if avatar is None else avatar

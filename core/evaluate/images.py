@@ -1,25 +1,14 @@
-"""What a scored frame is compared with and rendered by: the ground-truth image on the training
-background, the avatar's render, and the camera a frame is scored from."""
+"""What a scored frame is rendered by and from: the avatar's render and the camera a frame is scored
+from. The ground truth it is compared with is :func:`..data.target.target_image`."""
 
 from __future__ import annotations
 
 import numpy as np
 import torch
 
+from ..data.camera_file import read_cameras  # also core/train's import path, until it imports ..data.camera_file
 from ..data.capture import Capture, Frame
-from ..data.capture import _frame_camera as camera_from_entry
-from ..io.jsonfile import read_json_object
 from ..run.folder import capture_info
-
-
-def target_image(capture: Capture, frame: Frame, background, capture_background=None) -> np.ndarray:
-    """The ground truth on the training background: as stored when the capture was recorded on
-    that background, else composited onto it through the foreground mask."""
-    rgb, mask = capture.load_image(frame)
-    if capture_background is not None and np.allclose(capture_background, background):
-        return np.asarray(rgb, dtype=np.float32)
-    bg = np.asarray(background, dtype=np.float32)
-    return (rgb * mask[..., None] + bg * (1.0 - mask[..., None])).astype(np.float32)
 
 
 def render_frame(
@@ -36,15 +25,6 @@ def render_frame(
         out = avatar.render(flame_params_to_torch(params), camera, background, vertex_shift=vertex_shift)
     rgb = out.rgb.clamp(0.0, 1.0) if clamp else out.rgb
     return rgb.numpy().astype(np.float32), out.alpha.clamp(0.0, 1.0).numpy().astype(np.float32)
-
-
-def read_cameras(path, cy_origin: str = "bottom") -> dict:
-    """A ``{camera id: camera fields}`` JSON file (``cameras_gt.json``, refined cameras) → cameras.
-
-    ``cy`` is read by the capture's convention (its split files' ``cy_origin``), as it was written.
-    """
-    entries = read_json_object(path)  # camera id → camera fields
-    return {cid: camera_from_entry(entry, {"cy_origin": cy_origin}, cid, path, cid) for cid, entry in entries.items()}
 
 
 class ScoringCameras:

@@ -23,7 +23,8 @@ import numpy as np
 
 from ..data.capture import Capture, Frame
 from ..errors import InputError
-from .images import ScoringCameras, render_frame, target_image
+from ..data.target import target_image
+from .images import ScoringCameras, render_frame
 from ..run.folder import capture_info
 from .sources.base import ParamSource, views_at
 from .sources.driven import DrivenParams

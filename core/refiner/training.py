@@ -26,9 +26,9 @@ import numpy as np
 import torch
 
 from ..errors import InputError
-from ..evaluate.images import target_image
+from ..data.target import target_image
+from ..run.cameras import InputCameras
 from ..run.folder import MOTION_KEYS, RunFolder, capture_info
-from ..evaluate.sources.base import InputCameras
 from .files import REFINER_FILE, save_refiner
 from .groups import add_offset, scale_vector
 from .model import LinearRefiner

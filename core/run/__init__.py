@@ -1,1 +1,2 @@
-"""A training run's folder: its file names (:mod:`.names`) and the one reader (:mod:`.folder`)."""
+"""A training run's folder: its file names (:mod:`.names`), the one reader (:mod:`.folder`) and the
+cameras its capture is seen through by methods that read images (:mod:`.cameras`)."""

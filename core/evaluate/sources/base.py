@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import pathlib
 from typing import Protocol
 
 import numpy as np
@@ -58,30 +57,3 @@ def input_views(capture: Capture, timestep: int, exclude_view: str | None, count
     if count is None or len(frames) <= count:
         return frames
     return [frames[i] for i in np.unique(np.round(np.linspace(0, len(frames) - 1, count)).astype(int))]
-
-
-class InputCameras:
-    """The camera an image-assisted source renders an input view from: the run's refined camera
-    (``RUN/cameras_refined.json``, written by camera refinement in training) where it has one, else
-    the capture's calibration. The avatar was trained against the refined cameras, so fitting to a
-    view through its calibrated pose would fit the calibration error. Scoring does not use this:
-    the scored view keeps its scoring camera (:class:`..images.ScoringCameras`)."""
-
-    def __init__(self, capture: Capture, refined: dict | None = None):
-        self.capture = capture
-        self.refined = dict(refined or {})
-
-    @classmethod
-    def of_run(cls, capture: Capture, run_root) -> "InputCameras":
-        from ...run.names import REFINED_CAMERAS_FILE
-        from ..images import read_cameras
-
-        path = pathlib.Path(run_root) / REFINED_CAMERAS_FILE
-        return cls(capture, read_cameras(path) if path.exists() else None)
-
-    def __call__(self, frame: Frame):
-        return self.refined.get(frame.camera_id) or self.capture.camera(frame)
-
-    def at(self, camera_id: str, timestep: int):
-        """Camera ``camera_id`` as an input at ``timestep`` (also where no frame shows it there)."""
-        return self.refined.get(camera_id) or self.capture.camera_at(camera_id, timestep)

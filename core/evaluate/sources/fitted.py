@@ -11,9 +11,10 @@ import numpy as np
 import torch
 
 from ...data.capture import Capture, Frame
-from ..images import target_image
+from ...data.target import target_image
 from ...run.folder import capture_info
-from .base import InputCameras, ParamSource, input_views, timestep_of
+from ...run.cameras import InputCameras
+from .base import ParamSource, input_views, timestep_of
 
 # The width of the prior toward the start per parameter (make-capture's default tracker error for
 # the expression, twice it for rotations and translation), and the scale of the Adam step sizes,

@@ -13,9 +13,10 @@ import numpy as np
 
 from ...data.capture import Capture, Frame
 from ...refiner.inference import refine
-from ..images import target_image
+from ...data.target import target_image
 from ...run.folder import capture_info
-from .base import INPUT_VIEWS, InputCameras, ParamSource, input_views, timestep_of
+from ...run.cameras import InputCameras
+from .base import INPUT_VIEWS, ParamSource, input_views, timestep_of
 from .fitted import FittedParams
 from .tracked import AlignedTrackedParams
 

@@ -7,7 +7,7 @@ The output folder (default ``RUN/refined_tracking``) holds the capture's ``flame
 ``refined_tracking.json`` (what was done, from what). It is written under a temporary name and
 renamed when complete: a cancelled or failed job leaves the previous result as it was. A run
 without a refiner, or with one of an earlier version, gets one first
-(:func:`.training.train_refiner`, its stages reported as usual).
+(:func:`..refiner.training.train_refiner`, its stages reported as usual).
 """
 
 from __future__ import annotations
@@ -20,14 +20,14 @@ import time
 from ..data import layout
 from ..errors import InputError
 from ..evaluate.expression_error import tracking_errors
+from ..run.cameras import InputCameras
 from ..run.folder import RunFolder
-from ..evaluate.sources.base import InputCameras
 from ..evaluate.sources.refined import RefinerInference, run_refiner
 from ..evaluate.sources.tracked import TrackedParams
 from ..io.atomic import check_output_target, write_json
 from ..io.npz import save_npz
-from .files import REFINER_FILE, is_outdated
-from .training import RefinerSettings, frozen_avatar, train_refiner
+from ..refiner.files import REFINER_FILE, is_outdated
+from ..refiner.training import RefinerSettings, frozen_avatar, train_refiner
 
 REFINED_TRACKING_DIR = "refined_tracking"
 RECORD_FILE = "refined_tracking.json"

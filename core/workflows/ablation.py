@@ -109,7 +109,7 @@ def image_source(run_dir):
     from ..run.folder import RunFolder
     from ..evaluate.sources.mogaface import MoGaFaceParams
     from ..evaluate.sources.tracked import TrackedParams
-    from .avatar import ModulatedAvatar
+    from ..mogaface.avatar import ModulatedAvatar
 
     run = RunFolder(run_dir)
     capture = run.open_capture()
@@ -171,7 +171,8 @@ def write_figure(path: pathlib.Path, run_dirs: dict[str, pathlib.Path], split: s
     (the validation frames: self-reenactment only)."""
     from PIL import Image, ImageDraw
 
-    from ..evaluate.protocols import protocol_frames, render_frame, target_image
+    from ..data.target import target_image
+    from ..evaluate.protocols import protocol_frames, render_frame
     from ..run.folder import RunFolder
     from ..io.atomic import atomic_path
 
