@@ -211,7 +211,7 @@ def run(args) -> int:
     from ..evaluate.evaluation import evaluate_run
     from ..evaluate.report import markdown_table, strip_image
     from ..flame.model_file import write_model_file
-    from ..flame.preview import render_preview_sheet
+    from ..data.head_preview import render_preview_sheet
     from ..flame.procedural import build_head
     from ..io.atomic import write_json
     from ..io.image import read_image, write_png

@@ -12,7 +12,7 @@ def add_arguments(parser):
 
 
 def run(args) -> int:
-    from ..flame.preview import render_preview_sheet
+    from ..data.head_preview import render_preview_sheet
     from ..io.image import write_png
 
     sheet, tiles = render_preview_sheet(args.model, size=args.size)

@@ -64,7 +64,6 @@ def check_cy(capture: Capture, head_file: str | pathlib.Path | None, max_frames:
     """Compare the two readings of ``cy`` on up to ``max_frames`` frames (needs the head model)."""
     import torch
 
-    from ..avatar.avatar import flame_params_to_torch
     from ..flame.model import FlameModel
 
     declared = capture.declared_cy_origin
@@ -80,7 +79,8 @@ def check_cy(capture: Capture, head_file: str | pathlib.Path | None, max_frames:
     as_read, other = [], []
     with torch.no_grad():
         for frame, p in zip(picks, params):
-            vertices = model(**flame_params_to_torch(p))[0].double().numpy()
+            tensors = {k: torch.as_tensor(np.asarray(v, dtype=np.float32))[None] for k, v in p.items()}
+            vertices = model(**tensors)[0].double().numpy()
             mask = capture.load_image(frame)[1]
             as_read.append(mask_coverage(vertices, capture.camera(frame), mask))
             other.append(mask_coverage(vertices, mirrored(capture.camera(frame)), mask))

@@ -1,4 +1,5 @@
-"""Preview renders of a head model: a few poses and expressions seen from a few directions."""
+"""Preview renders of a head model, drawn by the reference mesh renderer (:mod:`.mesh_render`): a few
+poses and expressions seen from a few directions."""
 
 from __future__ import annotations
 
@@ -8,10 +9,10 @@ import numpy as np
 import torch
 
 from ..camera import Camera
-from ..data.mesh_render import render_mesh
 from ..errors import ModelFileError
-from .expression_roles import role_expression
-from .model import FlameModel
+from ..flame.expression_roles import role_expression
+from ..flame.model import FlameModel
+from .mesh_render import render_mesh
 
 VIEWS = (("front", 0.0, 0.0), ("three_quarter", 40.0, 8.0), ("profile", 90.0, 0.0))
 
