@@ -10,12 +10,13 @@ on ``sys.path``. :func:`unregister` removes every one of them.
 
 import bpy
 
-from ..operators.compositor import MOGAFACE_OT_setup_render_layer, render_avatar_layers
+from ..operators.compositor import MOGAFACE_OT_setup_render_layer
 from ..operators.dependencies import add_site_packages, remove_site_packages
 from ..operators.export import MOGAFACE_OT_export_ply
 from ..operators.gaussian_points import MOGAFACE_OT_gaussians_to_mesh
 from ..operators.handlers import viewport
 from ..operators.handlers.head_rig import update_heads_on_edit, update_heads_on_frame_change
+from ..operators.handlers.render_layers import render_avatar_layers
 from ..operators.import_capture import MOGAFACE_OT_import_capture, MOGAFACE_OT_use_capture_camera
 from ..operators.import_head import MOGAFACE_OT_import_head
 from ..operators.import_tracking import MOGAFACE_OT_import_tracking

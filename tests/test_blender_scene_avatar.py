@@ -303,7 +303,7 @@ def add_plane(name, size, location, color):
 def test_setup_builds_the_compositor_and_f12_renders_show_the_avatar_in_depth(scene, tmp_path):
     import addon_utils
 
-    compositor = ops("compositor")
+    layers = ops("handlers.render_layers")
     scn, head, centre = bpy.context.scene, scene["head"], scene["centre"]
     addon_utils.enable("cycles")
     scn.render.engine = "CYCLES"
@@ -326,7 +326,7 @@ def test_setup_builds_the_compositor_and_f12_renders_show_the_avatar_in_depth(sc
         scn.frame_set(2)
         scene_only = render_to("scene_only.exr")  # Blender's own picture of the wall and the card
         assert bpy.ops.mogaface.setup_render_layer() == {"FINISHED"}
-        tree = compositor.compositor_tree(scn, create=False)
+        tree = layers.compositor_tree(scn, create=False)
         combine = next(n for n in tree.nodes if n.bl_idname == "CompositorNodeZcombine")
         assert combine.inputs[0].links[0].from_node.bl_idname == "CompositorNodeRLayers"
         assert combine.inputs[1].links[0].from_socket.name == "Depth"
@@ -340,7 +340,7 @@ def test_setup_builds_the_compositor_and_f12_renders_show_the_avatar_in_depth(sc
         for frame in (1, 2):
             scn.frame_set(frame)
             frames[frame] = render_to(f"f12_{frame}.exr")
-        layer_image = compositor.layer_image(head, "rgba", create=False)  # frame 2's, by the render_pre handler
+        layer_image = layers.layer_image(head, "rgba", create=False)  # frame 2's, by the render_pre handler
         layer = np.zeros(len(layer_image.pixels), np.float32)
         layer_image.pixels.foreach_get(layer)
         layer = layer.reshape(SIZE, SIZE, 4)[::-1]
