@@ -1,4 +1,5 @@
-"""What training reads from a capture: frames, images, background, FLAME parameters, extent."""
+"""What training reads from a capture: frames, images, background, FLAME parameters, extent, and
+the warning a capture with a mirrored principal point gets."""
 
 from __future__ import annotations
 
