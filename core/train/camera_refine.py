@@ -176,6 +176,6 @@ def _axis_angle(matrix: np.ndarray) -> torch.Tensor:
 
 def write_refined_cameras(path: str | os.PathLike, offsets: CameraOffsets) -> None:
     """``RUN/cameras_refined.json``: camera id → the capture's camera fields (as ``cameras_gt.json``)."""
-    from ..data.writer import write_cameras
+    from ..data.camera_file import write_cameras
 
     write_cameras(path, offsets.refined_cameras())

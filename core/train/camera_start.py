@@ -3,14 +3,14 @@ cameras, started from a cameras file (an earlier round's or run's, with the dela
 solved from the capture's landmark files.
 
 A fresh run starts them here; a resumed run builds them the same way and reloads their values from
-its checkpoint. A cameras file is read with evaluation's reader (``evaluate.images``, a layer
-above training, imported when a file start needs it): one reader of that format.
+its checkpoint.
 """
 
 from __future__ import annotations
 
 import pathlib
 
+from ..data.camera_file import read_cameras, write_cameras
 from ..errors import InputError
 from ..run.names import DELAYS_FILE
 from .camera_delays import CameraDelays, read_delays
@@ -59,10 +59,7 @@ def start_cameras(config: TrainConfig, data, head_source: pathlib.Path,
     ``head_source``, the model file as the user gave it (an embedding file may lie beside it)."""
     start = config.cameras.start
     if start != LANDMARKS_START:
-        from ..evaluate.images import read_cameras
-
         return read_cameras(pathlib.Path(start))
-    from ..data.writer import write_cameras
     from ..flame.landmarks import read_embedding
     from .landmark_cameras import solve_cameras
 
