@@ -119,7 +119,7 @@ def _refined_poses(capture: Capture, path) -> dict[str, Camera]:
     """The refined cameras of ``path`` (none when ``path`` is empty), checked against the capture."""
     if not path:
         return {}
-    from ..evaluate.images import read_cameras
+    from ..data.camera_file import read_cameras
 
     path = pathlib.Path(path)
     if not path.is_file():
