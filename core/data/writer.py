@@ -20,7 +20,6 @@ from ..io.image import write_png
 from ..io.npz import save_npz
 from . import layout
 from .camera_file import camera_fields
-from .camera_file import write_cameras  # noqa: F401  core/train's import path, until it imports .camera_file
 
 # Per-frame camera fields that are also written at the top level when all frames agree.
 _UNIFORM_FIELDS = ("fl_x", "fl_y", "cx", "cy", "w", "h", "camera_angle_x", "camera_angle_y")

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from ..data.camera_file import read_cameras  # also core/train's import path, until it imports ..data.camera_file
+from ..data.camera_file import read_cameras
 from ..data.capture import Capture, Frame
 from ..run.folder import capture_info
 
