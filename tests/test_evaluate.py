@@ -8,7 +8,7 @@ import pytest
 from mogaface.core.cli import main
 from mogaface.core.data.capture import Capture
 from mogaface.core.errors import InputError
-from mogaface.core.evaluate import metrics
+from mogaface.core.metrics import images as metrics
 from mogaface.core.evaluate.protocols import (
     DrivenParams,
     TrackedParams,

@@ -170,7 +170,7 @@ def test_scoring_code_hash_covers_the_scoring_modules(tmp_path):
             shutil.copyfile(path, target)
     real = benchmark.scoring_code_hash()
     assert benchmark.scoring_code_hash(root=copy) == real
-    for name in ("evaluate/protocols.py", "evaluate/metrics.py", "evaluate/sources/fitted.py",
+    for name in ("evaluate/protocols.py", "metrics/images.py", "evaluate/sources/fitted.py",
                  "evaluate/sources/refined.py", "refiner/inference.py"):
         text = (copy / name).read_text()
         (copy / name).write_text(text + "\n# edited\n")
@@ -186,10 +186,10 @@ def test_ablation_scores_are_not_reused_after_the_scoring_code_changed(tmp_path,
     from mogaface.core.workflows.ablation import SCORES_FILE, score_variant
 
     code = tmp_path / "code"
-    (code / "evaluate").mkdir(parents=True)
-    (code / "evaluate" / "metrics.py").write_text("def psnr(): return 1\n")
+    (code / "metrics").mkdir(parents=True)
+    (code / "metrics" / "images.py").write_text("def psnr(): return 1\n")
     monkeypatch.setattr(benchmark, "CORE", code)
-    monkeypatch.setattr(benchmark, "SCORING_CODE", ("evaluate/metrics.py",))
+    monkeypatch.setattr(benchmark, "SCORING_CODE", ("metrics/images.py",))
     calls = []
     monkeypatch.setattr(benchmark, "benchmark_run", lambda run_dir, **options: calls.append(run_dir) or
                         {"protocols": {"self_reenactment": {"tracked": {"psnr": 20.0 + len(calls)}}}})
@@ -203,7 +203,7 @@ def test_ablation_scores_are_not_reused_after_the_scoring_code_changed(tmp_path,
 
     assert psnr() == 21.0 and len(calls) == 1
     assert psnr() == 21.0 and len(calls) == 1  # unchanged code: the kept scores
-    (code / "evaluate" / "metrics.py").write_text("def psnr(): return 2\n")
+    (code / "metrics" / "images.py").write_text("def psnr(): return 2\n")
     assert psnr() == 22.0 and len(calls) == 2  # the scoring code changed: scored again
     kept = json.loads((run / SCORES_FILE).read_text())
     assert kept["options"]["scoring_code"] == benchmark.scoring_code_hash()

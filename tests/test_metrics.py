@@ -14,9 +14,9 @@ from scipy.ndimage import gaussian_filter, shift
 from skimage.metrics import structural_similarity
 
 from mogaface.core.errors import InputError, UnsafePickleError
-from mogaface.core.evaluate import compute_metrics, lpips, psnr, ssim
-from mogaface.core.evaluate import lpips_weights
-from mogaface.core.evaluate.lpips_alex import load_lpips_alex
+from mogaface.core.metrics import compute_metrics, lpips, psnr, ssim
+from mogaface.core.metrics import lpips_weights
+from mogaface.core.metrics.lpips_alex import load_lpips_alex
 
 
 def noise_pair(seed=0, shape=(48, 64, 3)):

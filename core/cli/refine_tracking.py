@@ -33,9 +33,9 @@ def run(args) -> int:
     from ..progress import stage_bars
     from ..workflows.refine_tracking import refine_tracking
     from ..train.events import EventLog
-    from ..worker import RefineTrackingWorker
+    from ..run.names import REFINE_TRACKING_EVENTS_FILE
 
-    log = EventLog(args.run / RefineTrackingWorker.EVENTS_FILE) if args.run.is_dir() else None
+    log = EventLog(args.run / REFINE_TRACKING_EVENTS_FILE) if args.run.is_dir() else None
     listeners = [] if log is None else [lambda e: log.emit(e["event"], **{k: v for k, v in e.items() if k != "event"})]
     if not args.quiet:
         listeners += [stage_bars("refine-tracking"), _say_stopped]

@@ -1,15 +1,2 @@
-"""Evaluation: image metrics (PSNR, SSIM, LPIPS) and the evaluation protocols.
-
-The metrics are imported on first use (they need torch), so the command line can name the
-protocols without loading torch (``python -m mogaface eval --help``).
-"""
-
-__all__ = ["compute_metrics", "lpips", "psnr", "ssim"]
-
-
-def __getattr__(name):
-    if name in __all__:
-        from . import metrics
-
-        return getattr(metrics, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+"""Evaluation: the protocols, the parameter sources and what they score (image metrics are in
+:mod:`mogaface.core.metrics`)."""

@@ -29,7 +29,7 @@ PARAMETER_METRICS = ("expr_rmse", "expr_vertex_mm", "vertex_mm")
 # The code that decides a score, relative to the package's core/: the protocols, metrics, the
 # scoring cameras and images, every parameter source and the refiner's inference. Scores kept on
 # disk are stale once any of these files changes (:func:`scoring_code_hash`).
-SCORING_CODE = ("evaluate/benchmark.py", "evaluate/protocols.py", "evaluate/metrics.py", "evaluate/lpips_alex.py",
+SCORING_CODE = ("evaluate/benchmark.py", "evaluate/protocols.py", "metrics/images.py", "metrics/lpips_alex.py",
                 "evaluate/images.py", "evaluate/expression_error.py", "evaluate/camera_error.py",
                 "evaluate/sources/*.py", "refiner/*.py", "data/target.py", "data/camera_file.py", "run/cameras.py")
 CORE = pathlib.Path(__file__).resolve().parents[1]
@@ -67,7 +67,7 @@ def standard_sources(run: RunFolder, capture, avatar, fit_steps=FIT_STEPS,
     from .sources.refined import RefinedParams, RefinerInference, run_refiner
     from .sources.smoothed import SmoothedParams, choose_sigmas
     from .sources.tracked import AlignedTrackedParams, TrackedParams
-    from ..run.folder import capture_info
+    from ..data.capture_info import capture_info
     from .sources.true import TrueParams, truth_dir
 
     tracked = TrackedParams(capture, run)

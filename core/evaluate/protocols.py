@@ -25,7 +25,7 @@ from ..data.capture import Capture, Frame
 from ..errors import InputError
 from ..data.target import target_image
 from .images import ScoringCameras, render_frame
-from ..run.folder import capture_info
+from ..data.capture_info import capture_info
 from .sources.base import ParamSource, views_at
 from .sources.driven import DrivenParams
 from .sources.tracked import TrackedParams
@@ -234,7 +234,7 @@ def cross_identity(
 
 def score(item: Scored, with_lpips: bool = True) -> dict[str, float]:
     """PSNR, SSIM (and LPIPS) of one scored view on the full image."""
-    from . import metrics
+    from ..metrics import images as metrics
 
     row = {"psnr": metrics.psnr(item.prediction, item.target), "ssim": metrics.ssim(item.prediction, item.target)}
     if with_lpips:

@@ -6,6 +6,7 @@
     RUN/head.pkl                  copy of the capture's head model (beside avatar.pt)
     RUN/run.json                  capture path, splits, background, extent, final step, wall time
     RUN/events.jsonl              progress events, one JSON object a line
+    RUN/refine_tracking_events.jsonl  refine-tracking's progress events
     RUN/checkpoints/step_NNNNNN.pt, RUN/checkpoints/latest
     RUN/avatar.pt                 the trained avatar (Avatar.save)
     RUN/mogaface.pt               the MoGaFace modules (runs trained with them)
@@ -23,6 +24,7 @@ CONFIG_FILE = "config.toml"
 HEAD_STEM = "head"  # + the capture's model suffix (.pkl, .npz)
 RUN_FILE = "run.json"
 EVENTS_FILE = "events.jsonl"
+REFINE_TRACKING_EVENTS_FILE = "refine_tracking_events.jsonl"
 CHECKPOINT_DIR = "checkpoints"
 AVATAR_FILE = "avatar.pt"
 MODULES_FILE = "mogaface.pt"

@@ -2,7 +2,7 @@
 
 The SSIM here is differentiable torch code with the evaluation metric's definition (Gaussian
 window σ = 1.5, 11 taps, population covariances, data range 1, mean over the border-cropped
-"valid" area), so the loss optimises what :func:`mogaface.core.evaluate.metrics.ssim` reports.
+"valid" area), so the loss optimises what :func:`mogaface.core.metrics.images.ssim` reports.
 """
 
 from __future__ import annotations

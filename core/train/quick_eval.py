@@ -7,7 +7,7 @@ import numpy as np
 import torch
 
 from ..avatar.avatar import Avatar
-from ..evaluate import metrics as image_metrics
+from ..metrics import images as image_metrics
 from .config import EvalSection
 from .data import FlameTable, TrainingData
 

