@@ -78,7 +78,8 @@ def test_fitting_from_the_refiners_answer_lowers_the_image_error_on_unseen_times
 
     from mogaface.core.avatar.avatar import flame_params_to_torch
     from mogaface.core.data.target import target_image
-    from mogaface.core.run.folder import capture_info, load_flame_file
+    from mogaface.core.run.folder import load_flame_file
+    from mogaface.core.data.capture_info import capture_info
     from mogaface.core.evaluate.sources.fitted import FittedParams
 
     refine_tracking(run_root, out=tmp_path / "refined", passes=1, views=2, fit_steps=0, threads=1)

@@ -32,11 +32,11 @@ from .capture_settings import CaptureSettings
 from .sequences import TEST_SEQUENCE, VAL_SEQUENCE, add_tracking_noise, make_sequences, tracking_biases
 from .landmarks import write_landmark_file
 from .camera_file import write_cameras
+from .capture_info import INFO_FILE
 from .writer import CaptureWriter
 
 GT_FLAME_DIR = "flame_param_gt"
 GT_CAMERAS_FILE = "cameras_gt.json"
-INFO_FILE = "capture_info.json"
 BACKGROUND = (1.0, 1.0, 1.0)
 
 

@@ -136,7 +136,7 @@ def camera_errors(capture, run_dir: str | os.PathLike | None = None) -> dict:
     without true cameras."""
     from ..run.names import DELAYS_FILE
     from ..train.camera_delays import read_delays
-    from ..run.folder import capture_info
+    from ..data.capture_info import capture_info
 
     true_delays = capture_info(capture.root).get("camera_delays")
     delays = pathlib.Path(run_dir) / DELAYS_FILE if run_dir is not None else None

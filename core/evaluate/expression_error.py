@@ -19,7 +19,8 @@ from ..data import layout
 from ..errors import InputError
 from ..io.files import file_inside
 from ..flame.model import FlameModel
-from ..run.folder import MOTION_KEYS, RunFolder, capture_info, load_flame_file
+from ..run.folder import MOTION_KEYS, RunFolder, load_flame_file
+from ..data.capture_info import capture_info
 
 
 def _mesh(model: FlameModel, params: dict[str, np.ndarray]) -> np.ndarray:

@@ -8,7 +8,7 @@ import torch
 
 from ..data.camera_file import read_cameras
 from ..data.capture import Capture, Frame
-from ..run.folder import capture_info
+from ..data.capture_info import capture_info
 
 
 def render_frame(

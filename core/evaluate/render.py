@@ -15,7 +15,8 @@ from ..errors import InputError
 from ..io.image import srgb_to_linear, write_exr, write_png
 from .sources.mogaface import run_inference
 from .protocols import TrackedParams, render_frame
-from ..run.folder import RunFolder, capture_info, load_flame_file
+from ..run.folder import RunFolder, load_flame_file
+from ..data.capture_info import capture_info
 
 RENDER_DIR = "renders"
 

@@ -28,7 +28,8 @@ import torch
 from ..errors import InputError
 from ..data.target import target_image
 from ..run.cameras import InputCameras
-from ..run.folder import MOTION_KEYS, RunFolder, capture_info
+from ..run.folder import MOTION_KEYS, RunFolder
+from ..data.capture_info import capture_info
 from .files import REFINER_FILE, save_refiner
 from .groups import add_offset, scale_vector
 from .model import LinearRefiner

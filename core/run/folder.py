@@ -16,21 +16,13 @@ import pathlib
 import numpy as np
 
 from ..data import layout
+from ..data.capture_info import capture_info
 from ..errors import InputError
 from . import names
 
 DEFAULT_BACKGROUND = (1.0, 1.0, 1.0)
 IDENTITY_KEYS = ("shape", "static_offset")
 MOTION_KEYS = tuple(k for k in layout.FLAME_KEYS if k not in IDENTITY_KEYS)
-
-
-def capture_info(capture_root: str | os.PathLike) -> dict:
-    """The capture's ``capture_info.json`` (synthetic captures write it), or ``{}``."""
-    from ..data.generator import INFO_FILE
-    from ..io.jsonfile import read_json_object
-
-    path = pathlib.Path(capture_root) / INFO_FILE
-    return read_json_object(path) if path.exists() else {}
 
 
 def parse_background(value, source, field: str = "background") -> tuple[float, float, float]:

@@ -12,17 +12,10 @@ import torch
 from ..data.capture import Capture, Frame
 from ..errors import CaptureError, MogafaceError
 from ..io.files import file_inside
-from ..io.jsonfile import read_json_object
+from ..data.capture_info import INFO_FILE, capture_info
 
-INFO_FILE = "capture_info.json"
 DEFAULT_BACKGROUND = (1.0, 1.0, 1.0)
 JOINTS = ("rotation", "neck_pose", "jaw_pose", "eyes_pose")
-
-
-def capture_info(root: pathlib.Path) -> dict:
-    """``capture_info.json`` of a capture, or ``{}`` when it has none."""
-    path = root / INFO_FILE
-    return read_json_object(path, CaptureError) if path.exists() else {}
 
 
 def capture_background(root: pathlib.Path) -> tuple[float, float, float]:

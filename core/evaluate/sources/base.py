@@ -39,7 +39,7 @@ INPUT_VIEWS = 4
 
 def training_cameras(capture: Capture) -> list[str]:
     """The cameras of the capture's training frames, without the held-out one (``val_camera``)."""
-    from ...run.folder import capture_info
+    from ...data.capture_info import capture_info
 
     held_out = capture_info(capture.root).get("val_camera")
     return sorted({f.camera_id for f in capture.frames("train")} - {held_out})

@@ -12,7 +12,7 @@ import torch
 
 from ...data.capture import Capture, Frame
 from ...data.target import target_image
-from ...run.folder import capture_info
+from ...data.capture_info import capture_info
 from ...run.cameras import InputCameras
 from .base import ParamSource, input_views, timestep_of
 

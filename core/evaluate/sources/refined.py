@@ -14,7 +14,7 @@ import numpy as np
 from ...data.capture import Capture, Frame
 from ...refiner.inference import refine
 from ...data.target import target_image
-from ...run.folder import capture_info
+from ...data.capture_info import capture_info
 from ...run.cameras import InputCameras
 from .base import INPUT_VIEWS, ParamSource, input_views, timestep_of
 from .fitted import FittedParams

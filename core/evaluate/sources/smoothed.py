@@ -10,7 +10,7 @@ from scipy.ndimage import gaussian_filter1d
 
 from ...data.capture import Capture, Frame
 from ...data.sequences import NOISE_GROUPS
-from ...run.folder import capture_info
+from ...data.capture_info import capture_info
 from .base import ParamSource, timestep_of
 from .true import true_params
 

@@ -6,7 +6,8 @@ import numpy as np
 
 from ...data.capture import Capture, Frame
 from ...errors import InputError
-from ...run.folder import MOTION_KEYS, RunFolder, capture_info, load_flame_file
+from ...run.folder import MOTION_KEYS, RunFolder, load_flame_file
+from ...data.capture_info import capture_info
 from .base import timestep_of
 
 
