@@ -430,7 +430,7 @@ def viewport_pixels(head, viewport):
     RESULTS["viewport_size"] = [region.width, region.height]
     overlay = area.spaces.active.overlay
     # overlays off: the colours alone (required); on, for the record: the head's bounds box, drawn
-    # while the avatar is shown, has edges in front of the face and rightly covers it there
+    # in front while the avatar is shown, lies under the avatar (the grid and lines as well)
     for show_overlays, transform in ((False, "Standard"), (True, "Standard"), (True, "AgX")):
         overlay.show_overlays = show_overlays
         bpy.context.scene.view_settings.view_transform = transform
@@ -438,7 +438,7 @@ def viewport_pixels(head, viewport):
         yield 1.0
         shown = screen_pixels(region)
         setattr(head, viewport.SHOW_PROPERTY, False)
-        head.display_type = "BOUNDS"  # the mesh stays out of the way, as while the avatar is shown
+        head.display_type, head.show_in_front = "BOUNDS", True  # the head drawn as while the avatar is shown
         area.tag_redraw()
         yield 1.0
         behind = screen_pixels(region)
