@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # The screenshots of docs/blender.md (run by hand, not in CI): a demo-preset avatar in the real
 # Blender program (Debian trixie's Blender 4.3.2 in the chroot of scripts/real_blender_chroot.sh,
-# under Xvfb), as a user sees it: the 3D viewport, F12 beside a cube and a backdrop, Render Frame;
-# under Standard, and the viewport and F12 under AgX (tests/real_blender/docs_screenshots.py).
+# under Xvfb), as a user sees it: the 3D viewport, F12 beside a cube and a backdrop, Render Frame,
+# under Standard; the viewport (Material Preview) and F12 under AgX too
+# (tests/real_blender/docs_screenshots.py). About 4 minutes on 2 cores once the packages are in.
 #
 #   scripts/docs_screenshots.sh [--demo DIR] [--images DIR] [--frame N]
 #

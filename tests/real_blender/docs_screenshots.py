@@ -3,10 +3,12 @@
 Run by hand through scripts/docs_screenshots.sh (not in CI), inside Blender
 (``blender --python docs_screenshots.py -- JSON``); the window helpers are ui_check's. The scene:
 the demo's capture cameras, the run's head keyed by its tracking, the avatar loaded, a small cube
-in front of the cheek and a backdrop behind the head (seen from the held-out camera). Shots
-(crops of the X screen, ``IMAGES/blender_*.png``): the 3D viewport in a 3/4 view, F12's Render
-Result in the Image Editor, Render Frame's window, under Standard; the viewport and F12 again
-under AgX. The viewport's pixels are read back against the core render (ui_check's lines).
+in front of the cheek and a backdrop behind the head (seen from the held-out camera), the rig's
+cameras hidden. Shots (crops of the X screen, 256 colours, ``IMAGES/blender_*.png``): the 3D
+viewport in a 3/4 view (Solid), F12's Render Result and Render Frame's image in the Image Editor,
+under Standard; the viewport in Material Preview under Standard and AgX, and F12 under AgX. The
+viewport's pixels are read back against the core render (ui_check's lines), with the head's
+bounds drawn in front and, for the record, in the scene's depth as before.
 """
 
 import math
