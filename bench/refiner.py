@@ -77,8 +77,8 @@ def run(threads: int = 2, quick: bool = False, avatar: str | None = None,
     from mogaface.core.errors import InputError
     from mogaface.core.evaluate.benchmark import score_source, standard_sources
     from mogaface.core.evaluate.protocols import protocol_frames, scored_views
-    from mogaface.core.run.folder import RunFolder
     from mogaface.core.refiner.files import REFINER_FILE
+    from mogaface.core.run.folder import RunFolder
 
     torch.set_num_threads(threads)
     folder = RunFolder(avatar or "out/demo/run")

@@ -22,12 +22,17 @@ from ..operators.import_head import MOGAFACE_OT_import_head
 from ..operators.import_tracking import MOGAFACE_OT_import_tracking
 from ..operators.improve_tracking import MOGAFACE_OT_improve_tracking, MOGAFACE_OT_improve_tracking_cancel
 from ..operators.install_dependencies import (
-    MOGAFACE_OT_install_dependencies, MOGAFACE_OT_install_dependencies_cancel, cancel_running_install,
+    MOGAFACE_OT_install_dependencies,
+    MOGAFACE_OT_install_dependencies_cancel,
+    cancel_running_install,
 )
 from ..operators.jobs import cancel_child_jobs
 from ..operators.load_avatar import MOGAFACE_OT_load_avatar
 from ..operators.render import (
-    MOGAFACE_OT_render_animation, MOGAFACE_OT_render_cancel, MOGAFACE_OT_render_frame, cancel_render_job,
+    MOGAFACE_OT_render_animation,
+    MOGAFACE_OT_render_cancel,
+    MOGAFACE_OT_render_frame,
+    cancel_render_job,
 )
 from ..operators.train import MOGAFACE_OT_train, MOGAFACE_OT_train_cancel
 from . import panels

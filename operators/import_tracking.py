@@ -9,9 +9,8 @@ from __future__ import annotations
 import bpy
 from bpy.props import BoolProperty, StringProperty
 
-from .animation import fcurve_container, write_fcurve
+from .animation import fcurve_container, id_fcurves, write_fcurve
 from .common import dependencies_ready, run_core
-from .animation import id_fcurves
 from .handlers.head_rig import is_head, rig_of, update_head
 
 

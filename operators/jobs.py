@@ -24,7 +24,6 @@ import bpy
 
 from .common import clear_status_text, redraw_areas
 
-
 #: Every kind's job, by the label that names it in messages.
 _jobs: dict[str, dict] = {}
 

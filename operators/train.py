@@ -14,9 +14,9 @@ import os
 import bpy
 from bpy.props import EnumProperty, IntProperty, StringProperty
 
-from .jobs import FollowsChildJob, cancel_operator, end_job, job_progress, new_job, refuse_if_busy
 from .common import dependencies_ready
 from .dependencies import interpreter, top_package, worker_paths
+from .jobs import FollowsChildJob, cancel_operator, end_job, job_progress, new_job, refuse_if_busy
 
 #: Training presets (core.train.config.PRESETS) offered in the UI, with a one-line description each.
 PRESET_ITEMS = (

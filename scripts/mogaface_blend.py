@@ -24,7 +24,6 @@ import pathlib
 import sys
 import time
 
-
 #: The training presets offered here (as in the panel), with a one-line description each.
 PRESETS = (
     ("quick", "smoke run, 200 steps"),

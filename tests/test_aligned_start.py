@@ -7,14 +7,14 @@ import shutil
 
 import numpy as np
 import pytest
+from test_evaluate_fixtures import make_fake_run, tiny_capture
 
 from mogaface.core.data import layout
 from mogaface.core.data.capture import Capture
 from mogaface.core.evaluate.expression_error import tracking_errors, truth_folder
-from mogaface.core.run.folder import MOTION_KEYS, RunFolder, load_flame_file
 from mogaface.core.evaluate.sources.tracked import AlignedTrackedParams, TrackedParams, mean_finetuning_offset
 from mogaface.core.io.npz import save_npz
-from test_evaluate_fixtures import make_fake_run, tiny_capture
+from mogaface.core.run.folder import MOTION_KEYS, RunFolder, load_flame_file
 
 BIAS = {"expr": 1.0, "rotation": 0.02, "translation": 0.003}  # a tracker's constant error, larger than its drift
 

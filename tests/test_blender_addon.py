@@ -7,9 +7,9 @@ one disables the extension.
 """
 
 import atexit
-import json
 import importlib
 import importlib.util
+import json
 import os
 import pathlib
 import shutil
@@ -32,9 +32,9 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 import torch  # noqa: E402
 from bpy_extras.object_utils import world_to_camera_view  # noqa: E402
+from conftest import make_toy_model  # noqa: E402
 from mathutils import Vector  # noqa: E402
 
-from conftest import make_toy_model  # noqa: E402
 from mogaface.core.camera import Camera  # noqa: E402
 from mogaface.core.data.capture import Capture  # noqa: E402
 from mogaface.core.data.writer import CaptureWriter  # noqa: E402
@@ -43,7 +43,12 @@ from mogaface.core.flame.model_file import write_model_file  # noqa: E402
 from mogaface.core.io.npz import save_npz  # noqa: E402
 from mogaface.core.scene.axes import blender_to_flame, flame_to_blender  # noqa: E402
 from mogaface.core.scene.head_rig import (  # noqa: E402
-    AVATAR_PATH_PROPERTY, MODEL_PATH_PROPERTY, POSE_KEY_NAME, POSE_PROPERTIES, HeadRig, load_head_model,
+    AVATAR_PATH_PROPERTY,
+    MODEL_PATH_PROPERTY,
+    POSE_KEY_NAME,
+    POSE_PROPERTIES,
+    HeadRig,
+    load_head_model,
 )
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -227,8 +232,8 @@ def _project_with_file_fields(fields: dict, points: np.ndarray) -> np.ndarray:
 
 
 def test_refined_cameras_of_a_run_replace_the_calibrated_poses(scenario, tmp_path):
-    from mogaface.core.data.generator import perturb_camera
     from mogaface.core.data.camera_file import camera_fields
+    from mogaface.core.data.generator import perturb_camera
 
     capture = Capture.open(scenario["capture"])
     rng = np.random.default_rng(3)

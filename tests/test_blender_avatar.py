@@ -14,13 +14,12 @@ import subprocess
 import sys
 import time
 
-import test_blender_addon as addon_test  # sets Blender's user folders to a temporary one first
-
 import bpy  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
-
+import test_blender_addon as addon_test  # sets Blender's user folders to a temporary one first
 from conftest import make_toy_model  # noqa: E402
+
 from mogaface.core.avatar.avatar import Avatar  # noqa: E402
 from mogaface.core.data.capture import Capture  # noqa: E402
 from mogaface.core.data.generator import CaptureSettings, make_capture  # noqa: E402
@@ -273,8 +272,8 @@ def test_render_animation_writes_images_and_files(scene, tmp_path):
         stem = f"{camera}_{frame:04d}".replace(" ", "_")
         # the files hold the image's pixels (the core render, as the test above checks), read back
         # by other readers: PNG as 8-bit sRGB (what "Standard" shows), EXR as scene-linear
-        from PIL import Image
         import OpenEXR
+        from PIL import Image
 
         pixels = image_array(image)[::-1]
         png = np.asarray(Image.open(tmp_path / f"{stem}.png").convert("RGBA"), np.float32) / 255

@@ -2,7 +2,6 @@
 
 import pathlib
 import subprocess
-import sys
 import zipfile
 
 import numpy as np

@@ -9,18 +9,28 @@ import math
 
 import numpy as np
 import pytest
-
 from conftest import make_toy_model
+
 from mogaface.core.camera import Camera
 from mogaface.core.errors import InputError
 from mogaface.core.flame.model_file import write_model_file
 from mogaface.core.io.npz import save_npz
 from mogaface.core.scene.axes import (
-    FLAME_TO_BLENDER, blender_to_flame, flame_to_blender, frame_to_timestep, image_pixels, timestep_to_frame,
+    FLAME_TO_BLENDER,
+    blender_to_flame,
+    flame_to_blender,
+    frame_to_timestep,
+    image_pixels,
+    timestep_to_frame,
 )
 from mogaface.core.scene.cameras import BlenderCamera, blender_camera
 from mogaface.core.scene.head_rig import (
-    POSE_PROPERTIES, HeadRig, fit_components, load_head_model, read_identity, zero_pose,
+    POSE_PROPERTIES,
+    HeadRig,
+    fit_components,
+    load_head_model,
+    read_identity,
+    zero_pose,
 )
 from mogaface.core.scene.tracking import keyframe_columns, read_tracking, tracking_channels
 

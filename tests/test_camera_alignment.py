@@ -6,6 +6,7 @@ import json
 import numpy as np
 import pytest
 import torch
+from test_evaluate_fixtures import fake_run, render_np, tiny_capture
 
 from mogaface.core.cli import main
 from mogaface.core.data.capture import Capture
@@ -17,7 +18,6 @@ from mogaface.core.evaluate.camera_error import pose_error
 from mogaface.core.evaluate.evaluation import evaluate_run
 from mogaface.core.evaluate.protocols import TrackedParams, protocol_frames
 from mogaface.core.run.folder import RunFolder
-from test_evaluate_fixtures import fake_run, render_np, tiny_capture
 
 
 @pytest.fixture(scope="module")

@@ -14,8 +14,8 @@ from mogaface.core.data.generator import CaptureSettings, make_capture, params_a
 from mogaface.core.errors import InputError
 from mogaface.core.flame.model import FlameModel
 from mogaface.core.mogaface.avatar import render_world
-from mogaface.core.train import config as C
 from mogaface.core.run.names import DELAYS_FILE
+from mogaface.core.train import config as C
 from mogaface.core.train.camera_delays import CameraDelays, _neighbours, read_delays
 from mogaface.core.train.checkpoint import latest_checkpoint, load_checkpoint
 from mogaface.core.train.data import TrainingData

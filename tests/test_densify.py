@@ -5,7 +5,10 @@ import math
 import torch
 
 from mogaface.core.avatar.densify import (
-    DensifySchedule, DensifyStrategy, keep_one_per_triangle, quaternion_to_matrix,
+    DensifySchedule,
+    DensifyStrategy,
+    keep_one_per_triangle,
+    quaternion_to_matrix,
 )
 from mogaface.core.avatar.gaussians import PARAMETER_NAMES, BoundGaussians
 

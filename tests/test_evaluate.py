@@ -4,11 +4,12 @@ import json
 
 import numpy as np
 import pytest
+from test_evaluate_fixtures import EXPR_NUDGE, driver_capture, fake_run, render_np, tiny_capture
 
 from mogaface.core.cli import main
 from mogaface.core.data.capture import Capture
 from mogaface.core.errors import InputError
-from mogaface.core.metrics import images as metrics
+from mogaface.core.evaluate.evaluation import evaluate_run
 from mogaface.core.evaluate.protocols import (
     DrivenParams,
     TrackedParams,
@@ -17,9 +18,8 @@ from mogaface.core.evaluate.protocols import (
     run_protocol,
     views_at,
 )
-from mogaface.core.evaluate.evaluation import evaluate_run
+from mogaface.core.metrics import images as metrics
 from mogaface.core.run.folder import RunFolder
-from test_evaluate_fixtures import EXPR_NUDGE, driver_capture, fake_run, render_np, tiny_capture
 
 
 @pytest.fixture(scope="module")

@@ -1,8 +1,9 @@
 """PLY export and import: world space matches the avatar's render, binding space round-trips."""
 
 import numpy as np
-import torch
 import pytest
+import torch
+from test_evaluate_fixtures import fake_run, render_np, tiny_capture
 
 from mogaface.core.avatar.avatar import Avatar
 from mogaface.core.avatar.export import (
@@ -16,11 +17,10 @@ from mogaface.core.avatar.export import (
 from mogaface.core.cli import main
 from mogaface.core.data.capture import Capture
 from mogaface.core.errors import InputError
+from mogaface.core.evaluate.protocols import TrackedParams
 from mogaface.core.flame.model import FlameModel
 from mogaface.core.io.ply import gaussian_property_names
-from mogaface.core.evaluate.protocols import TrackedParams
 from mogaface.core.run.folder import RunFolder
-from test_evaluate_fixtures import fake_run, render_np, tiny_capture
 
 TIMESTEPS = (0, 6, 13)  # trained, trained, held-out sequence
 
@@ -136,6 +136,7 @@ def test_export_and_import_commands(setup, tmp_path, capsys):
 def flame_head(tmp_path_factory):
     """A head model of FLAME's topology (5023 vertices, synthetic bases): the teeth can be added."""
     import vhap_fixture as V
+
     from mogaface.core.flame.model_file import write_model_file
 
     path = tmp_path_factory.mktemp("flame_head") / "head.npz"

@@ -1,8 +1,8 @@
 """Expressions by role on a model without component names (as the released FLAME files are)."""
 
 import numpy as np
-
 import vhap_fixture as V
+
 from mogaface.core.flame.expression_roles import has_component_names, mouth_components, role_expression
 from mogaface.core.flame.model_file import _validate
 from mogaface.core.flame.teeth import LIP_RING_LOWER, LIP_RING_UPPER

@@ -7,9 +7,9 @@ import re
 import numpy as np
 import pytest
 import torch
-
 from conftest import make_toy_model
 from flame_reference import flame_vertices
+
 from mogaface.core.errors import ModelFileError, UnsafePickleError
 from mogaface.core.flame.model import FlameModel
 from mogaface.core.flame.model_file import read_model_file, write_model_file

@@ -12,14 +12,14 @@ import sys
 import numpy as np
 import pytest
 import torch
+from test_evaluate_fixtures import fake_run, tiny_capture
 
 from mogaface.core.data.capture import Capture
 from mogaface.core.data.generator import GT_CAMERAS_FILE, GT_FLAME_DIR
 from mogaface.core.evaluate import benchmark
 from mogaface.core.evaluate.protocols import protocol_frames
-from mogaface.core.run.folder import RunFolder
 from mogaface.core.evaluate.seed_stats import format_difference, paired_difference
-from test_evaluate_fixtures import fake_run, tiny_capture
+from mogaface.core.run.folder import RunFolder
 
 # -- the file-access spy -------------------------------------------------------------------------
 # Every open of the process passes the "open" audit event (builtins.open, io.open, os.open, and so
@@ -79,13 +79,13 @@ def image_assisted_sources(capture, run):
     """name → source: every source an image-assisted result is made of, as the benchmark and
     ``refine-tracking`` build them (smoothing with fixed σ: choosing σ reads the truth of the
     training sequences by design, see :func:`..sources.smoothed.choose_sigmas`)."""
-    from mogaface.core.run.cameras import InputCameras
     from mogaface.core.evaluate.sources.fitted import FittedParams
     from mogaface.core.evaluate.sources.mogaface import MoGaFaceParams
     from mogaface.core.evaluate.sources.refined import RefinedParams, RefinerInference, run_refiner
     from mogaface.core.evaluate.sources.smoothed import SmoothedParams
     from mogaface.core.evaluate.sources.tracked import AlignedTrackedParams, TrackedParams
     from mogaface.core.mogaface.model import MoGaFace
+    from mogaface.core.run.cameras import InputCameras
 
     avatar = run.load_avatar()
     inputs = InputCameras.of_run(capture, run.root)

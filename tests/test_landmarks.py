@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 import torch
 
+from mogaface.core.data.camera_file import read_cameras
 from mogaface.core.data.capture import Capture
 from mogaface.core.data.generator import CaptureSettings, make_capture
 from mogaface.core.data.landmarks import landmark_files, read_landmark_file, read_landmarks, write_landmark_file
 from mogaface.core.errors import InputError, UnsafePickleError
 from mogaface.core.evaluate.camera_error import pose_error
-from mogaface.core.data.camera_file import read_cameras
 from mogaface.core.flame.landmarks import IBUG_COUNT, STATIC_IBUG, procedural_embedding, read_embedding
 from mogaface.core.flame.procedural_mesh import build_mesh
 from mogaface.core.train.camera_refine import CameraOffsets
@@ -220,6 +220,7 @@ class _VhapScene:
 
     def __init__(self, root, size=48, seed=4):
         import vhap_fixture as V
+
         from mogaface.core.flame.model import FlameModel
         from mogaface.core.flame.model_file import write_model_file
 
@@ -294,6 +295,7 @@ def test_a_union_of_sequences_takes_each_sequences_landmarks_and_its_shifted_cam
     keeps its own ``landmark2d/`` (rows of its own timesteps); the union reads them at its indices,
     and one turn per camera fits all its shifted poses."""
     import vhap_fixture as V
+
     from mogaface.core.data.landmarks import capture_landmarks
     from mogaface.core.data.validate import validate_capture
 
@@ -350,6 +352,7 @@ def test_a_monocular_export_keeps_its_camera(tmp_path):
 
 def test_a_flame_model_takes_its_embedding_from_beside_it_or_from_the_option(tmp_path):
     import vhap_fixture as V
+
     from mogaface.core.cli import main
 
     scene = _VhapScene(tmp_path)

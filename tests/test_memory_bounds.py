@@ -77,7 +77,6 @@ print(json.dumps(results))
 def _bombs(tmp_path):
     sys.path.insert(0, str(TESTS))
     import torch
-
     from hostile import breakers as b
 
     avatar = tmp_path / "avatar.pt"

@@ -14,8 +14,7 @@ from scipy.ndimage import gaussian_filter, shift
 from skimage.metrics import structural_similarity
 
 from mogaface.core.errors import InputError, UnsafePickleError
-from mogaface.core.metrics import compute_metrics, lpips, psnr, ssim
-from mogaface.core.metrics import lpips_weights
+from mogaface.core.metrics import compute_metrics, lpips, lpips_weights, psnr, ssim
 from mogaface.core.metrics.lpips_alex import load_lpips_alex
 
 

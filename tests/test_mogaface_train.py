@@ -5,8 +5,8 @@ import pytest
 import torch
 
 from mogaface.core.data.capture import Capture
-from mogaface.core.run.folder import load_flame_file
 from mogaface.core.mogaface.model import MoGaFace
+from mogaface.core.run.folder import load_flame_file
 from mogaface.core.train import config as C
 from mogaface.core.train.checkpoint import latest_checkpoint, load_checkpoint
 from mogaface.core.train.mogaface_part import mogaface_world
@@ -115,10 +115,10 @@ def test_resume_is_exact_with_modules_and_bank(tiny_capture, tmp_path):
 
 
 def test_evaluation_never_feeds_the_scored_view(full_run, tiny_capture, monkeypatch):
-    from mogaface.core.evaluate.sources.mogaface import MoGaFaceParams
     from mogaface.core.evaluate.evaluation import evaluate_run
-    from mogaface.core.run.folder import RunFolder
+    from mogaface.core.evaluate.sources.mogaface import MoGaFaceParams
     from mogaface.core.mogaface.views import ViewImages
+    from mogaface.core.run.folder import RunFolder
 
     run = RunFolder(full_run)
     avatar = run.load_avatar()

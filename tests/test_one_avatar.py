@@ -38,10 +38,11 @@ HELD_OUT = 13  # a timestep of the held-out sequence (tracked parameters)
 @pytest.fixture(scope="module")
 def modulated(tmp_path_factory):
     """A run with MoGaFace modules whose texture offsets change the picture (≈ 20 dB from the plain avatar)."""
+    from test_mogaface_train import config
+
     from mogaface.core.data.generator import CaptureSettings, make_capture
     from mogaface.core.mogaface.model import MoGaFace
     from mogaface.core.train.trainer import Trainer
-    from test_mogaface_train import config
 
     root = tmp_path_factory.mktemp("one_avatar")
     make_capture(root / "cap", CaptureSettings(views=3, timesteps=16, size=48, supersample=1), progress=False)

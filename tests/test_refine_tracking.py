@@ -13,18 +13,18 @@ import sys
 
 import numpy as np
 import pytest
+from test_evaluate_fixtures import fake_run, tiny_capture
 
 from mogaface.core.data.capture import Capture
 from mogaface.core.errors import InputError
-from mogaface.core.run.cameras import InputCameras
-from mogaface.core.run.folder import RunFolder
 from mogaface.core.evaluate.sources.refined import RefinedParams, run_refiner
 from mogaface.core.evaluate.sources.tracked import AlignedTrackedParams, TrackedParams
 from mogaface.core.refiner.training import RefinerSettings, frozen_avatar, train_refiner
+from mogaface.core.run.cameras import InputCameras
+from mogaface.core.run.folder import RunFolder
 from mogaface.core.scene.tracking import read_tracking
 from mogaface.core.worker import RefineTrackingWorker
 from mogaface.core.workflows.refine_tracking import RECORD_FILE, refine_tracking
-from test_evaluate_fixtures import fake_run, tiny_capture
 
 TINY = dict(starts=2, offsets_per_start=2, gap_timesteps=2, threads=1,
             spec={"grid": 4, "render_limit": 64, "prior": 1.0, "gap_rank": 1})
@@ -77,10 +77,10 @@ def test_fitting_from_the_refiners_answer_lowers_the_image_error_on_unseen_times
     import torch
 
     from mogaface.core.avatar.avatar import flame_params_to_torch
-    from mogaface.core.data.target import target_image
-    from mogaface.core.run.folder import load_flame_file
     from mogaface.core.data.capture_info import capture_info
+    from mogaface.core.data.target import target_image
     from mogaface.core.evaluate.sources.fitted import FittedParams
+    from mogaface.core.run.folder import load_flame_file
 
     refine_tracking(run_root, out=tmp_path / "refined", passes=1, views=2, fit_steps=0, threads=1)
     refine_tracking(run_root, out=tmp_path / "fitted", passes=1, views=2, fit_steps=6, threads=1)
@@ -272,8 +272,8 @@ def test_the_command_and_its_worker(run_root, tmp_path):
 
 def test_errors_against_the_truth_are_zero_for_the_truth_and_its_gauge(run_root, tmp_path):
     from mogaface.core.evaluate.expression_error import frame_errors, tracking_errors, truth_folder
-    from mogaface.core.run.folder import MOTION_KEYS, load_flame_file
     from mogaface.core.flame.model import FlameModel
+    from mogaface.core.run.folder import MOTION_KEYS, load_flame_file
 
     run = RunFolder(run_root)
     capture = Capture.open(run.capture_root)

@@ -6,25 +6,30 @@ support is refused, its file round-trips and refuses damaged or hostile files, a
 writes a refiner that ``eval`` then uses."""
 
 import json
-import pathlib
 import shutil
 
 import numpy as np
 import pytest
 import torch
+from test_evaluate_fixtures import fake_run, tiny_capture
 
 from mogaface.core.data.capture import Capture
 from mogaface.core.errors import InputError
-from mogaface.core.run.folder import RunFolder
 from mogaface.core.refiner.files import load_refiner, save_refiner
 from mogaface.core.refiner.groups import GROUPS, add_offset, flatten, group_sizes, scale_vector
 from mogaface.core.refiner.inference import refine
 from mogaface.core.refiner.model import LinearRefiner
 from mogaface.core.refiner.sampler import OffsetSampler
-from mogaface.core.refiner.training import (DEFAULT_SPEC, RefinerSettings, _curvatures, _Run, frozen_avatar,
-                                            train_refiner)
+from mogaface.core.refiner.training import (
+    DEFAULT_SPEC,
+    RefinerSettings,
+    _curvatures,
+    _Run,
+    frozen_avatar,
+    train_refiner,
+)
 from mogaface.core.refiner.views import crop_cameras, full_size_gradient, posed, render_crop
-from test_evaluate_fixtures import fake_run, tiny_capture
+from mogaface.core.run.folder import RunFolder
 
 SMALL = {"grid": 8, "render_limit": 64, "prior": 1e-3, "gap_rank": 2}
 

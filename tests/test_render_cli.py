@@ -2,15 +2,15 @@
 
 import numpy as np
 import pytest
+from test_evaluate_fixtures import fake_run, render_np, tiny_capture
 
 from mogaface.core.cli import main
 from mogaface.core.cli.render import parse_timesteps
 from mogaface.core.data.capture import Capture
 from mogaface.core.errors import InputError
 from mogaface.core.evaluate.protocols import TrackedParams
-from mogaface.core.run.folder import RunFolder, load_flame_file
 from mogaface.core.io.image import linear_to_srgb, read_image
-from test_evaluate_fixtures import fake_run, render_np, tiny_capture
+from mogaface.core.run.folder import RunFolder, load_flame_file
 
 
 def test_parse_timesteps():

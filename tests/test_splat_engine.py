@@ -4,8 +4,7 @@ import pytest
 import torch
 
 from mogaface.core.splat import rasterize
-from mogaface.core.splat.reference import (closest_to_threshold, look_at_camera, random_scene,
-                                           rasterize_reference)
+from mogaface.core.splat.reference import closest_to_threshold, look_at_camera, random_scene, rasterize_reference
 
 W, H = 32, 24
 NAMES = ("means", "quats", "scales", "opacities", "colors")

@@ -3,8 +3,7 @@
 import torch
 
 from mogaface.core.splat import rasterize
-from mogaface.core.splat.reference import (closest_to_threshold, look_at_camera, random_scene,
-                                           rasterize_reference)
+from mogaface.core.splat.reference import closest_to_threshold, look_at_camera, random_scene, rasterize_reference
 
 
 def clean(n, width, height, margin, seed=0, **kw):

@@ -1,7 +1,6 @@
 """The trainer on a tiny synthetic capture: learning, run folder, events, exact resume, signals."""
 
 import json
-import os
 import signal
 import subprocess
 import sys

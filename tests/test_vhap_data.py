@@ -10,8 +10,8 @@ import os
 import numpy as np
 import pytest
 import torch
-
 import vhap_fixture as V
+
 from mogaface.core.avatar.avatar import Avatar, flame_params_to_torch
 from mogaface.core.data.capture import Capture
 from mogaface.core.data.cy_check import check_cy, judge

@@ -208,10 +208,10 @@ def write_report(out: pathlib.Path, facts: dict, metrics_md: str, clock: _Clock)
 
 
 def run(args) -> int:
+    from ..data.head_preview import render_preview_sheet
     from ..evaluate.evaluation import evaluate_run
     from ..evaluate.report import markdown_table, strip_image
     from ..flame.model_file import write_model_file
-    from ..data.head_preview import render_preview_sheet
     from ..flame.procedural import build_head
     from ..io.atomic import write_json
     from ..io.image import read_image, write_png

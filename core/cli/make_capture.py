@@ -23,7 +23,7 @@ def add_arguments(parser):
         )
         parser.add_argument(
             f"--{group}-correlation", type=float, default=getattr(d, f"{group}_correlation"),
-            help=f"correlation length in timesteps of that error (default %(default)s; 0 = independent per timestep)",
+            help="correlation length in timesteps of that error (default %(default)s; 0 = independent per timestep)",
         )
         parser.add_argument(
             f"--{group}-bias", type=float, default=getattr(d, f"{group}_bias"),

@@ -8,6 +8,7 @@ import pathlib
 import signal
 import sys
 
+
 def add_arguments(parser) -> None:
     parser.add_argument("run", type=pathlib.Path, metavar="RUN", help="run folder written by 'train'")
     parser.add_argument("--capture", type=pathlib.Path, help="the run's capture folder, when it has moved")
@@ -31,9 +32,9 @@ def _say_stopped(event) -> None:
 
 def run(args) -> int:
     from ..progress import stage_bars
-    from ..workflows.refine_tracking import refine_tracking
-    from ..train.events import EventLog
     from ..run.names import REFINE_TRACKING_EVENTS_FILE
+    from ..train.events import EventLog
+    from ..workflows.refine_tracking import refine_tracking
 
     log = EventLog(args.run / REFINE_TRACKING_EVENTS_FILE) if args.run.is_dir() else None
     listeners = [] if log is None else [lambda e: log.emit(e["event"], **{k: v for k, v in e.items() if k != "event"})]

@@ -26,8 +26,8 @@ def add_arguments(parser) -> None:
 def run(args) -> int:
     import numpy as np
 
-    from ..data.capture import Capture
     from ..data.camera_file import write_cameras
+    from ..data.capture import Capture
     from ..evaluate.camera_error import camera_summary, pose_error
     from ..evaluate.images import ScoringCameras
     from ..flame.landmarks import IBUG_COUNT, STATIC_IBUG, read_embedding

@@ -13,8 +13,14 @@ import numpy as np
 
 from ..camera import Camera, intrinsics_matrix, opengl_c2w_to_opencv_w2c
 from ..errors import CaptureError
-from ..limits import (MAX_FOCAL_RATIO, MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE, MIN_IMAGE_SIDE, MAX_PRINCIPAL_OFFSET_RATIO,
-                      MIN_FOCAL_RATIO)
+from ..limits import (
+    MAX_FOCAL_RATIO,
+    MAX_IMAGE_PIXELS,
+    MAX_IMAGE_SIDE,
+    MAX_PRINCIPAL_OFFSET_RATIO,
+    MIN_FOCAL_RATIO,
+    MIN_IMAGE_SIDE,
+)
 from . import layout
 
 

@@ -18,21 +18,21 @@ import torch
 
 from ..camera import Camera
 from ..errors import InputError
+from ..flame.expression_roles import mouth_components
 from ..flame.landmarks import IBUG_COUNT, model_landmarks
 from ..flame.lbs import axis_angle_to_matrix
-from ..flame.expression_roles import mouth_components
 from ..flame.model import FlameModel
 from ..flame.model_file import write_model_file
 from ..io.atomic import atomic_path, write_json
 from ..io.npz import save_npz
 from ..progress import ProgressBar
 from . import layout
-from .mesh_render import render_mesh, vertex_normals
-from .capture_settings import CaptureSettings
-from .sequences import TEST_SEQUENCE, VAL_SEQUENCE, add_tracking_noise, make_sequences, tracking_biases
-from .landmarks import write_landmark_file
 from .camera_file import write_cameras
 from .capture_info import INFO_FILE
+from .capture_settings import CaptureSettings
+from .landmarks import write_landmark_file
+from .mesh_render import render_mesh, vertex_normals
+from .sequences import TEST_SEQUENCE, VAL_SEQUENCE, add_tracking_noise, make_sequences, tracking_biases
 from .writer import CaptureWriter
 
 GT_FLAME_DIR = "flame_param_gt"

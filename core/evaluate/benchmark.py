@@ -17,9 +17,9 @@ import pathlib
 import numpy as np
 
 from ..errors import InputError
+from ..run.folder import RunFolder
 from .expression_error import frame_errors
 from .protocols import PROTOCOLS, check_split, protocol_frames, protocol_unavailable, run_protocol, score, scored_views
-from ..run.folder import RunFolder
 from .sources.base import ParamSource
 
 FIT_STEPS = (10, 30)
@@ -60,6 +60,7 @@ def standard_sources(run: RunFolder, capture, avatar, fit_steps=FIT_STEPS,
     (:class:`.sources.tracked.AlignedTrackedParams`) and read the same views: per frame
     :data:`.sources.base.INPUT_VIEWS` other views of the training cameras, spread over the rig (the
     held-out camera's images are the novel-view protocols' to score, never an input)."""
+    from ..data.capture_info import capture_info
     from ..run.cameras import InputCameras
     from .sources.base import INPUT_VIEWS, training_cameras
     from .sources.fitted import FittedParams
@@ -67,7 +68,6 @@ def standard_sources(run: RunFolder, capture, avatar, fit_steps=FIT_STEPS,
     from .sources.refined import RefinedParams, RefinerInference, run_refiner
     from .sources.smoothed import SmoothedParams, choose_sigmas
     from .sources.tracked import AlignedTrackedParams, TrackedParams
-    from ..data.capture_info import capture_info
     from .sources.true import TrueParams, truth_dir
 
     tracked = TrackedParams(capture, run)

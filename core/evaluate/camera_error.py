@@ -29,9 +29,9 @@ import pathlib
 import numpy as np
 
 from ..camera import look_point
+from ..data.camera_file import read_cameras
 from ..flame.numpy_model import axis_angle_to_matrix
 from ..run.names import REFINED_CAMERAS_FILE
-from ..data.camera_file import read_cameras
 from .images import ScoringCameras
 
 
@@ -134,9 +134,9 @@ def camera_errors(capture, run_dir: str | os.PathLike | None = None) -> dict:
     """``{"calibrated": {...}, "refined": {...}, "calibrated_refined_cameras": {...}, "delays": {...}}``
     mean errors (each where the capture has the truth and the run an estimate); ``{}`` for captures
     without true cameras."""
+    from ..data.capture_info import capture_info
     from ..run.names import DELAYS_FILE
     from ..train.camera_delays import read_delays
-    from ..data.capture_info import capture_info
 
     true_delays = capture_info(capture.root).get("camera_delays")
     delays = pathlib.Path(run_dir) / DELAYS_FILE if run_dir is not None else None

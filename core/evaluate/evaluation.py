@@ -9,16 +9,26 @@ from collections.abc import Iterable
 import numpy as np
 
 from ..errors import InputError
+from ..run.folder import RunFolder
 from ..train.camera_delays import delayed_views
 from . import report
 from .camera_alignment import split_frames
 from .images import ScoringCameras
 from .protocols import (
-    PROTOCOLS, DrivenParams, ParamSource, TrackedParams, check_protocol, check_split, cross_identity,
+    PROTOCOLS,
+    DrivenParams,
+    ParamSource,
+    TrackedParams,
+    check_protocol,
+    check_split,
+    cross_identity,
     novel_view_aligned,
-    protocol_frames, protocol_unavailable, run_protocol, score, scored_views,
+    protocol_frames,
+    protocol_unavailable,
+    run_protocol,
+    score,
+    scored_views,
 )
-from ..run.folder import RunFolder
 
 
 def _mean(values: list[float]) -> float | None:

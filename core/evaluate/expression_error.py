@@ -16,11 +16,11 @@ import numpy as np
 import torch
 
 from ..data import layout
-from ..errors import InputError
-from ..io.files import file_inside
-from ..flame.model import FlameModel
-from ..run.folder import MOTION_KEYS, RunFolder, load_flame_file
 from ..data.capture_info import capture_info
+from ..errors import InputError
+from ..flame.model import FlameModel
+from ..io.files import file_inside
+from ..run.folder import MOTION_KEYS, RunFolder, load_flame_file
 
 
 def _mesh(model: FlameModel, params: dict[str, np.ndarray]) -> np.ndarray:

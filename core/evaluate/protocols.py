@@ -22,14 +22,14 @@ from collections.abc import Iterable, Iterator
 import numpy as np
 
 from ..data.capture import Capture, Frame
-from ..errors import InputError
-from ..data.target import target_image
-from .images import ScoringCameras, render_frame
 from ..data.capture_info import capture_info
+from ..data.target import target_image
+from ..errors import InputError
+from .images import ScoringCameras, render_frame
+from .protocol_names import ALL_PROTOCOLS, OPTIONAL_PROTOCOLS, PROTOCOLS, SCORE_SPLITS
 from .sources.base import ParamSource, views_at
 from .sources.driven import DrivenParams
 from .sources.tracked import TrackedParams
-from .protocol_names import ALL_PROTOCOLS, OPTIONAL_PROTOCOLS, PROTOCOLS, SCORE_SPLITS
 
 __all__ = ["ALL_PROTOCOLS", "OPTIONAL_PROTOCOLS", "PROTOCOLS", "SCORE_SPLITS", "check_protocol", "check_split",
            "DrivenParams", "ParamSource", "Scored", "TrackedParams", "cross_identity", "novel_view",

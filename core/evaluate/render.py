@@ -11,12 +11,12 @@ import pathlib
 
 import numpy as np
 
+from ..data.capture_info import capture_info
 from ..errors import InputError
 from ..io.image import srgb_to_linear, write_exr, write_png
-from .sources.mogaface import run_inference
-from .protocols import TrackedParams, render_frame
 from ..run.folder import RunFolder, load_flame_file
-from ..data.capture_info import capture_info
+from .protocols import TrackedParams, render_frame
+from .sources.mogaface import run_inference
 
 RENDER_DIR = "renders"
 

@@ -15,8 +15,8 @@ import pathlib
 import numpy as np
 
 from ..errors import ModelFileError
-from ..io.npz import load_npz, save_npz
 from ..io.files import check_regular_file
+from ..io.npz import load_npz, save_npz
 from .safe_pickle import load_model_pickle, save_model_pickle
 
 REQUIRED_KEYS = ("v_template", "f", "shapedirs", "posedirs", "J_regressor", "weights", "kintree_table")

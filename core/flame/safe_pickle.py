@@ -18,8 +18,8 @@ import numpy as np
 
 from ..errors import ModelFileError, UnsafePickleError
 from ..io.atomic import atomic_open
-from ..limits import MAX_ARRAY_ELEMENTS
 from ..io.restricted_pickle import NUMPY_ARRAY_GLOBALS, restricted_load
+from ..limits import MAX_ARRAY_ELEMENTS
 
 
 class ChumpyArray:

@@ -17,9 +17,9 @@ from typing import Callable, Mapping
 import numpy as np
 
 from ..errors import UnsafePickleError
+from ..limits import MAX_ARRAY_BYTES, MAX_PICKLE_BYTES, MAX_SCALAR_BYTES
 from .files import check_regular_file
 from .pickle_budget import ObjectBudget, object_budget, scan_opcodes, short_repr
-from ..limits import MAX_ARRAY_BYTES, MAX_PICKLE_BYTES, MAX_SCALAR_BYTES
 
 # resolver(name) -> the object to use for ``module.name``, or None to refuse it.
 Resolver = Callable[[str], object]

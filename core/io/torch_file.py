@@ -19,8 +19,13 @@ import zipfile
 import numpy as np
 
 from ..errors import InputError, UnsafePickleError
-from ..limits import (MAX_ARRAY_ELEMENTS, MAX_TORCH_FILE_BYTES, MAX_TORCH_PICKLE_BYTES, MAX_TORCH_RECORDS,
-                      TORCH_BYTES_PER_FILE_BYTE)
+from ..limits import (
+    MAX_ARRAY_ELEMENTS,
+    MAX_TORCH_FILE_BYTES,
+    MAX_TORCH_PICKLE_BYTES,
+    MAX_TORCH_RECORDS,
+    TORCH_BYTES_PER_FILE_BYTE,
+)
 from .archive import check_member_count
 from .files import check_regular_file
 from .pickle_budget import object_budget, scan_opcodes, short_repr

@@ -13,6 +13,7 @@ import pathlib
 import torch
 from torch import nn
 
+from ..avatar.binding import triangle_frames
 from ..errors import InputError
 from ..io.atomic import atomic_path
 from ..io.torch_file import check_format, load_torch_state, save_torch_state
@@ -20,7 +21,6 @@ from .bank import ExpressionBank
 from .correction import CorrectionHead
 from .encoder import ViewEncoder
 from .fusion import MultiViewFusion
-from ..avatar.binding import triangle_frames
 from .posing import canonical_points
 from .texture_attention import LatentTextureAttention, code_size, flame_code
 

@@ -25,11 +25,11 @@ import time
 import numpy as np
 import torch
 
-from ..errors import InputError
+from ..data.capture_info import capture_info
 from ..data.target import target_image
+from ..errors import InputError
 from ..run.cameras import InputCameras
 from ..run.folder import MOTION_KEYS, RunFolder
-from ..data.capture_info import capture_info
 from .files import REFINER_FILE, save_refiner
 from .groups import add_offset, scale_vector
 from .model import LinearRefiner

@@ -9,6 +9,7 @@ import numpy as np
 from ..camera import Camera
 from .file_cache import CACHE_LOCK, file_version
 
+
 def avatar_location(path) -> tuple[pathlib.Path, tuple[float, float, float]]:
     """A run folder or an avatar file → the avatar file and the background it was trained on.
 

@@ -13,6 +13,7 @@ from ..errors import InputError
 from .axes import FRAME_OFFSET
 from .head_rig import EXPRESSION_SLIDER_RANGE, POSE_PROPERTIES, fit_components
 
+
 @dataclasses.dataclass
 class Tracking:
     """Tracked FLAME parameters of a ``flame_param`` folder, one row per timestep."""

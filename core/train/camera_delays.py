@@ -25,7 +25,6 @@ from ..io.atomic import write_json
 from ..io.jsonfile import read_json_object
 
 
-
 class CameraDelays(nn.Module):
     """One delay per camera (``camera_ids``), one parameter each, so Adam steps only the cameras a
     step rendered. ``sequences``: the timesteps of each sequence (neighbours are taken within one)."""

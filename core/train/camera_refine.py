@@ -34,6 +34,7 @@ from ..camera import Camera
 from ..flame.lbs import axis_angle_to_matrix
 from .config import CAMERA_GAUGES
 
+
 class CameraOffsets(nn.Module):
     """Offsets of the cameras ``cameras`` (id → calibrated :class:`Camera`), one parameter each,
     so Adam steps only the cameras a step rendered (the others get no gradient)."""

@@ -19,8 +19,8 @@ import re
 from typing import TYPE_CHECKING
 
 from ..errors import InputError
-from ..io.torch_file import check_format, load_torch_state, save_torch_state
 from ..io.atomic import atomic_path, write_text
+from ..io.torch_file import check_format, load_torch_state, save_torch_state
 
 CHECKPOINT_FORMAT = "mogaface-train-checkpoint"
 CHECKPOINT_VERSION = 1

@@ -10,9 +10,9 @@ import numpy as np
 import torch
 
 from ..data.capture import Capture, Frame
+from ..data.capture_info import INFO_FILE, capture_info
 from ..errors import CaptureError, MogafaceError
 from ..io.files import file_inside
-from ..data.capture_info import INFO_FILE, capture_info
 
 DEFAULT_BACKGROUND = (1.0, 1.0, 1.0)
 JOINTS = ("rotation", "neck_pose", "jaw_pose", "eyes_pose")

@@ -140,7 +140,7 @@ def communicator_from_environment(timeout_s: float = DEFAULT_TIMEOUT_S) -> Commu
     if world <= 1:
         return Communicator()
     try:
-        rank = int(os.environ["RANK"])
+        int(os.environ["RANK"])  # checked here: torch.distributed reads it
     except (KeyError, ValueError):
         raise InputError(None, "RANK", "WORLD_SIZE is set but RANK is not an integer (start with torchrun)") from None
     import torch.distributed as dist

@@ -14,9 +14,9 @@ import torch
 from ..data import layout
 from ..io.npz import save_npz
 from ..mogaface.avatar import ModulatedAvatar, render_world
-from ..run.names import MODULES_FILE
 from ..mogaface.posing import world_with_offsets
 from ..mogaface.training import CorrectionTraining
+from ..run.names import MODULES_FILE
 
 CORRECTED_DIR = "flame_param_corrected"
 

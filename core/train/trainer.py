@@ -28,21 +28,21 @@ from ..avatar.avatar import Avatar
 from ..avatar.binding import triangle_frames
 from ..avatar.densify import DensifySchedule, DensifyStrategy
 from ..errors import InputError, MogafaceError
+from ..io.atomic import atomic_path, write_text
 from ..run.folder import RunFolder
 from ..run.names import LANDMARK_CAMERAS_FILE
-from ..io.atomic import atomic_path, write_text
 from ..splat import cancel
 from ..splat.cancel import RenderCancelled
 from . import config as config_module
 from .camera_start import build_camera_delays, build_camera_offsets, load_cameras
 from .checkpoint import save_checkpoint, starting_state
-from .run_lock import take_run_folder
 from .config import TrainConfig
 from .data import TrainingData, capture_head_file, principal_point_notes
 from .distributed import Communicator
 from .events import EventLog, Listener
 from .mogaface_part import build_mogaface
 from .results import quick_check, write_learned_cameras, write_results, write_run_json
+from .run_lock import take_run_folder
 from .training_view import ViewRenderer, ViewResult
 
 

@@ -106,10 +106,10 @@ def run_folder(out: pathlib.Path, name: str, seed: int) -> pathlib.Path:
 
 def image_source(run_dir):
     """``(avatar, source)``: the run's own inference, image-assisted where it has modules."""
-    from ..run.folder import RunFolder
     from ..evaluate.sources.mogaface import MoGaFaceParams
     from ..evaluate.sources.tracked import TrackedParams
     from ..mogaface.avatar import ModulatedAvatar
+    from ..run.folder import RunFolder
 
     run = RunFolder(run_dir)
     capture = run.open_capture()
@@ -129,11 +129,10 @@ def score_variant(run_dir: pathlib.Path, max_frames, lpips: bool, fit_steps, spl
     from ..errors import InputError
     from ..evaluate.benchmark import benchmark_run, scoring_code_hash
     from ..evaluate.expression_error import expression_errors
-    from ..io.atomic import write_json
-
-    from ..run.names import REFINED_CAMERAS_FILE
     from ..evaluate.sources.fitted import fitting_settings
+    from ..io.atomic import write_json
     from ..refiner.files import REFINER_FILE
+    from ..run.names import REFINED_CAMERAS_FILE
 
     def changed(name):  # a refiner trained later, refined cameras written later: score again
         path = run_dir / name
@@ -173,8 +172,8 @@ def write_figure(path: pathlib.Path, run_dirs: dict[str, pathlib.Path], split: s
 
     from ..data.target import target_image
     from ..evaluate.protocols import protocol_frames, render_frame
-    from ..run.folder import RunFolder
     from ..io.atomic import atomic_path
+    from ..run.folder import RunFolder
 
     first = RunFolder(next(iter(run_dirs.values())))
     capture = first.open_capture()

@@ -20,14 +20,14 @@ import time
 from ..data import layout
 from ..errors import InputError
 from ..evaluate.expression_error import tracking_errors
-from ..run.cameras import InputCameras
-from ..run.folder import RunFolder
 from ..evaluate.sources.refined import RefinerInference, run_refiner
 from ..evaluate.sources.tracked import TrackedParams
 from ..io.atomic import check_output_target, write_json
 from ..io.npz import save_npz
 from ..refiner.files import REFINER_FILE, is_outdated
 from ..refiner.training import RefinerSettings, frozen_avatar, train_refiner
+from ..run.cameras import InputCameras
+from ..run.folder import RunFolder
 
 REFINED_TRACKING_DIR = "refined_tracking"
 RECORD_FILE = "refined_tracking.json"

@@ -13,13 +13,12 @@ import sys
 import numpy as np
 import pytest
 import torch
-
-from mogaface.core.cli import main
-from mogaface.core.io.ply import gaussian_property_names
+from conftest import make_toy_model
 
 from hostile import breakers as b
 from hostile import pickle_bombs as pb
-from conftest import make_toy_model
+from mogaface.core.cli import main
+from mogaface.core.io.ply import gaussian_property_names
 
 
 def run_cli(argv, capsys):

@@ -9,13 +9,12 @@ import sys
 
 import numpy as np
 import pytest
+from conftest import make_toy_model
 
+from hostile import pickle_bombs as pb
 from mogaface.core.errors import ModelFileError, UnsafePickleError
 from mogaface.core.flame.model_file import read_model_file, write_model_file
 from mogaface.core.flame.safe_pickle import load_model_pickle
-
-from conftest import make_toy_model
-from hostile import pickle_bombs as pb
 
 CAP_BYTES = 1536 * 1024 ** 2  # every bomb asks for 2 GiB or more; an import of the reader needs ~0.4 GiB
 

@@ -11,8 +11,8 @@ import numpy as np
 import torch
 
 from ...data.capture import Capture, Frame
-from ...data.target import target_image
 from ...data.capture_info import capture_info
+from ...data.target import target_image
 from ...run.cameras import InputCameras
 from .base import ParamSource, input_views, timestep_of
 

@@ -12,9 +12,9 @@ from __future__ import annotations
 import numpy as np
 
 from ...data.capture import Capture, Frame
-from ...refiner.inference import refine
-from ...data.target import target_image
 from ...data.capture_info import capture_info
+from ...data.target import target_image
+from ...refiner.inference import refine
 from ...run.cameras import InputCameras
 from .base import INPUT_VIEWS, ParamSource, input_views, timestep_of
 from .fitted import FittedParams

@@ -9,8 +9,8 @@ import numpy as np
 from scipy.ndimage import gaussian_filter1d
 
 from ...data.capture import Capture, Frame
-from ...data.sequences import NOISE_GROUPS
 from ...data.capture_info import capture_info
+from ...data.sequences import NOISE_GROUPS
 from .base import ParamSource, timestep_of
 from .true import true_params
 

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 
 from ...data.capture import Capture, Frame
+from ...data.capture_info import capture_info
 from ...errors import InputError
 from ...run.folder import MOTION_KEYS, RunFolder, load_flame_file
-from ...data.capture_info import capture_info
 from .base import timestep_of
 
 
