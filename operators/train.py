@@ -108,9 +108,9 @@ class MOGAFACE_OT_train(FollowsChildJob, bpy.types.Operator):
         if not capture or not run:
             self.report({"ERROR"}, "Set the capture folder and the run folder first")
             return None
-        resume = self.resume == "RESUME" or (
-            self.resume == "AUTO" and os.path.exists(os.path.join(run, "checkpoints", "latest"))
-            and not os.path.exists(os.path.join(run, "avatar.pt")))
+        from ..core.train.checkpoint import resumable
+
+        resume = self.resume == "RESUME" or (self.resume == "AUTO" and resumable(run))
         steps = self.steps or None
         python = bpy.path.abspath(self.python) if self.python else interpreter(context)
         command = train_command(

@@ -66,6 +66,15 @@ def latest_checkpoint(folder: str | os.PathLike) -> pathlib.Path | None:
     return found[-1] if found else None
 
 
+def resumable(run_root: str | os.PathLike) -> bool:
+    """Whether a run folder holds a checkpoint and no finished avatar: what Blender's "Auto"
+    resumes. Checkpoint files are looked for, not the ``latest`` pointer (it may lag or be lost)."""
+    from ..run.names import AVATAR_FILE, CHECKPOINT_DIR
+
+    root = pathlib.Path(run_root)
+    return latest_checkpoint(root / CHECKPOINT_DIR) is not None and not (root / AVATAR_FILE).exists()
+
+
 def load_checkpoint(path: str | os.PathLike) -> dict:
     """Read a checkpoint (``weights_only``: nothing in it is executed) and check its format."""
     state = load_torch_state(path, "checkpoint")

@@ -17,7 +17,7 @@ import torch
 from mogaface.core.cli import main
 from mogaface.core.errors import InputError
 from mogaface.core.train import config as C
-from mogaface.core.train.checkpoint import latest_checkpoint, load_checkpoint
+from mogaface.core.train.checkpoint import latest_checkpoint, load_checkpoint, resumable
 from mogaface.core.train.run_lock import RunLock
 from mogaface.core.train.trainer import Trainer
 
@@ -356,3 +356,17 @@ def test_a_fifo_in_place_of_the_newest_checkpoint_is_skipped_without_hanging(cop
     assert code == 0 and "step_000003.pt: expected a regular file" in err, err
     assert stat.S_ISFIFO(os.lstat(copies["run"] / "checkpoints" / "step_000003.pt.refused").st_mode)
     assert load_checkpoint(newest)["step"] == 3
+
+
+def test_blenders_auto_resume_looks_for_checkpoints_not_the_pointer(tmp_path):
+    """The operator's "Auto" resumes a run whose pointer was lost, and never a finished one."""
+    run = tmp_path / "run"
+    assert not resumable(run)
+    (run / "checkpoints").mkdir(parents=True)
+    (run / "checkpoints" / "latest").write_text("step_000004.pt\n")  # a pointer with no checkpoint
+    assert not resumable(run)
+    (run / "checkpoints" / "latest").unlink()
+    (run / "checkpoints" / "step_000004.pt").write_bytes(b"")
+    assert resumable(run)
+    (run / "avatar.pt").write_bytes(b"")
+    assert not resumable(run)
