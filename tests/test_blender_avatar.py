@@ -14,10 +14,13 @@ import subprocess
 import sys
 import time
 
+import test_blender_addon as addon_test  # sets Blender's user folders to a temporary one first
+
+# isort: split
+
 import bpy  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
-import test_blender_addon as addon_test  # sets Blender's user folders to a temporary one first
 from conftest import make_toy_model  # noqa: E402
 
 from mogaface.core.avatar.avatar import Avatar  # noqa: E402

@@ -11,10 +11,13 @@ import shutil
 import time
 import types
 
+import test_blender_addon as addon_test  # sets Blender's user folders to a temporary one first
+
+# isort: split
+
 import bpy  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
-import test_blender_addon as addon_test  # sets Blender's user folders to a temporary one first
 import torch  # noqa: E402
 from mathutils import Matrix, Vector  # noqa: E402
 
