@@ -119,7 +119,7 @@ def test_avatar_save_load_round_trip(procedural_head_pkl, tmp_path):
 
 def test_bad_avatar_files(tmp_path):
     (tmp_path / "junk.pt").write_bytes(b"not a torch file")
-    with pytest.raises(InputError, match="junk.pt: not a readable avatar file"):
+    with pytest.raises(InputError, match="junk.pt: not a torch archive"):
         Avatar.load(tmp_path / "junk.pt")
     torch.save({"format": "something else"}, tmp_path / "other.pt")
     with pytest.raises(InputError, match="field 'format'"):
