@@ -46,3 +46,18 @@ def clear_status_text() -> None:
         window.workspace.status_text_set(None)
         for area in window.screen.areas:  # the status bar redraws with the next redraw of the window
             area.tag_redraw()
+
+
+class OpensFileBrowser:
+    """Mixin for operators with a ``filepath``: run at once when a path is given (scripts, the
+    panel's file field), else open the file browser first (at ``suggested_name`` when set)."""
+
+    suggested_name = ""
+
+    def invoke(self, context, event):
+        if self.filepath:
+            return self.execute(context)
+        if self.suggested_name:
+            self.filepath = self.suggested_name
+        context.window_manager.fileselect_add(self)
+        return {"RUNNING_MODAL"}

@@ -8,16 +8,17 @@ import bpy
 from bpy.props import BoolProperty, IntProperty, StringProperty
 
 from .avatar_head import head_params, head_with_avatar
-from .common import dependencies_ready, run_core
+from .common import OpensFileBrowser, dependencies_ready, run_core
 from .handlers.head_rig import AVATAR_PATH_PROPERTY
 
 
-class MOGAFACE_OT_export_ply(bpy.types.Operator):
+class MOGAFACE_OT_export_ply(OpensFileBrowser, bpy.types.Operator):
     """Export the avatar's posed Gaussians (world space) as a 3DGS .ply, for a frame or a range"""
 
     bl_idname = "mogaface.export_ply"
     bl_label = "Export PLY"
     bl_options = {"REGISTER"}
+    suggested_name = "avatar.ply"
 
     filepath: StringProperty(name="File", subtype="FILE_PATH",
                              description="Output .ply; with a range, the frame number is added to the name")
@@ -26,13 +27,6 @@ class MOGAFACE_OT_export_ply(bpy.types.Operator):
     use_range: BoolProperty(name="Frame Range", default=False, description="Export every frame of the range")
     frame_start: IntProperty(name="Start", default=0, description="First frame (0: the scene's)")
     frame_end: IntProperty(name="End", default=0, description="Last frame (0: the scene's)")
-
-    def invoke(self, context, event):
-        if self.filepath:
-            return self.execute(context)
-        self.filepath = "avatar.ply"
-        context.window_manager.fileselect_add(self)
-        return {"RUNNING_MODAL"}
 
     def execute(self, context):
         if not self.filepath:

@@ -8,7 +8,7 @@ import bpy
 from bpy.props import BoolProperty, StringProperty
 from mathutils import Matrix
 
-from .common import dependencies_ready, run_core
+from .common import OpensFileBrowser, dependencies_ready, run_core
 from .dependencies import FILE_MODULES
 
 COLLECTION_NAME = "MoGaFace Capture"
@@ -111,7 +111,7 @@ def frame_views(context, points) -> None:
             area.tag_redraw()
 
 
-class MOGAFACE_OT_import_capture(bpy.types.Operator):
+class MOGAFACE_OT_import_capture(OpensFileBrowser, bpy.types.Operator):
     """Import a capture's cameras (exact intrinsics and poses), first-view images and timeline"""
 
     bl_idname = "mogaface.import_capture"
@@ -128,12 +128,6 @@ class MOGAFACE_OT_import_capture(bpy.types.Operator):
         name="Standard View Transform", default=True,
         description="Set the scene's view transform to Standard: captures and the avatar are display-referred "
                     "sRGB, and Standard shows their colours as captured (AgX or Filmic would tone-map them)")
-
-    def invoke(self, context, event):
-        if self.filepath:
-            return self.execute(context)
-        context.window_manager.fileselect_add(self)
-        return {"RUNNING_MODAL"}
 
     def execute(self, context):
         if not dependencies_ready(self, context, needs=FILE_MODULES):

@@ -5,7 +5,7 @@ from __future__ import annotations
 import bpy
 from bpy.props import StringProperty
 
-from .common import dependencies_ready, run_core
+from .common import OpensFileBrowser, dependencies_ready, run_core
 from .dependencies import FILE_MODULES, LazyModule
 from .handlers.head_rig import MODEL_PATH_PROPERTY, POSE_KEY_NAME
 
@@ -87,7 +87,7 @@ def build_head(context, head):
     return obj
 
 
-class MOGAFACE_OT_import_head(bpy.types.Operator):
+class MOGAFACE_OT_import_head(OpensFileBrowser, bpy.types.Operator):
     """Import a FLAME-format head (.pkl/.npz) with one shape key per expression and a pose rig"""
 
     bl_idname = "mogaface.import_head"
@@ -101,12 +101,6 @@ class MOGAFACE_OT_import_head(bpy.types.Operator):
         subtype="FILE_PATH",
         description="Optional flame_param .npz whose shape (and static offset) sets the identity",
     )
-
-    def invoke(self, context, event):
-        if self.filepath:
-            return self.execute(context)
-        context.window_manager.fileselect_add(self)
-        return {"RUNNING_MODAL"}
 
     def execute(self, context):
         if not dependencies_ready(self, context, needs=FILE_MODULES):

@@ -12,7 +12,7 @@ import bpy
 from bpy.props import StringProperty
 
 from .avatar_head import BACKGROUND_PROPERTY
-from .common import clear_status_text, dependencies_ready, redraw_areas, run_core
+from .common import OpensFileBrowser, clear_status_text, dependencies_ready, redraw_areas, run_core
 from .handlers.head_rig import AVATAR_PATH_PROPERTY, is_head
 
 
@@ -26,7 +26,7 @@ def _located_avatar(path: str):
     return found, background, load_avatar(found)
 
 
-class MOGAFACE_OT_load_avatar(bpy.types.Operator):
+class MOGAFACE_OT_load_avatar(OpensFileBrowser, bpy.types.Operator):
     """Link a trained avatar (run folder or avatar.pt) to a head, for rendering and export.
     It loads in the background; Blender stays usable"""
 
@@ -39,12 +39,6 @@ class MOGAFACE_OT_load_avatar(bpy.types.Operator):
 
     _timer = None
     _future = None
-
-    def invoke(self, context, event):
-        if self.filepath:
-            return self.execute(context)
-        context.window_manager.fileselect_add(self)
-        return {"RUNNING_MODAL"}
 
     def execute(self, context):
         obj = bpy.data.objects.get(self.target) if self.target else context.active_object

@@ -641,3 +641,22 @@ def test_the_refined_folder_keyed_is_the_one_in_the_place_of_the_scenes_tracking
     assert improving.folder_to_key(folders, "/r/out", "/c/cap", "/c/cap/seqB/flame_param") == folders[1]
     assert improving.folder_to_key(folders, "/r/out", "/c/cap", "/elsewhere/flame_param") == folders[0]
     assert improving.folder_to_key(folders[:1], "/r/out", "", "") == folders[0]
+
+
+def test_file_operators_run_at_once_with_a_path_and_browse_without(scene):
+    """Load Avatar, Import Capture, Import Head and Export PLY share one invoke (operators/common.py)."""
+    common = ops("common")
+    for module, name in (("load_avatar", "load_avatar"), ("import_capture", "import_capture"),
+                         ("import_head", "import_head"), ("export", "export_ply")):
+        operator = getattr(ops(module), f"MOGAFACE_OT_{name}")
+        assert issubclass(operator, common.OpensFileBrowser) and "invoke" not in vars(operator), name
+        browsed, executed = [], []
+        wm = types.SimpleNamespace(fileselect_add=lambda op: browsed.append(op.filepath))
+        fake = types.SimpleNamespace(filepath="/given/file", suggested_name=operator.suggested_name,
+                                     execute=lambda ctx: executed.append(True) or {"FINISHED"})
+        context = types.SimpleNamespace(window_manager=wm)
+        assert operator.invoke(fake, context, None) == {"FINISHED"} and executed and not browsed, name
+        fake.filepath, executed[:] = "", []
+        assert operator.invoke(fake, context, None) == {"RUNNING_MODAL"} and not executed, name
+        assert browsed == [operator.suggested_name], name
+    assert ops("export").MOGAFACE_OT_export_ply.suggested_name == "avatar.ply"
