@@ -181,3 +181,17 @@ def test_run_folder_reads_background_identity_and_relative_capture(run, tmp_path
     (moved / "run.json").write_text(json.dumps({"capture": "../cap", "background": [2, 0, 0]}))
     with pytest.raises(InputError, match="background"):
         RunFolder(moved)
+
+
+def test_lpips_on_images_too_small_for_it_names_the_capture(capture):
+    """Captures may hold images from 11 px a side (the SSIM window); LPIPS needs 32."""
+    import types
+
+    from mogaface.core.evaluate.protocols import check_lpips_size
+
+    small = types.SimpleNamespace(root=capture.root, cameras={
+        **capture.cameras, "cam09": types.SimpleNamespace(width=24, height=20)})
+    with pytest.raises(InputError, match=r"field 'images'.*at least 32 x 32 pixels.*24 x 20.*--no-lpips") as error:
+        check_lpips_size(small)
+    assert str(capture.root) in str(error.value)
+    check_lpips_size(capture)  # 48 px: scored with LPIPS

@@ -19,7 +19,16 @@ import numpy as np
 from ..errors import InputError
 from ..run.folder import RunFolder
 from .expression_error import frame_errors
-from .protocols import PROTOCOLS, check_split, protocol_frames, protocol_unavailable, run_protocol, score, scored_views
+from .protocols import (
+    PROTOCOLS,
+    check_lpips_size,
+    check_split,
+    protocol_frames,
+    protocol_unavailable,
+    run_protocol,
+    score,
+    scored_views,
+)
 from .sources.base import ParamSource
 
 FIT_STEPS = (10, 30)
@@ -143,6 +152,8 @@ def benchmark_run(run_dir, protocols=PROTOCOLS, max_frames: int | None = None, l
     run = RunFolder(run_dir)
     capture = run.open_capture()
     avatar = run.load_avatar() if avatar is None else avatar
+    if lpips:
+        check_lpips_size(capture)
     sources = standard_sources(run, capture, avatar, fit_steps) if sources is None else sources
     result = {"sources": {name: getattr(s, "description", type(s).__name__) for name, s in sources.items()},
               "split": check_split(split), "protocols": {}, "scored": {}, "skipped": {},

@@ -19,6 +19,7 @@ from .protocols import (
     DrivenParams,
     ParamSource,
     TrackedParams,
+    check_lpips_size,
     check_protocol,
     check_split,
     cross_identity,
@@ -88,6 +89,8 @@ def evaluate_run(
     plans = {name: protocol_frames(cap, name, max_frames, split) for name in protocols if name not in skipped}
     total = sum(len(split_frames(f)[1]) if name == "novel_view_aligned" else len(f) for name, f in plans.items())
     bar = ProgressBar(total, "eval") if progress and total else None
+    if lpips:
+        check_lpips_size(cap)
     keys = ("psnr", "ssim", "lpips") if lpips else ("psnr", "ssim")
     result = {
         "run": str(run.root.resolve()),

@@ -232,6 +232,18 @@ def cross_identity(
             yield timestep, camera_id, rgb, alpha
 
 
+def check_lpips_size(capture: Capture) -> None:
+    """Refuse LPIPS before any scoring where the capture's images are too small for it, naming the
+    capture (the metric itself knows no file)."""
+    from ..metrics.images import LPIPS_MIN_SIZE
+
+    camera = min(capture.cameras.values(), key=lambda c: min(c.width, c.height))
+    if min(camera.width, camera.height) < LPIPS_MIN_SIZE:
+        raise InputError(capture.root, "images", f"LPIPS needs images of at least {LPIPS_MIN_SIZE} x {LPIPS_MIN_SIZE} "
+                                                 f"pixels, this capture has {camera.width} x {camera.height}: score "
+                                                 f"without it (--no-lpips)")
+
+
 def score(item: Scored, with_lpips: bool = True) -> dict[str, float]:
     """PSNR, SSIM (and LPIPS) of one scored view on the full image."""
     from ..metrics import images as metrics
