@@ -175,9 +175,21 @@ class MOGAFACE_PT_avatar(_SubPanel, bpy.types.Panel):
             box.prop(obj, "mogaface_show_avatar", text="Show in Viewport")
             column = box.column(align=True)
             column.active = obj.mogaface_show_avatar
+            if hasattr(obj, "mogaface_viewport_draw"):
+                column.prop(obj, "mogaface_viewport_draw", text="Draw")
             column.prop(settings, "viewport_resolution", text="Resolution")
             column.prop(settings, "viewport_navigate_resolution")
+            draw_gpu_unavailable(column, context)
         draw_render_buttons(layout, context)
+
+
+def draw_gpu_unavailable(layout, context) -> None:
+    """The line saying the viewport's GPU draw cannot run here (the CPU image is drawn instead)."""
+    from ..operators.handlers.gpu_splats import unavailable
+
+    reason = unavailable()
+    if reason is not None:
+        wrapped_label(layout, context, f"GPU draw unavailable, the CPU image is shown: {reason}", icon="INFO")
 
 
 def draw_render_buttons(layout, context) -> None:

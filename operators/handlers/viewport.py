@@ -12,6 +12,11 @@ The image is drawn as a full-view quad through Blender's ``gpu`` module; its fra
 writes the avatar's depth as fragment depth, so scene geometry in front hides it and geometry
 behind it is hidden. Everything up to the pixel buffer (:func:`viewport_image`) is plain data and
 runs without a window; only :func:`draw_image` needs a GPU context.
+
+Beside that exact image, the GPU draws the Gaussians themselves (:mod:`.gpu_splats`) at the
+speed of the view: a per-head switch (:data:`DRAW_PROPERTY`) picks the GPU draw, the CPU image,
+or both: the GPU while the view moves, during playback and until the CPU image of the resting
+view arrives, then that image. Where the GPU draw cannot run, the CPU image is drawn.
 """
 
 from __future__ import annotations
@@ -20,9 +25,10 @@ import dataclasses
 import time
 
 import bpy
-from bpy.props import BoolProperty
+from bpy.props import BoolProperty, EnumProperty
 
 from ..dependencies import LazyModule
+from . import gpu_splats
 from .head_rig import AVATAR_PATH_PROPERTY, is_head
 
 np = LazyModule("numpy")  # imported on first use: registering needs no numpy
@@ -31,6 +37,13 @@ np = LazyModule("numpy")  # imported on first use: registering needs no numpy
 SETTLE_S = 0.3
 #: Per-object switch (registered on ``bpy.types.Object``).
 SHOW_PROPERTY = "mogaface_show_avatar"
+#: Per-object choice of the draw (registered on ``bpy.types.Object``): GPU, CPU or BOTH.
+DRAW_PROPERTY = "mogaface_viewport_draw"
+DRAW_MODES = (
+    ("BOTH", "Both", "The GPU draw while the view moves or plays, the exact CPU image once it rests"),
+    ("GPU", "GPU", "Always the GPU draw of the Gaussians (interactive; per-Gaussian colour decoding)"),
+    ("CPU", "CPU Exact", "Always the CPU render of the splat engine (exact; slower to follow the view)"),
+)
 
 
 @dataclasses.dataclass
@@ -112,6 +125,8 @@ class ViewState:
         self.view_key = None
         self.view_changed = 0.0
         self.error: str | None = None
+        self.gpu = None  # gpu_splats.GpuSplats, made in a GPU context
+        self.posing = gpu_splats.Posing()
 
     def submit(self, request, view, projection) -> None:
         from ...core.scene.render import render
@@ -152,23 +167,71 @@ def _viewport_executor():
     return _executor
 
 
-def update_view(state: ViewState, head, region, region_3d, scene, now: float | None = None) -> None:
-    """Collect a finished image and, if the view, frame or head changed, ask for a new one."""
+def update_view(state: ViewState, head, region, region_3d, scene, now: float | None = None,
+                submit: bool = True) -> str:
+    """Collect a finished image and, if the view, frame or head changed, ask for a new one
+    (unless ``submit`` is False). Returns the key of the image the view wants now."""
     now = time.monotonic() if now is None else now
     state.collect()
     view_matrix, projection = np.array(region_3d.view_matrix), np.array(region_3d.window_matrix)
-    view_key = (view_matrix.round(6).tobytes(), projection.round(6).tobytes(), region.width, region.height)
-    if view_key != state.view_key:
-        state.view_key, state.view_changed = view_key, now
+    moving = track_view(state, view_matrix, projection, region, now)
     settings = scene.mogaface
-    moving = now - state.view_changed < SETTLE_S
     size = draw_size(region.width, region.height, settings.viewport_navigate_resolution) if moving else \
         draw_size(region.width, region.height, percent=settings.viewport_resolution)
     request, view = viewport_request(head, view_matrix, projection, size, scene.frame_current)
     key = request.key()
     shown = state.image.key if state.image is not None else None
-    if state.future is None and key not in (shown, state.pending_key):
+    if submit and state.future is None and key not in (shown, state.pending_key):
         state.submit(request, view, projection)
+    return key
+
+
+def track_view(state: ViewState, view_matrix, projection, region, now: float) -> bool:
+    """Note when the view last changed; True while it moves (changed within :data:`SETTLE_S`)."""
+    view_key = (view_matrix.round(6).tobytes(), projection.round(6).tobytes(), region.width, region.height)
+    if view_key != state.view_key:
+        state.view_key, state.view_changed = view_key, now
+    return now - state.view_changed < SETTLE_S
+
+
+def draw_gpu(state: ViewState, head, region, region_3d, scene) -> bool:
+    """The GPU draw of the head's Gaussians at the region's size; False while it cannot draw
+    (no GPU draw here, or the first frame still being posed)."""
+    if gpu_splats.program() is None:
+        return False
+    view_matrix, projection = np.array(region_3d.view_matrix), np.array(region_3d.window_matrix)
+    request, view = viewport_request(head, view_matrix, projection, (region.width, region.height),
+                                     scene.frame_current)
+    splats = state.posing.latest(request.avatar_path, request.params, scene.frame_current)
+    if state.posing.error is not None and state.error != state.posing.error:
+        state.error = state.posing.error  # reported once; the last posed frame (or the CPU image) stays
+        print(f"MoGaFace viewport: {head.name}: posing for the GPU draw: {state.posing.error}")
+    if splats is None:
+        return False
+    if state.gpu is None:
+        state.gpu = gpu_splats.GpuSplats()
+    return state.gpu.draw(splats, view, projection, region.width, region.height, state.posing.frame)
+
+
+def gpu_first(mode: str, gpu_ok: bool, moving: bool, playing: bool) -> bool:
+    """Whether the GPU draw is the one shown now and no CPU render is asked: always in "GPU"
+    mode, while the view moves or plays in "BOTH"; never in "CPU" or where the GPU cannot."""
+    return gpu_ok and mode != "CPU" and (mode == "GPU" or moving or playing)
+
+
+def draw_head(state: ViewState, head, region, region_3d, scene, playing: bool) -> None:
+    """Draw one head by its switch (:func:`gpu_first`); in "BOTH" the resting view shows the GPU
+    draw until the CPU image of that view arrives, then that image."""
+    mode = getattr(head, DRAW_PROPERTY, "BOTH")
+    gpu_ok = mode != "CPU" and gpu_splats.unavailable() is None
+    moving = track_view(state, np.array(region_3d.view_matrix), np.array(region_3d.window_matrix), region,
+                        time.monotonic())
+    interactive = gpu_first(mode, gpu_ok, moving, playing)
+    key = update_view(state, head, region, region_3d, scene, submit=not interactive)
+    exact = state.image is not None and state.image.key == key and not interactive
+    if gpu_ok and not exact and draw_gpu(state, head, region, region_3d, scene):
+        return
+    draw_image(state)
 
 
 # -- drawing --------------------------------------------------------------------------------------
@@ -264,11 +327,14 @@ def draw_avatars() -> None:
         heads = shown_heads(scene)
     except ReferenceError:
         return
+    screen = context.screen
+    playing = bool(screen is not None and screen.is_animation_playing)
     for head in heads:
         state = _views.setdefault((region.as_pointer(), head.session_uid), ViewState())
-        for step in (lambda: update_view(state, head, region, region_3d, scene), lambda: draw_image(state)):
+        for step in (lambda: draw_head(state, head, region, region_3d, scene, playing), lambda: draw_image(state)):
             try:
                 step()
+                break
             except Exception as error:  # a draw handler must never raise: report once, keep the last image
                 message = f"MoGaFace viewport: {head.name}: {error}"
                 if state.error != message:
@@ -279,12 +345,14 @@ def draw_avatars() -> None:
 
 def _busy() -> bool:
     now = time.monotonic()
-    return any(state.future is not None or now - state.view_changed < SETTLE_S + 0.1 for state in _views.values())
+    return any(state.future is not None or state.posing.busy or now - state.view_changed < SETTLE_S + 0.1
+               for state in _views.values())
 
 
 def _poll_renders():
     """Timer: redraw 3D views when a render finished or a view settled; stops when nothing is pending."""
-    ready = any(state.future is not None and state.future.done() for state in _views.values())
+    ready = any((state.future is not None and state.future.done())
+                or (state.posing.future is not None and state.posing.future.done()) for state in _views.values())
     now = time.monotonic()
     settled = any(SETTLE_S <= now - state.view_changed < SETTLE_S + 0.1 for state in _views.values())
     if ready or settled:
@@ -326,6 +394,9 @@ def register() -> None:
     setattr(bpy.types.Object, SHOW_PROPERTY, BoolProperty(
         name="Show Avatar", default=True, update=_show_changed,
         description="Draw this head's avatar in the 3D viewport (rendered by MoGaFace's splat engine)"))
+    setattr(bpy.types.Object, DRAW_PROPERTY, EnumProperty(
+        name="Viewport Draw", items=DRAW_MODES, default="BOTH",
+        description="How the 3D viewport draws this head's avatar: by the GPU, by the CPU splat engine, or both"))
     if _handle["draw"] is None:
         _handle["draw"] = bpy.types.SpaceView3D.draw_handler_add(draw_avatars, (), "WINDOW", "POST_VIEW")
 
@@ -338,5 +409,7 @@ def unregister() -> None:
         bpy.app.timers.unregister(_poll_renders)
     _views.clear()
     _shader.clear()
-    if hasattr(bpy.types.Object, SHOW_PROPERTY):
-        delattr(bpy.types.Object, SHOW_PROPERTY)
+    gpu_splats.clear()
+    for name in (SHOW_PROPERTY, DRAW_PROPERTY):
+        if hasattr(bpy.types.Object, name):
+            delattr(bpy.types.Object, name)

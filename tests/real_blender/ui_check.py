@@ -455,6 +455,127 @@ def viewport_pixels(head, viewport):
     yield 0.5
 
 
+def gpu_draw(state, splats, view, projection, size, frame):
+    """The GPU draw of ``splats`` into an offscreen ``size``² buffer: ``(H, W, 4)`` scene-linear
+    premultiplied, top row first."""
+    import gpu
+    import numpy as np
+
+    try:
+        offscreen = gpu.types.GPUOffScreen(size, size, format="RGBA32F")
+    except TypeError:  # a Blender without the format argument: 8 bits per channel
+        offscreen = gpu.types.GPUOffScreen(size, size)
+    with offscreen.bind():
+        gpu.state.active_framebuffer_get().clear(color=(0.0, 0.0, 0.0, 0.0), depth=1.0)
+        check(state.draw(splats, view, projection, size, size, frame), "the GPU draw did not draw")
+    pixels = np.array(offscreen.texture_color.read().to_list(), np.float32).reshape(size, size, 4)
+    offscreen.free()
+    return pixels[::-1]
+
+
+def gpu_fps(gpu_splats, core_gpu, splats, view, projection, count, size=512, repeats=10):
+    """Frames per second of the GPU draw of ``count`` Gaussians (the avatar's, repeated with a
+    shift) into a ``size``² buffer: with a sort, colours and upload every frame (playback, orbit)
+    and the draw alone (a still view); each timed loop ends by reading a pixel back (the GPU done)."""
+    import gpu
+    import numpy as np
+
+    reps = -(-count // len(splats.opacities))
+    rng = np.random.default_rng(0)
+    shift = np.repeat(rng.normal(0.0, 0.002, (reps, 3)), len(splats.opacities), axis=0)[:count]
+    many = core_gpu.PosedSplats(
+        (np.tile(splats.means, (reps, 1))[:count] + shift).astype(np.float32),
+        np.tile(splats.covariances, (reps, 1))[:count], np.tile(splats.opacities, reps)[:count],
+        np.tile(splats.colors, (reps,) + (1,) * (splats.colors.ndim - 1))[:count], f"{splats.key}x{count}")
+    state = gpu_splats.GpuSplats()
+    offscreen = gpu.types.GPUOffScreen(size, size)
+    result = {"gaussians": count, "size": size}
+    with offscreen.bind():
+        for label, frames in (("fps_sort_every_frame", range(repeats)), ("fps_draw_only", [0] * repeats)):
+            state.draw(many, view, projection, size, size, -1)
+            offscreen.texture_color.read()
+            start = time.perf_counter()
+            for frame in frames:
+                gpu.state.active_framebuffer_get().clear(color=(0.0, 0.0, 0.0, 0.0), depth=1.0)
+                state.draw(many, view, projection, size, size, frame)
+            gpu.state.active_framebuffer_get().read_color(0, 0, 1, 1, 4, 0, "FLOAT")
+            result[label] = round(repeats / (time.perf_counter() - start), 2)
+    offscreen.free()
+    return result
+
+
+def gpu_draw_pixels(head, viewport):
+    """The GPU draw of the still view at 512² against the core render of the same view (under
+    Standard, premultiplied sRGB over black, over the avatar's pixels): at least 30 dB; then
+    its frames per second at 30k and 100k Gaussians."""
+    import numpy as np
+
+    gpu_splats = module("operators.handlers.gpu_splats")
+    core_gpu = module("core.scene.gpu_splats")
+    render = module("core.scene.render")
+    check(gpu_splats.program() is not None, f"the GPU draw cannot run: {gpu_splats.unavailable()}")
+    _, area, _ = window_and_view()
+    region_3d = area.spaces.active.region_3d
+    size, frame = 512, bpy.context.scene.frame_current
+    view_matrix, projection = np.array(region_3d.view_matrix), np.array(region_3d.window_matrix)
+    request, view = viewport.viewport_request(head, view_matrix, projection, (size, size), frame)
+    core = render.render(request)
+    splats = core_gpu.posed_splats(request.avatar_path, request.params)
+    drawn = gpu_draw(gpu_splats.GpuSplats(), splats, view, projection, size, frame)
+    expected = render.srgb_from_blender(render.blender_rgba(core))
+    got = render.srgb_from_blender(drawn)
+    mask = (core.alpha > 1 / 255) | (drawn[..., 3] > 1 / 255)
+    db = compare("viewport GPU", got, expected, mask, required=False)
+    RESULTS["gpu_alpha_max_difference"] = round(float(np.abs(drawn[..., 3] - core.alpha).max()), 4)
+    check_at_end(db >= 30.0, f"pixels viewport GPU: {db:.1f} dB against the core render (below 30 dB)")
+    yield 0.5
+    RESULTS["gpu_fps"] = [gpu_fps(gpu_splats, core_gpu, splats, view, projection, count) for count in (30000, 100000)]
+    RESULTS["gpu_fps_load_average_1min"] = round(os.getloadavg()[0], 2)
+    log(f"GPU draw fps (software GL): {RESULTS['gpu_fps']} (load {RESULTS['gpu_fps_load_average_1min']})")
+    yield 0.5
+
+
+def live_gpu_pixels(head, viewport):
+    """The view switched to the GPU draw, read back from the screen (overlays off, Standard)
+    against the core render of the view over what the view shows without the avatar."""
+    import numpy as np
+
+    _, area, region = window_and_view()
+    region_3d = area.spaces.active.region_3d
+    area.spaces.active.overlay.show_overlays = False
+    setattr(head, viewport.DRAW_PROPERTY, "GPU")
+
+    def drawn():
+        area.tag_redraw()
+        return any(s.gpu is not None and s.gpu.order.packed is not None for s in viewport._views.values())
+
+    yield from wait_until(drawn, 120, "the GPU draw in the viewport")
+    area.tag_redraw()
+    yield 1.0
+    shown = screen_pixels(region)
+    setattr(head, viewport.SHOW_PROPERTY, False)
+    head.display_type, head.show_in_front = "BOUNDS", True  # the head drawn as while the avatar is shown
+    area.tag_redraw()
+    yield 1.0
+    behind = screen_pixels(region)
+    setattr(head, viewport.SHOW_PROPERTY, True)
+    area.tag_redraw()
+    yield 1.0  # the avatar drawn again before the screenshot below
+    request, _ = viewport.viewport_request(head, np.array(region_3d.view_matrix), np.array(region_3d.window_matrix),
+                                           (region.width, region.height), bpy.context.scene.frame_current)
+    core = module("core.scene.render").render(request)
+    alpha = core.alpha[..., None]
+    straight = np.divide(core.rgb, alpha, out=np.zeros_like(core.rgb), where=alpha > 0)
+    expected = srgb(linear(straight) * alpha + (1 - alpha) * linear(behind))
+    db = compare("viewport GPU, live in the window", shown, expected, core.alpha > 1 / 255, required=False)
+    check_at_end(db >= 30.0, f"pixels viewport GPU, live in the window: {db:.1f} dB (below 30 dB)")
+    shot("9-viewport-gpu")
+    setattr(head, viewport.DRAW_PROPERTY, "BOTH")
+    area.spaces.active.overlay.show_overlays = True
+    area.tag_redraw()
+    yield 0.5
+
+
 def avatar_in_scene_stages(head):
     """The avatar drawn live in the viewport at two keyed frames, then in an F12 render."""
     import numpy as np
@@ -489,6 +610,9 @@ def avatar_in_scene_stages(head):
         shot(f"6-viewport-frame{frame}")
     stage("the avatar in the viewport follows the keys")
     yield from viewport_pixels(head, viewport)
+    yield from gpu_draw_pixels(head, viewport)
+    yield from live_gpu_pixels(head, viewport)
+    stage("the GPU draw of the Gaussians against the core render, and its speed")
 
     scene = bpy.context.scene
     capture_camera = next(o for o in scene.objects if o.get("mogaface_resolution") is not None)

@@ -1,0 +1,42 @@
+"""The viewport's choice between the GPU draw and the CPU image, and the GPU draw's fallback
+where it cannot run (here: Blender in background mode, where ``gpu`` draws nothing)."""
+
+from __future__ import annotations
+
+import importlib
+
+import test_blender_addon  # noqa: F401 - sets Blender's user folders to a temporary one first
+
+# isort: split
+
+import pytest  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def handlers():
+    return (importlib.import_module("mogaface.operators.handlers.viewport"),
+            importlib.import_module("mogaface.operators.handlers.gpu_splats"))
+
+
+@pytest.mark.parametrize("mode, gpu_ok, moving, playing, expected", [
+    ("BOTH", True, True, False, True),  # navigating: the GPU
+    ("BOTH", True, False, True, True),  # playing: the GPU
+    ("BOTH", True, False, False, False),  # resting: the exact CPU image is asked for
+    ("GPU", True, False, False, True),
+    ("CPU", True, True, True, False),
+    ("BOTH", False, True, True, False),  # no GPU draw here: the CPU image, always
+    ("GPU", False, False, False, False),
+])
+def test_which_draw_is_shown(handlers, mode, gpu_ok, moving, playing, expected):
+    viewport, _ = handlers
+    assert viewport.gpu_first(mode, gpu_ok, moving, playing) is expected
+
+
+def test_where_the_gpu_cannot_draw_the_reason_is_kept_for_the_panel(handlers):
+    _, gpu_splats = handlers
+    gpu_splats.clear()
+    assert gpu_splats.unavailable() is None  # not tried yet
+    assert gpu_splats.program() is None  # background mode: no drawing
+    reason = gpu_splats.unavailable()
+    assert reason and "background" in reason
+    gpu_splats.clear()
