@@ -6,6 +6,9 @@ draw uploads (rows flipped, depth as window depth). The reference, in the same r
 render Render Frame makes (the core's one render at the same size): their ratio is the viewport
 path's own cost. The GPU upload and draw are not included (they need a window).
 
+``gpu_path``: the CPU side of the GPU draw (posing a frame, and a view's colours, sort and packed
+texture at 30k and 100k Gaussians); the GPU draw itself is timed in the real-Blender check.
+
 The avatar: ``--avatar`` (a run folder or ``avatar.pt``; the demo's is ``out/demo/run``), else
 ``out/demo/run`` when present, else a stand-in: the procedural head with one opaque Gaussian per
 triangle (12 620 Gaussians). The view: a 50 mm lens, the head filling about 60% of the height.
@@ -114,6 +117,7 @@ def run(threads: int = 2, quick: bool = False, avatar: str | None = None) -> dic
                         "avatar_coverage": round(float((warm.alpha > 0.5).mean()), 3)})
     if len(results) == 2:
         results[1]["time_ratio_vs_256"] = round(results[0]["viewport_fps"] / results[1]["viewport_fps"], 2)
+    gpu_path = _gpu_path(str(path), values, repeats, quick)
     return {
         "benchmark": "viewport",
         "avatar": label,
@@ -127,4 +131,42 @@ def run(threads: int = 2, quick: bool = False, avatar: str | None = None) -> dic
         "note": "wall-clock on a shared machine: a 1-minute load average above the thread count means "
                 "other processes competed for the cores; compare the ratios",
         "results": results,
+        "gpu_path": gpu_path,
     }
+
+
+def _gpu_path(path: str, values: dict, repeats: int, quick: bool) -> dict:
+    """The CPU side of the GPU draw: posing a frame (uncached, then from the per-frame cache) and,
+    at 30k and 100k Gaussians (the avatar's, repeated), a view's colours, sort and packed texture
+    (redone whenever the view or the frame changes). The draw itself needs a window: the real-Blender
+    check (tests/real_blender/ui_check.py) measures it."""
+    import numpy as np
+
+    from mogaface.core.scene import gpu_splats
+    from mogaface.core.scene.render import view_camera
+
+    def pose(jaw):
+        gpu_splats._pose_cache.clear()
+        return gpu_splats.posed_splats(path, {**values, "jaw_pose": np.array([jaw, 0.0, 0.0])})
+
+    splats = pose(0.1)
+    pose_fps, _ = _median_fps(lambda: pose(0.1), repeats)
+    cached_fps, _ = _median_fps(lambda: gpu_splats.posed_splats(path, {**values, "jaw_pose": np.array([0.1, 0, 0])}),
+                                repeats)
+    view, projection = _view_matrices(512, 512)
+    camera = view_camera(view, projection, np.eye(4), 512, 512).camera
+    per_view = []
+    for count in ([30000] if quick else [30000, 100000]):
+        reps = -(-count // len(splats.opacities))
+        many = gpu_splats.PosedSplats(
+            np.tile(splats.means, (reps, 1))[:count], np.tile(splats.covariances, (reps, 1))[:count],
+            np.tile(splats.opacities, reps)[:count],
+            np.tile(splats.colors, (reps,) + (1,) * (splats.colors.ndim - 1))[:count], "bench")
+        order, frame = gpu_splats.SplatOrder(), iter(range(10 ** 6))
+        fps, best = _median_fps(lambda: order.update(many, camera.w2c, next(frame)), repeats)
+        per_view.append({"gaussians": count, "sort_colour_pack_fps": fps, "sort_colour_pack_fps_best": best,
+                         "sh_coefficients": int(splats.colors.shape[1]) if splats.colors.ndim == 3 else 1})
+    return {"pose_fps_uncached": pose_fps, "pose_fps_cached": cached_fps, "gaussians": len(splats.opacities),
+            "per_view": per_view,
+            "note": "CPU side only: each orbit step or frame re-sorts, colours and packs; the GPU upload "
+                    "and instanced draw are measured in Blender (needs a window)"}
