@@ -2,7 +2,8 @@
 # The screenshots of docs/blender.md (run by hand, not in CI): a demo-preset avatar in the real
 # Blender program (Debian trixie's Blender 4.3.2 in the chroot of scripts/real_blender_chroot.sh,
 # under Xvfb), as a user sees it: the 3D viewport, F12 beside a cube and a backdrop, Render Frame,
-# under Standard; the viewport (Material Preview) and F12 under AgX too
+# under Standard; the same view drawn by the GPU (Draw: GPU) beside Draw: CPU Exact; the viewport
+# (Material Preview) and F12 under AgX too
 # (tests/real_blender/docs_screenshots.py). About 4 minutes on 2 cores once the packages are in.
 #
 #   scripts/docs_screenshots.sh [--demo DIR] [--images DIR] [--frame N]

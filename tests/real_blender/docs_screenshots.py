@@ -6,7 +6,8 @@ the demo's capture cameras, the run's head keyed by its tracking, the avatar loa
 in front of the cheek and a backdrop behind the head (seen from the held-out camera), the rig's
 cameras hidden. Shots (crops of the X screen, 256 colours, ``IMAGES/blender_*.png``): the 3D
 viewport in a 3/4 view (Solid), F12's Render Result and Render Frame's image in the Image Editor,
-under Standard; the viewport in Material Preview under Standard and AgX, and F12 under AgX. The
+under Standard; the same view with the head's Draw set to GPU beside Draw set to CPU Exact; the
+viewport in Material Preview under Standard and AgX, and F12 under AgX. The
 viewport's pixels are read back against the core render (ui_check's lines), with the head's
 bounds drawn in front and, for the record, in the scene's depth as before.
 """
@@ -136,6 +137,38 @@ def still_viewport(viewport, region):
     yield 1.0
 
 
+def draw_switch_shots(head, viewport):
+    """The same view drawn by the GPU (Draw: GPU) and by the splat engine (Draw: CPU Exact), side by
+    side in ``IMAGES/blender_viewport_gpu.png``; the switch back to Both after."""
+    window, area, region = ui.window_and_view()
+
+    def gpu_drawn():
+        area.tag_redraw()
+        return any(s.gpu is not None and s.gpu.order.packed is not None for s in viewport._views.values())
+
+    # the view alone: the toolbar, the sidebar and the headers overlap the region
+    widths = {r.type: (r.width, r.height) for r in area.regions}
+    left, right = widths.get("TOOLS", (0, 0))[0], widths.get("UI", (0, 0))[0]
+    top = widths.get("HEADER", (0, 0))[1] + widths.get("TOOL_HEADER", (0, 0))[1]
+    halves = []
+    for mode in ("GPU", "CPU"):
+        setattr(head, viewport.DRAW_PROPERTY, mode)
+        if mode == "GPU":
+            yield from ui.wait_until(gpu_drawn, 120, "the GPU draw in the viewport")
+        else:
+            yield from still_viewport(viewport, region)
+        area.tag_redraw()
+        yield 1.5
+        name = f"draw-{mode.lower()}"
+        crop_shot(name, window, region.x + left, region.y, region.width - left - right, region.height - top, 560)
+        halves.append(ui.IMAGES / f"{name}.png")
+    setattr(head, viewport.DRAW_PROPERTY, "BOTH")
+    path = ui.IMAGES / "blender_viewport_gpu.png"
+    subprocess.run(["convert", str(halves[0]), "-size", "8x1", "xc:white", str(halves[1]), "+append",
+                    "+dither", "-colors", "256", "-strip", f"PNG8:{path}"], check=True, timeout=60)
+    ui.log(f"screenshot {path.name} ({path.stat().st_size // 1024} KB)")
+
+
 def viewport_shots(head, viewport):
     from mathutils import Euler
 
@@ -148,6 +181,8 @@ def viewport_shots(head, viewport):
     yield from ui.close_render_windows()
     yield from still_viewport(viewport, region)
     crop_shot("blender_viewport", window, area.x, area.y, area.width, area.height)
+    yield from draw_switch_shots(head, viewport)
+    yield from still_viewport(viewport, region)
     yield from ui.viewport_pixels(head, viewport)  # the pixels lines; overlays off, then on
     shading = area.spaces.active.shading
     shading.type = "MATERIAL"  # EEVEE draws the scene's objects through the view transform
