@@ -576,6 +576,40 @@ def live_gpu_pixels(head, viewport):
     yield 0.5
 
 
+def scrub_blocks(head, viewport):
+    """Scrub the timeline with the GPU draw: the longest block of Blender's event loop (a 20 ms
+    timer) while frames change, each change followed by a redraw; fails over max(0.5 s, the idle
+    window's longest redraw + 0.3 s), as Load Avatar does."""
+    _, area, _ = window_and_view()
+    scene = bpy.context.scene
+    setattr(head, viewport.DRAW_PROPERTY, "GPU")
+    frames = list(range(scene.frame_start, min(scene.frame_end, scene.frame_start + 11) + 1))
+    ticks, done = [time.monotonic()], []
+
+    def tick():
+        ticks.append(time.monotonic())
+        return None if done else 0.02
+
+    bpy.app.timers.register(tick, first_interval=0.02)
+    for frame in frames + frames[::-1]:  # new frames (posed on the worker thread), then cached ones
+        scene.frame_set(frame)
+        area.tag_redraw()
+        yield 0.1
+    done.append(True)
+    yield 0.2
+    gaps = [b - a for a, b in zip(ticks, ticks[1:])]
+    idle = RESULTS.get("load_avatar", {}).get("idle_longest_block_s", 0.0)
+    RESULTS["scrub"] = {"frame_changes": 2 * len(frames), "seconds": round(ticks[-1] - ticks[0], 2),
+                        "longest_ui_block_s": round(max(gaps), 3), "idle_longest_block_s": idle,
+                        "blocks_over_0.1_s": sum(g > 0.1 for g in gaps)}
+    log(f"scrubbing with the GPU draw: {RESULTS['scrub']}")
+    check_at_end(max(gaps) < max(0.5, idle + 0.3), f"scrubbing froze the UI: {RESULTS['scrub']}")
+    setattr(head, viewport.DRAW_PROPERTY, "BOTH")
+    scene.frame_set(frames[0])
+    area.tag_redraw()
+    yield 0.5
+
+
 def avatar_in_scene_stages(head):
     """The avatar drawn live in the viewport at two keyed frames, then in an F12 render."""
     import numpy as np
@@ -613,6 +647,8 @@ def avatar_in_scene_stages(head):
     yield from gpu_draw_pixels(head, viewport)
     yield from live_gpu_pixels(head, viewport)
     stage("the GPU draw of the Gaussians against the core render, and its speed")
+    yield from scrub_blocks(head, viewport)
+    stage("scrubbing the timeline with the GPU draw never blocks the interface")
 
     scene = bpy.context.scene
     capture_camera = next(o for o in scene.objects if o.get("mogaface_resolution") is not None)
