@@ -149,15 +149,22 @@ def _train_process(copies, tmp_path):
     return subprocess.Popen(command, stderr=subprocess.PIPE, text=True), out
 
 
-def test_interrupt_during_start_up_exits_quietly(copies, tmp_path):
-    process, _ = _train_process(copies, tmp_path)
+def _signalled(process, when, *signals) -> str:
+    """Send ``signals`` to the training child once ``when()`` returns; its stderr. A child that
+    missed them is killed: it must not train on after the test."""
     try:
-        time.sleep(1.0)  # importing torch and numba
-        process.send_signal(signal.SIGINT)
-        _, err = process.communicate(timeout=120)
-    finally:  # a child that missed the signal must not train on after the test
+        when()
+        for number in signals:
+            process.send_signal(number)
+        return process.communicate(timeout=120)[1]
+    finally:
         if process.poll() is None:
             process.kill()
+
+
+def test_interrupt_during_start_up_exits_quietly(copies, tmp_path):
+    process, _ = _train_process(copies, tmp_path)
+    err = _signalled(process, lambda: time.sleep(1.0), signal.SIGINT)  # importing torch and numba
     assert process.returncode == 128 + signal.SIGINT, err
     assert "Traceback" not in err
 
@@ -172,14 +179,7 @@ def _wait_for_first_step(process, out):
 
 def test_double_interrupt_exits_with_the_signal_status(copies, tmp_path):
     process, out = _train_process(copies, tmp_path)
-    try:
-        _wait_for_first_step(process, out)
-        process.send_signal(signal.SIGINT)
-        process.send_signal(signal.SIGINT)
-        _, err = process.communicate(timeout=120)
-    finally:
-        if process.poll() is None:
-            process.kill()
+    err = _signalled(process, lambda: _wait_for_first_step(process, out), signal.SIGINT, signal.SIGINT)
     assert process.returncode == 128 + signal.SIGINT, err
     assert "Traceback" not in err
     assert not [p for p in (out / "checkpoints").glob(".*")] if (out / "checkpoints").exists() else True
@@ -190,13 +190,7 @@ def test_interrupt_while_training_checkpoints_the_step_before_the_cancelled_rend
     belonged to is abandoned and its draw from the sampler put back, so the checkpoint is a clean
     step boundary that resumes."""
     process, out = _train_process(copies, tmp_path)
-    try:
-        _wait_for_first_step(process, out)
-        process.send_signal(signal.SIGINT)
-        _, err = process.communicate(timeout=120)
-    finally:
-        if process.poll() is None:
-            process.kill()
+    err = _signalled(process, lambda: _wait_for_first_step(process, out), signal.SIGINT)
     assert process.returncode == 128 + signal.SIGINT and "Traceback" not in err, err
     assert [e for e in events(out) if e["event"] == "stopped"][-1]["signal"] == "SIGINT"
     state = load_checkpoint(latest_checkpoint(out / "checkpoints"))
@@ -271,16 +265,14 @@ def test_sigterm_while_starting_says_so_and_exits_143(copies, tmp_path, after):
     """From the command line's first line on (``python -m mogaface`` arms SIGTERM at once), through the
     imports of torch and numba and the reading of the capture, SIGTERM ends with one line and 143."""
     process, _ = _train_process(copies, tmp_path)
-    try:
+
+    def armed_then_after():
         deadline = time.monotonic() + 120
         while not _handles_sigterm(process.pid):
             assert process.poll() is None and time.monotonic() < deadline, process.communicate()
         time.sleep(after)
-        process.send_signal(signal.SIGTERM)
-        _, err = process.communicate(timeout=120)
-    finally:
-        if process.poll() is None:
-            process.kill()
+
+    err = _signalled(process, armed_then_after, signal.SIGTERM)
     assert process.returncode == 128 + signal.SIGTERM, err
     assert "Traceback" not in err
     assert "terminated by SIGTERM" in err or "stopped by SIGTERM" in err, err
@@ -288,13 +280,7 @@ def test_sigterm_while_starting_says_so_and_exits_143(copies, tmp_path, after):
 
 def test_sigterm_while_training_is_said_under_quiet(copies, tmp_path):
     process, out = _train_process(copies, tmp_path)
-    try:
-        _wait_for_first_step(process, out)
-        process.send_signal(signal.SIGTERM)
-        _, err = process.communicate(timeout=120)
-    finally:
-        if process.poll() is None:
-            process.kill()
+    err = _signalled(process, lambda: _wait_for_first_step(process, out), signal.SIGTERM)
     assert process.returncode == 128 + signal.SIGTERM, err
     assert "stopped by SIGTERM at step" in err and "checkpoint written" in err
 
