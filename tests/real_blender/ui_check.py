@@ -135,6 +135,26 @@ def linear(encoded):
     return np.where(encoded <= 0.04045, encoded / 12.92, ((encoded + 0.055) / 1.055) ** 2.4)
 
 
+def over(straight, alpha, behind):
+    """The avatar's straight sRGB colour at ``alpha`` over ``behind`` (sRGB), blended in
+    scene-linear as Blender blends a premultiplied draw over the view."""
+    return srgb(linear(straight) * alpha + (1 - alpha) * linear(behind))
+
+
+def with_and_without_avatar(head, viewport, area, region):
+    """A generator step: the view read back with the avatar, then without it (the head drawn as
+    while the avatar is shown); returns ``(shown, behind)``, the avatar shown again."""
+    shown = screen_pixels(region)
+    setattr(head, viewport.SHOW_PROPERTY, False)
+    head.display_type, head.show_in_front = "BOUNDS", True  # the head drawn as while the avatar is shown
+    area.tag_redraw()
+    yield 1.0
+    behind = screen_pixels(region)
+    setattr(head, viewport.SHOW_PROPERTY, True)
+    area.tag_redraw()
+    return shown, behind
+
+
 def compare(place, got, expected, mask, transform="Standard", required=True):
     """PSNR (dB) of what Blender shows against the core render, over the avatar's pixels (``mask``);
     below 35 dB fails under Standard."""
@@ -436,15 +456,8 @@ def viewport_pixels(head, viewport):
         bpy.context.scene.view_settings.view_transform = transform
         area.tag_redraw()
         yield 1.0
-        shown = screen_pixels(region)
-        setattr(head, viewport.SHOW_PROPERTY, False)
-        head.display_type, head.show_in_front = "BOUNDS", True  # the head drawn as while the avatar is shown
-        area.tag_redraw()
-        yield 1.0
-        behind = screen_pixels(region)
-        setattr(head, viewport.SHOW_PROPERTY, True)
-        area.tag_redraw()
-        expected = srgb(linear(straight) * alpha + (1 - alpha) * linear(behind))  # premultiplied over the view
+        shown, behind = yield from with_and_without_avatar(head, viewport, area, region)
+        expected = over(straight, alpha, behind)
         place = "viewport" if not show_overlays else "viewport with overlays"
         compare(place, shown, expected, core.alpha > 1 / 255, transform, required=not show_overlays)
         if show_overlays:
@@ -552,21 +565,14 @@ def live_gpu_pixels(head, viewport):
     yield from wait_until(drawn, 120, "the GPU draw in the viewport")
     area.tag_redraw()
     yield 1.0
-    shown = screen_pixels(region)
-    setattr(head, viewport.SHOW_PROPERTY, False)
-    head.display_type, head.show_in_front = "BOUNDS", True  # the head drawn as while the avatar is shown
-    area.tag_redraw()
-    yield 1.0
-    behind = screen_pixels(region)
-    setattr(head, viewport.SHOW_PROPERTY, True)
-    area.tag_redraw()
+    shown, behind = yield from with_and_without_avatar(head, viewport, area, region)
     yield 1.0  # the avatar drawn again before the screenshot below
     request, _ = viewport.viewport_request(head, np.array(region_3d.view_matrix), np.array(region_3d.window_matrix),
                                            (region.width, region.height), bpy.context.scene.frame_current)
     core = module("core.scene.render").render(request)
     alpha = core.alpha[..., None]
     straight = np.divide(core.rgb, alpha, out=np.zeros_like(core.rgb), where=alpha > 0)
-    expected = srgb(linear(straight) * alpha + (1 - alpha) * linear(behind))
+    expected = over(straight, alpha, behind)
     db = compare("viewport GPU, live in the window", shown, expected, core.alpha > 1 / 255, required=False)
     check_at_end(db >= 30.0, f"pixels viewport GPU, live in the window: {db:.1f} dB (below 30 dB)")
     shot("9-viewport-gpu")
@@ -676,7 +682,7 @@ def avatar_in_scene_stages(head):
     core = core_render(head, scene.camera, scene.frame_current, transparent=True)
     straight = np.divide(core.rgb, core.alpha[..., None], out=np.zeros_like(core.rgb), where=core.alpha[..., None] > 0)
     a = core.alpha[..., None]
-    expected = srgb(linear(straight) * a + (1 - a) * linear(plain[::-1]))  # render_still's rows are bottom first
+    expected = over(straight, a, plain[::-1])  # render_still's rows are bottom first
     compare("F12 composite", with_avatar[::-1], expected, core.alpha > 1 / 255)
     result = saved_pixels(bpy.data.images["Render Result"], "f12-render-result")
     compare("F12 Render Result", result[..., :3], expected, core.alpha > 1 / 255)
