@@ -25,6 +25,8 @@ import os
 # the refiner's one pass on the timesteps training did not fit (`refine-tracking --fit-steps N`)
 PASSES = (1, 3)
 FIT_STEPS = (10, 30, 100)
+PARAMETER_ERRORS = ("vertex_mm", "expr_vertex_mm", "vertex_mm_gauge", "expr_vertex_mm_gauge")
+REPORT_FILE = "bench_refiner.json"
 
 
 def _warm_up_frame(capture, frames, split):
@@ -70,18 +72,17 @@ def _input_views(sources: dict, names) -> dict:
     return out
 
 
-def run(threads: int = 2, quick: bool = False, avatar: str | None = None,
-        fit_steps: tuple[int, ...] = FIT_STEPS, split: str = "test") -> dict:
+def report(folder, threads: int = 2, quick: bool = False, fit_steps: tuple[int, ...] = FIT_STEPS,
+           split: str = "test") -> dict:
+    """One run's comparison (the module docstring): images, parameter errors, seconds, ratios."""
     import torch
 
     from mogaface.core.errors import InputError
-    from mogaface.core.evaluate.benchmark import score_source, standard_sources
+    from mogaface.core.evaluate.benchmark import run_gauge, score_source, standard_sources
     from mogaface.core.evaluate.protocols import protocol_frames, scored_views
     from mogaface.core.refiner.files import REFINER_FILE
-    from mogaface.core.run.folder import RunFolder
 
     torch.set_num_threads(threads)
-    folder = RunFolder(avatar or "out/demo/run")
     if not (folder.root / REFINER_FILE).exists():
         raise InputError(folder.root / REFINER_FILE, None, "no refiner: run 'train-refiner RUN' first")
     capture = folder.open_capture()
@@ -89,24 +90,30 @@ def run(threads: int = 2, quick: bool = False, avatar: str | None = None,
     fit_steps = tuple(sorted(set(fit_steps)))
     sources = standard_sources(folder, capture, trained, fit_steps=fit_steps, refiner_passes=PASSES)
     names = [name for name in ["tracked", "tracked_aligned", *(f"refined_{k}" for k in PASSES),
-                               *(f"fit_{n}" for n in fit_steps), f"refined_fit_{fit_steps[0]}"] if name in sources]
+                               *(f"fit_{n}" for n in fit_steps), f"refined_fit_{fit_steps[0]}", "true", "true_gauge"]
+             if name in sources]
     frames = protocol_frames(capture, "self_reenactment", 4 if quick else 12, split)
     warm = _warm_up_frame(capture, frames, split)
     for name in names:  # untimed: first calls, first reads of the capture and the run
         sources[name].params_for(warm, exclude_view=warm.camera_id)
         getattr(sources[name], "inputs", []).clear()
+    gauge = run_gauge(folder, capture)
     load_before = os.getloadavg()
-    scores = {name: score_source(trained, capture, sources[name], frames, folder.background, lpips=False)
+    scores = {name: score_source(trained, capture, sources[name], frames, folder.background, lpips=False, gauge=gauge)
               for name in names}
     tracked = scores["tracked"]["psnr"]
     return {
-        "run": str(folder.root), "frames": len(frames), "threads": threads, "split": split,
+        "run": str(folder.root), "capture": str(capture.root), "subject": _subject(capture),
+        "frames": len(frames), "threads": threads, "split": split,
         "scored": scored_views(capture, frames),
         "warm_up_frame": f"{warm.timestep_id}/{warm.camera_id}",
         "fit_steps": list(fit_steps),
+        "sources": {name: sources[name].description for name in names if hasattr(sources[name], "description")},
         "seconds_per_frame": {name: round(s["source_s"], 4) for name, s in scores.items()},
         "psnr_db": {name: round(s["psnr"], 3) for name, s in scores.items()},
         "psnr_gain_over_tracked_db": {name: round(s["psnr"] - tracked, 3) for name, s in scores.items()},
+        "parameter_errors_mm": {name: {key: round(s[key], 4) for key in PARAMETER_ERRORS if s.get(key) is not None}
+                                for name, s in scores.items()},
         "fitting_time_over_refiner": {
             f"fit_{steps}/refined_{passes}": round(
                 scores[f"fit_{steps}"]["source_s"] / max(scores[f"refined_{passes}"]["source_s"], 1e-9), 2)
@@ -116,3 +123,54 @@ def run(threads: int = 2, quick: bool = False, avatar: str | None = None,
         "load_average_before": [round(x, 2) for x in load_before],
         "load_average_after": [round(x, 2) for x in os.getloadavg()],
     }
+
+
+def _subject(capture) -> dict:
+    """Which procedural subject and tracker-error draw a synthetic capture is (empty otherwise)."""
+    from mogaface.core.data.capture_info import capture_info
+
+    settings = capture_info(capture.root).get("settings") or {}
+    return {key: settings[key] for key in ("subject", "seed") if isinstance(settings, dict) and key in settings}
+
+
+def cached_report(folder, threads: int, quick: bool, fit_steps, split: str) -> dict:
+    """:func:`report`, kept in the run folder (``bench_refiner.json``; ``_validation`` for that
+    split) and reused while the scoring code, the refiner file and the options are unchanged."""
+    import hashlib
+    import json
+
+    from mogaface.core.evaluate.benchmark import scoring_code_hash
+    from mogaface.core.io.atomic import write_json
+    from mogaface.core.refiner.files import REFINER_FILE
+    from mogaface.core.workflows.ablation import split_name
+
+    path = folder.root / split_name(REPORT_FILE, split)
+    key = {"scoring_code": scoring_code_hash(), "refiner": hashlib.sha256((folder.root / REFINER_FILE).read_bytes()
+                                                                          ).hexdigest(),
+           "threads": threads, "quick": quick, "fit_steps": sorted(set(fit_steps)), "split": split}
+    if path.is_file():
+        try:
+            kept = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            kept = None
+        if isinstance(kept, dict) and kept.get("key") == key:
+            return kept["report"]
+    result = report(folder, threads, quick, fit_steps, split)
+    write_json(path, {"key": key, "report": result})
+    return result
+
+
+def run(threads: int = 2, quick: bool = False, avatar: str | None = None,
+        fit_steps: tuple[int, ...] = FIT_STEPS, split: str = "test") -> dict:
+    """One run (``--avatar RUN``): its report. Several (``--avatar RUN,RUN,…``): each run's report
+    (kept in its folder, :func:`cached_report`) and the table over them, grouped by subject
+    (:mod:`.refiner_table`)."""
+    from mogaface.core.run.folder import RunFolder
+
+    from .refiner_table import summary_table
+
+    roots = [part for part in (avatar or "out/demo/run").split(",") if part]
+    if len(roots) == 1:
+        return report(RunFolder(roots[0]), threads, quick, fit_steps, split)
+    reports = [cached_report(RunFolder(root), threads, quick, fit_steps, split) for root in roots]
+    return {"runs": reports, **summary_table(reports)}

@@ -33,24 +33,25 @@ def test_ablate_writes_results_table_and_figure(tiny_capture, tmp_path):
             assert run["train"]["steps"] == 3
             tuned = name == "full_prior"  # fine-tuned its parameters: the aligned start is a row of its own
             sources = ["tracked", *(["tracked_aligned"] if tuned else []), "smoothed", "fit_1", "fit_2",
-                       *(["method"] if tuned else []), "true"]
+                       *(["method"] if tuned else []), "true", "true_gauge"]
             for protocol in ("novel_view", "self_reenactment"):
                 assert list(run["protocols"][protocol]) == sources, (name, protocol)
                 for source, scores in run["protocols"][protocol].items():
                     assert scores["frames"] == 2 and scores["psnr"] > 5, (name, seed, source)
-                    assert scores["vertex_mm"] >= 0 and scores["frame_s"] > 0
+                    assert scores["vertex_mm"] >= 0 and scores["vertex_mm_gauge"] >= 0 and scores["frame_s"] > 0
             assert run["training_expression"]["expr_rmse_tracked"] > 0
             for protocol, named in run["scored"].items():  # what each protocol scored, by name
                 assert len(named["frames"]) == 2 and named["cameras"] and named["label"], protocol
             assert "unseen frames (FREE)" in run["scored"]["self_reenactment"]["label"]
     free = results["variants"]["freeze"]["seeds"]["0"]["protocols"]["self_reenactment"]
-    assert free["true"]["vertex_mm"] == pytest.approx(0.0, abs=1e-6)  # the ceiling: the truth's own motion
+    assert free["true"]["vertex_mm"] == pytest.approx(0.0, abs=1e-6)  # the truth's own motion
+    assert free["true_gauge"]["vertex_mm_gauge"] == pytest.approx(0.0, abs=1e-6)  # the ceiling, in the gauge
     assert free["tracked"]["vertex_mm"] > 0.1
     freeze = results["variants"]["freeze"]["seeds"]["0"]["training_expression"]
     assert freeze["expr_rmse_corrected"] == pytest.approx(freeze["expr_rmse_tracked"])  # Freeze corrects nothing
     table = (out / "results.md").read_text()
     assert "Seeds: Freeze 0, 1; Full + zero-mean prior (the presets) 0, 1" in table and " ± " in table and "test-time fitting, 2 steps" in table
-    assert "true parameters (ceiling)" in table and "the method's image-assisted inference" in table
+    assert "true parameters in the avatar's gauge (the ceiling)" in table and "mesh vertex mm, gauge" in table and "the method's image-assisted inference" in table
     assert (out / "figure.png").stat().st_size > 0
     # A second call reuses the complete runs.
     before = (out / "runs" / "full_prior" / "seed1" / "run.json").stat().st_mtime_ns

@@ -364,7 +364,7 @@ def test_a_damaged_or_hostile_refiner_file_is_a_clear_error(tmp_path, damage, fi
         assert field in str(error.value)
 
 
-def test_the_command_trains_a_refiner_that_eval_then_uses(run_root, tmp_path, capsys):
+def test_the_command_trains_a_refiner_that_eval_then_uses(run_root, tmp_path, capsys, monkeypatch):
     from mogaface.core.cli import main
     from mogaface.core.evaluate.evaluation import evaluate_run
 
@@ -405,8 +405,58 @@ def test_the_command_trains_a_refiner_that_eval_then_uses(run_root, tmp_path, ca
         equal = report["equal_quality"][f"refined_{passes}"]
         assert equal["status"] in ("interpolated", "not reached", "reached by the shortest")
         assert (equal["fit_steps"] is None) == (equal["status"] == "not reached")
+    # parameter errors raw and in the avatar's gauge for every source; the truth and the ceiling
+    errors = report["parameter_errors_mm"]
+    assert {"tracked", "refined_1", "fit_1", "true", "true_gauge"} <= set(errors)
+    assert all(set(e) == {"vertex_mm", "expr_vertex_mm", "vertex_mm_gauge", "expr_vertex_mm_gauge"}
+               for e in errors.values())
+    assert errors["true"]["vertex_mm"] == errors["true_gauge"]["vertex_mm_gauge"] == 0.0
+    assert errors["true_gauge"]["vertex_mm"] == pytest.approx(errors["true"]["vertex_mm_gauge"], abs=1e-3)
+    assert errors["true_gauge"]["vertex_mm"] > 0  # the fine-tuned run's gauge is not the raw truth
+
+    # several runs: each report kept in its run folder and reused, and the table over them
+    second = tmp_path / "run2"
+    shutil.copytree(run, second)
+    table = tmp_path / "table.json"
+    assert main(["bench", "refiner", "--avatar", f"{run},{second}", "--quick", "--threads", "1",
+                 "--fit-steps", "1,3", "--out", str(table)]) == 0
+    kept = json.loads((second / "bench_refiner.json").read_text())["report"]
+    assert kept["run"] == str(second)
+    markdown = table.with_suffix(".md").read_text()
+    assert "2 runs" in markdown and "refiner, 1 pass" in markdown and "mesh mm, gauge" in markdown
+    edited = {**kept, "psnr_db": {**kept["psnr_db"], "refined_1": 99.0}}
+    (second / "bench_refiner.json").write_text(json.dumps({**json.loads((second / "bench_refiner.json").read_text()),
+                                                           "report": edited}))
+    assert main(["bench", "refiner", "--avatar", f"{run},{second}", "--quick", "--threads", "1",
+                 "--fit-steps", "1,3", "--out", str(table)]) == 0
+    assert json.loads(table.read_text())["runs"][1]["psnr_db"]["refined_1"] == 99.0  # reused, not recomputed
+    assert main(["bench", "refiner", "--avatar", f"{run},{second}", "--quick", "--threads", "1",
+                 "--fit-steps", "1", "--out", str(table)]) == 0  # other options: measured again
+    assert json.loads(table.read_text())["runs"][1]["psnr_db"]["refined_1"] != 99.0
+
     with pytest.raises(SystemExit):
         main(["bench", "refiner", "--fit-steps", "10,x"])
     assert "positive step counts" in capsys.readouterr().err
     assert main(["bench", "train", "--fit-steps", "10"]) == 2
     assert "refiner benchmark only" in capsys.readouterr().err
+
+    # settings chosen on the validation frames, every try written; the test frames refused
+    import mogaface.bench.refiner_search as search
+
+    monkeypatch.setattr(search, "REFINER_GRID", {"prior": (1e-3, 1e3), "gap_rank": (0,)})
+    monkeypatch.setattr(search, "FIT_GRID", {"prior_weight": (0.0,)})
+    monkeypatch.setattr(search, "FIT_SEARCH_STEPS", 1)
+    out = tmp_path / "search.json"
+    assert main(["bench", "refiner_search", "--avatar", str(run), "--quick", "--threads", "1", "--out", str(out)]) == 0
+    searched = json.loads(out.read_text())
+    assert searched["split"] == "validation" and all("VAL" in s["label"] for s in searched["scored"])
+    assert all("FREE" not in frame for s in searched["scored"] for frame in s["frames"])
+    tried = searched["refiner"]["tried"]
+    assert len({json.dumps(t["settings"], sort_keys=True) for t in tried}) == len(tried) >= 3
+    assert searched["refiner"]["chosen_psnr_db"] == max(t["psnr_db"] for t in tried
+                                                        if t["settings"] == searched["refiner"]["chosen"])
+    assert {"vertex_mm_gauge", "expr_vertex_mm_gauge"} <= set(tried[0]["mean"])
+    assert len(searched["fitting"]["tried"]) == 2
+    capsys.readouterr()
+    assert main(["bench", "refiner_search", "--avatar", str(run), "--split", "test"]) == 2
+    assert "validation frames only" in capsys.readouterr().err

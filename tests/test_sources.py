@@ -238,7 +238,7 @@ def test_no_scored_view_reaches_any_source(capture, run_with_refiner, monkeypatc
     monkeypatch.setattr(Capture, "load_image", spy)
     sources = standard_sources(run, capture, avatar, fit_steps=(1,))
     assert set(sources) == {"tracked", "tracked_aligned", "smoothed", "fit_1", "refined_1", "refined_3",
-                            "refined_fit_1", "true"}
+                            "refined_fit_1", "true", "true_gauge"}
     checked = []
     source_of = dict(sources)
     for name, source in sources.items():
@@ -265,6 +265,10 @@ def test_no_scored_view_reaches_any_source(capture, run_with_refiner, monkeypatc
     assert {name: checked.count(name) >= 2 * 2 for name in sources} == {name: True for name in sources}
     free = result["protocols"]["self_reenactment"]
     assert free["true"]["vertex_mm"] == pytest.approx(0.0, abs=1e-6) and free["tracked"]["vertex_mm"] > 0.1
+    # the truth in the gauge is off the raw truth by the run's mean offset, and its own gauge error is none
+    assert free["true_gauge"]["vertex_mm_gauge"] == pytest.approx(0.0, abs=1e-6)
+    assert free["true_gauge"]["vertex_mm"] > 1e-3
+    assert free["tracked"]["vertex_mm_gauge"] != pytest.approx(free["tracked"]["vertex_mm"])
     assert all(scores["frame_s"] > 0 for scores in free.values())
     named = result["scored"]["self_reenactment"]
     assert len(named["frames"]) == 2 and named["frames"][0].startswith("FREE_") and "FREE" in named["label"]

@@ -11,7 +11,9 @@ from . import step_counts
 BENCHMARKS = {
     "cancel_latency": "SIGINT to exit while a raster kernel runs, at the largest allowed frame and in train",
     "distributed": "data-parallel training: ranks against threads, all-reduce volume and time per step",
-    "refiner": "the multi-view refiner against test-time fitting on unseen frames: seconds per frame, PSNR gained",
+    "refiner": "the multi-view refiner against test-time fitting on unseen frames: seconds per frame, PSNR gained, "
+               "parameter errors; several runs (--avatar RUN,RUN,…): the table over them, by subject",
+    "refiner_search": "choose the refiner's and fitting's settings on validation frames: every setting tried, scored",
     "splat": "the CPU Gaussian splat engine against its torch reference",
     "splat_fuzz": "the splat engine on degenerate Gaussians and intrinsics (hangs, non-finite values)",
     "step": "one training step stage by stage (FLAME, binding, render, loss, optimiser, MoGaFace modules)",
@@ -27,13 +29,15 @@ def add_arguments(parser):
     parser.add_argument("--threads", type=int, default=2, help="CPU threads for numba and torch")
     parser.add_argument("--quick", action="store_true", help="fewer sizes and repeats (smoke run)")
     parser.add_argument("--out", help="also write the JSON report to this file")
-    parser.add_argument("--avatar", help="viewport: the avatar (run folder or avatar.pt); refiner: the run folder "
-                                         "with refiner.pt (default out/demo/run)")
+    parser.add_argument("--avatar", help="viewport: the avatar (run folder or avatar.pt); refiner, refiner_search: "
+                                         "the run folder with refiner.pt, or several, comma-separated "
+                                         "(default out/demo/run)")
     parser.add_argument("--fit-steps", type=step_counts,
                         help="refiner only: fitting lengths to time, comma-separated (default 10,30,100); the "
                              "refiner's time is also set against the length that matches its PSNR")
     parser.add_argument("--split", choices=SCORE_SPLITS,
-                        help="refiner only: score the test frames (default) or the validation sequence's")
+                        help="refiner: score the test frames (default) or the validation sequence's; "
+                             "refiner_search: validation only")
     parser.add_argument("--scale", choices=["small", "real"],
                         help="train only: 'real' times the full method at 802x550, 16 cameras, 100k Gaussians")
 
@@ -47,14 +51,14 @@ def run(args) -> int:
     if args.scale is not None and args.name != "train":
         print("error: --scale applies to the train benchmark only", file=sys.stderr)
         return 2
-    if args.avatar is not None and args.name not in ("viewport", "refiner"):
-        print("error: --avatar applies to the viewport and refiner benchmarks only", file=sys.stderr)
+    if args.avatar is not None and args.name not in ("viewport", "refiner", "refiner_search"):
+        print("error: --avatar applies to the viewport, refiner and refiner_search benchmarks only", file=sys.stderr)
         return 2
     if args.fit_steps is not None and args.name != "refiner":
         print("error: --fit-steps applies to the refiner benchmark only", file=sys.stderr)
         return 2
-    if args.split is not None and args.name != "refiner":
-        print("error: --split applies to the refiner benchmark only", file=sys.stderr)
+    if args.split is not None and args.name not in ("refiner", "refiner_search"):
+        print("error: --split applies to the refiner and refiner_search benchmarks only", file=sys.stderr)
         return 2
     options = {"scale": args.scale} if args.scale is not None else {}
     if args.split is not None:
@@ -71,4 +75,9 @@ def run(args) -> int:
 
         with atomic_open(args.out, "w") as handle:
             handle.write(text + "\n")
+        if isinstance(report.get("markdown"), str):  # a table: also as markdown beside the JSON
+            import pathlib
+
+            with atomic_open(pathlib.Path(args.out).with_suffix(".md"), "w") as handle:
+                handle.write(report["markdown"] + "\n")
     return 0

@@ -34,7 +34,7 @@ from .sources.base import ParamSource
 FIT_STEPS = (10, 30)
 REFINER_PASSES = (1, 3)
 IMAGE_METRICS = ("psnr", "ssim", "lpips")
-PARAMETER_METRICS = ("expr_rmse", "expr_vertex_mm", "vertex_mm")
+PARAMETER_METRICS = ("expr_rmse", "expr_vertex_mm", "vertex_mm", "expr_vertex_mm_gauge", "vertex_mm_gauge")
 # The code that decides a score, relative to the package's core/: the protocols, metrics, the
 # scoring cameras and images, every parameter source and the refiner's inference. Scores kept on
 # disk are stale once any of these files changes (:func:`scoring_code_hash`).
@@ -65,7 +65,8 @@ def standard_sources(run: RunFolder, capture, avatar, fit_steps=FIT_STEPS,
     """name → source, in table order: tracked, tracked_aligned (runs that fine-tuned their
     parameters), smoothed, fit_N…, refined_K… and refined_fit_N (runs with a refiner; the refiner's
     one pass, then fitting from there where training did not fit, as ``refine-tracking`` does),
-    method (MoGaFace runs), true. Fitting and the refiner start from the aligned tracked parameters
+    method (MoGaFace runs), true, and true_gauge (the truth in the avatar's gauge, the image
+    ceiling; :func:`.expression_error.truth_gauge`). Fitting and the refiner start from the aligned tracked parameters
     (:class:`.sources.tracked.AlignedTrackedParams`) and read the same views: per frame
     :data:`.sources.base.INPUT_VIEWS` other views of the training cameras, spread over the rig (the
     held-out camera's images are the novel-view protocols' to score, never an input)."""
@@ -112,11 +113,27 @@ def standard_sources(run: RunFolder, capture, avatar, fit_steps=FIT_STEPS,
         sources["method"] = MoGaFaceParams(capture, run, model, image_assisted=True)
     if has_truth:
         sources["true"] = TrueParams(capture, run)
+        sources["true_gauge"] = TrueParams(capture, run, run_gauge(run, capture))
     return sources
 
 
-def score_source(avatar, capture, source: ParamSource, frames, background, lpips: bool = True) -> dict:
-    """Mean image scores, parameter errors (where the truth is known) and seconds per frame."""
+def run_gauge(run: RunFolder, capture) -> dict:
+    """The run's gauge (:func:`.expression_error.truth_gauge`) on a synthetic capture; empty without a truth."""
+    from .expression_error import truth_gauge
+    from .sources.true import true_params, truth_dir
+
+    try:
+        truth_dir(capture)
+    except InputError:
+        return {}
+    return truth_gauge(run, lambda t: true_params(capture, t))
+
+
+def score_source(avatar, capture, source: ParamSource, frames, background, lpips: bool = True,
+                 gauge: dict | None = None) -> dict:
+    """Mean image scores, parameter errors (where the truth is known; with ``gauge`` from
+    :func:`run_gauge`, also against the truth in the avatar's gauge) and seconds per frame."""
+    from .expression_error import gauge_errors
     from .sources.true import true_params
 
     rows = []
@@ -128,7 +145,10 @@ def score_source(avatar, capture, source: ParamSource, frames, background, lpips
     for item in run_protocol(avatar, capture, source, frames, background):
         row = score(item, lpips)
         if truth_known:
-            row.update(frame_errors(avatar.flame, item.params, true_params(capture, item.frame.timestep_index)))
+            truth = true_params(capture, item.frame.timestep_index)
+            row.update(frame_errors(avatar.flame, item.params, truth))
+            if gauge:
+                row.update(gauge_errors(avatar.flame, item.params, truth, gauge))
         row["source_s"] = item.source_seconds
         row["frame_s"] = item.source_seconds + item.render_seconds
         rows.append(row)
@@ -158,6 +178,7 @@ def benchmark_run(run_dir, protocols=PROTOCOLS, max_frames: int | None = None, l
     result = {"sources": {name: getattr(s, "description", type(s).__name__) for name, s in sources.items()},
               "split": check_split(split), "protocols": {}, "scored": {}, "skipped": {},
               "cameras": camera_errors(capture, run.root)}
+    gauge = run_gauge(run, capture)
     for protocol in protocols:
         if split != "test" and (reason := protocol_unavailable(capture, protocol, split)) is not None:
             result["skipped"][protocol] = reason
@@ -165,7 +186,8 @@ def benchmark_run(run_dir, protocols=PROTOCOLS, max_frames: int | None = None, l
         frames = protocol_frames(capture, protocol, max_frames, split)
         result["scored"][protocol] = scored_views(capture, frames)
         result["protocols"][protocol] = {
-            name: score_source(avatar, capture, source, frames, run.background, lpips) for name, source in sources.items()
+            name: score_source(avatar, capture, source, frames, run.background, lpips, gauge)
+            for name, source in sources.items()
         }
     if not result["protocols"]:
         raise InputError(capture.root, "split", "; ".join(f"{k}: {v}" for k, v in result["skipped"].items()))

@@ -46,6 +46,33 @@ def frame_errors(model: FlameModel, params: dict[str, np.ndarray], truth: dict[s
     }
 
 
+def truth_gauge(run: RunFolder, truth_for) -> dict[str, np.ndarray]:
+    """The avatar's gauge: per motion parameter, the mean of (the run's parameters − the truth,
+    ``truth_for(timestep)``) over the run's training timesteps. An avatar absorbs the tracker's
+    constant bias in training and no image can show it, so parameter errors are also given against
+    the truth plus this offset (``*_gauge``; docs/notebook/2026-11-26-multiview-refiner.md). Empty
+    for a run without training timesteps."""
+    trained = list(run.trained_timesteps)
+    if not trained:
+        return {}
+    pairs = [(run.flame_params(t), truth_for(t)) for t in trained]
+    return {k: np.mean([np.asarray(own[k], np.float64) - true[k] for own, true in pairs], axis=0).astype(np.float32)
+            for k in MOTION_KEYS if all(k in own and k in true for own, true in pairs)}
+
+
+def in_gauge(truth: dict[str, np.ndarray], gauge: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """The truth moved by the avatar's gauge (:func:`truth_gauge`)."""
+    return {**truth, **{k: (truth[k] + v).astype(np.float32) for k, v in gauge.items()}}
+
+
+def gauge_errors(model: FlameModel, params: dict[str, np.ndarray], truth: dict[str, np.ndarray],
+                 gauge: dict[str, np.ndarray]) -> dict[str, float]:
+    """:func:`frame_errors`' mesh distances against the truth in the avatar's gauge, as
+    ``vertex_mm_gauge`` and ``expr_vertex_mm_gauge``."""
+    errors = frame_errors(model, params, in_gauge(truth, gauge))
+    return {"vertex_mm_gauge": errors["vertex_mm"], "expr_vertex_mm_gauge": errors["expr_vertex_mm"]}
+
+
 def truth_folder(capture) -> pathlib.Path | None:
     """A synthetic capture's folder of true parameters (``flame_param_gt/``), or None (real captures)."""
     truth_dir = capture_info(capture.root).get("ground_truth", {}).get("flame_param")
@@ -72,18 +99,16 @@ def tracking_errors(run: RunFolder, capture, sources: dict) -> dict | None:
         return None
     model = _run_model(run)
     truth = {t: load_flame_file(folder / f"{t:05d}.npz") for t in capture.timesteps}
-    trained = [t for t in run.trained_timesteps if t in truth]
-    gauge = {k: np.mean([run.flame_params(t)[k] - truth[t][k] for t in trained], axis=0)
-             for k in MOTION_KEYS if trained and k in truth[trained[0]]}
+    trained = set(run.trained_timesteps)
+    gauge = truth_gauge(run, truth.__getitem__)
     out = {}
     for name, params_for in sources.items():
         rows = {"training": [], "unseen": []}
         for timestep, true in truth.items():
             params = params_for(timestep)
-            shifted = {**true, **{k: true[k] + v for k, v in gauge.items()}}
-            raw, in_gauge = frame_errors(model, params, true), frame_errors(model, params, shifted)
+            raw, shifted = frame_errors(model, params, true), gauge_errors(model, params, true, gauge)
             rows["training" if timestep in trained else "unseen"].append(
-                [raw["vertex_mm"], raw["expr_vertex_mm"], in_gauge["vertex_mm"], in_gauge["expr_vertex_mm"]])
+                [raw["vertex_mm"], raw["expr_vertex_mm"], shifted["vertex_mm_gauge"], shifted["expr_vertex_mm_gauge"]])
         out[name] = {group: {"timesteps": len(values), **dict(zip(
             ("vertex_mm", "expr_vertex_mm", "vertex_mm_gauge", "expr_vertex_mm_gauge"),
             np.mean(values, axis=0).tolist()))} for group, values in rows.items() if values}

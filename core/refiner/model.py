@@ -102,6 +102,24 @@ class LinearRefiner:
         small = torch.eye(len(basis), dtype=torch.float64) + (basis * inverse) @ basis.T
         return scaled - (inverse[:, None] * basis.T) @ torch.linalg.solve(small, basis @ scaled)
 
+    # the settings a pass reads at inference, which a trained refiner can change without retraining
+    INFERENCE_SETTINGS = ("prior", "gap_rank", "full_size_steps", "damping")
+
+    def with_settings(self, **settings) -> "LinearRefiner":
+        """The same measured model solved with other inference settings (:data:`INFERENCE_SETTINGS`),
+        for choosing them on validation frames. ``gap_rank`` may only shrink: the dropped
+        components' variance joins the diagonal, so the noise model keeps its total variance."""
+        unknown = set(settings) - set(self.INFERENCE_SETTINGS)
+        if unknown:
+            raise InputError(None, sorted(unknown)[0], f"not an inference setting ({', '.join(self.INFERENCE_SETTINGS)})")
+        rank = int(settings.get("gap_rank", self.spec["gap_rank"]))
+        if not 0 <= rank <= self.gap_basis.shape[1]:
+            raise InputError(None, "gap_rank", f"must be 0 to the trained {self.gap_basis.shape[1]}, got {rank}")
+        dropped = self.gap_basis[:, rank:]
+        return LinearRefiner({**self.spec, **settings, "gap_rank": rank}, self.camera_ids, self.forward,
+                             self.residual, self.gap_mean, self.gap_var + (dropped ** 2).sum(dim=1),
+                             self.gap_basis[:, :rank], self.curvature)
+
     def tensors(self) -> dict[str, torch.Tensor]:
         return {"forward": self.forward.float(), "residual": self.residual.float(),
                 "gap_mean": self.gap_mean.float(), "gap_var": self.gap_var.float(), "gap_basis": self.gap_basis.float(),
