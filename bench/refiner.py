@@ -15,6 +15,15 @@ and first disk reads are no source's time.
 time; ``equal_quality`` sets each refiner's time against the fitting length that reaches the same
 PSNR (interpolated in log-steps between the measured lengths; "not reached" when the refiner beats
 the longest), beside the ratios at the fixed lengths.
+
+On synthetic captures every source also gets its mesh and expression errors (mm) against the raw
+truth and in the avatar's gauge (the truth plus the run's mean offset from it on training
+timesteps, :func:`..core.evaluate.expression_error.truth_gauge`), and the truth itself is scored
+both ways: ``true`` (raw) and ``true_gauge``, the image ceiling of a correction.
+
+``--avatar RUN,RUN,…`` benchmarks several runs (each report kept in its run folder and reused,
+:func:`cached_report`) and adds the table over them by subject (:mod:`.refiner_table`): the
+``markdown`` of the results page, also written beside ``--out`` as ``.md``.
 """
 
 from __future__ import annotations
@@ -135,9 +144,11 @@ def _subject(capture) -> dict:
 
 def cached_report(folder, threads: int, quick: bool, fit_steps, split: str) -> dict:
     """:func:`report`, kept in the run folder (``bench_refiner.json``; ``_validation`` for that
-    split) and reused while the scoring code, the refiner file and the options are unchanged."""
+    split) and reused while the scoring code, this module, the refiner file and the options are
+    unchanged: a table over many runs can be stopped and taken up again."""
     import hashlib
     import json
+    import pathlib
 
     from mogaface.core.evaluate.benchmark import scoring_code_hash
     from mogaface.core.io.atomic import write_json
@@ -145,8 +156,9 @@ def cached_report(folder, threads: int, quick: bool, fit_steps, split: str) -> d
     from mogaface.core.workflows.ablation import split_name
 
     path = folder.root / split_name(REPORT_FILE, split)
-    key = {"scoring_code": scoring_code_hash(), "refiner": hashlib.sha256((folder.root / REFINER_FILE).read_bytes()
-                                                                          ).hexdigest(),
+    code = scoring_code_hash() + hashlib.sha256(pathlib.Path(__file__).read_bytes()).hexdigest()  # and this report's
+    key = {"code": hashlib.sha256(code.encode()).hexdigest(),
+           "refiner": hashlib.sha256((folder.root / REFINER_FILE).read_bytes()).hexdigest(),
            "threads": threads, "quick": quick, "fit_steps": sorted(set(fit_steps)), "split": split}
     if path.is_file():
         try:
