@@ -265,3 +265,27 @@ def test_the_validation_sequence_is_a_script_of_its_own_and_leaves_the_others_as
             np.testing.assert_array_equal(a.params[key], b.params[key])
     assert not np.array_equal(again[4].params["expr"], val)
     assert module.validation_timesteps(16) == 2 and module.validation_timesteps(150) == 8
+
+
+def test_a_non_square_capture_has_its_size_and_a_square_one_is_unchanged(tmp_path):
+    """NeRSemble's frames are 802×550: ``height`` makes such a capture, rendered at that size; a
+    square capture with ``height`` given draws the same rig and images as one without it."""
+    import dataclasses
+
+    wide = dataclasses.replace(TINY, timesteps=16, views=3, size=64, height=44)
+    root = make_capture(tmp_path / "wide", wide, progress=False)
+    capture = Capture.open(root)
+    frame = capture.frames("train")[0]
+    camera = capture.camera(frame)
+    rgb, mask = capture.load_image(frame)
+    assert rgb.shape[:2] == mask.shape == (44, 64) and (camera.width, camera.height) == (64, 44)
+    assert abs(camera.cx - 32) < 4 and abs(camera.cy - 22) < 4
+    assert validate_capture(root).views == 3
+    same = dataclasses.replace(wide, height=None)
+    square = make_capture(tmp_path / "square", same, progress=False)
+    given = make_capture(tmp_path / "given", dataclasses.replace(same, height=64), progress=False)
+    for path in sorted((square / "images").rglob("*.png"))[:6]:
+        assert path.read_bytes() == (given / path.relative_to(square)).read_bytes()
+    assert (square / "transforms_train.json").read_bytes() == (given / "transforms_train.json").read_bytes()
+    with pytest.raises(InputError, match="height"):
+        dataclasses.replace(wide, height=8).check()

@@ -13,7 +13,10 @@ def add_arguments(parser):
     parser.add_argument("--subject", type=int, default=d.subject, help="identity of the procedural head (default %(default)s)")
     parser.add_argument("--views", type=int, default=d.views, help="cameras in the dome (default %(default)s)")
     parser.add_argument("--timesteps", type=int, default=d.timesteps, help="timesteps over all sequences (default %(default)s)")
-    parser.add_argument("--size", type=int, default=d.size, help="image width and height in pixels (default %(default)s)")
+    parser.add_argument("--size", type=int, default=d.size,
+                        help="image width in pixels, and height unless --height (default %(default)s)")
+    parser.add_argument("--height", type=int, help="image height in pixels (default: --size, square; NeRSemble's "
+                                                   "802×550 is --size 802 --height 550)")
     groups = (("expr", "expression coefficients"), ("pose", "global, neck, jaw and eye rotations (radians)"),
               ("translation", "translation (metres)"))
     for group, what in groups:
@@ -78,7 +81,7 @@ def run(args) -> int:
         noise = {f"{g}_{k}": getattr(args, f"{g}_{k}") for g in NOISE_GROUPS for k in ("correlation", "bias")}
         noise.update(given)
     settings = CaptureSettings(
-        subject=args.subject, views=args.views, timesteps=args.timesteps, size=args.size,
+        subject=args.subject, views=args.views, timesteps=args.timesteps, size=args.size, height=args.height,
         camera_noise=args.camera_noise, camera_centre_noise=args.camera_centre_noise,
         camera_delay=args.camera_delay, landmark_noise=args.landmark_noise, landmark_bias=args.landmark_bias,
         seed=args.seed, **noise,

@@ -16,7 +16,9 @@ class CaptureSettings:
     subject: int = 0
     views: int = 16
     timesteps: int = 150
-    size: int = 256
+    size: int = 256  # image width, and height unless ``height`` is given
+    # Image height of a non-square capture (NeRSemble's 802×550: size 802, height 550); None: square.
+    height: int | None = None
     # The tracker's error per group: std of the drifting part, its correlation length in
     # timesteps, std of the constant per-coefficient bias (docs/data-format.md says why these).
     expr_noise: float = 0.4
@@ -48,10 +50,16 @@ class CaptureSettings:
             value = getattr(self, name)
             if not low <= value <= high:
                 raise InputError(None, name, f"must lie in [{low}, {high}], got {value}")
+        if self.height is not None and not 32 <= self.height <= 4096:
+            raise InputError(None, "height", f"must lie in [32, 4096], got {self.height}")
         for name in ("camera_noise", "camera_centre_noise", "camera_delay", "landmark_noise", "landmark_bias"):
             if getattr(self, name) is not None and not getattr(self, name) >= 0:
                 raise InputError(None, name, f"must be >= 0, got {getattr(self, name)}")
         self.tracking_noise().check()
+
+    @property
+    def image_height(self) -> int:
+        return self.size if self.height is None else self.height
 
     def tracking_noise(self) -> TrackingNoise:
         """The tracker's error model these settings describe."""

@@ -40,12 +40,15 @@ GT_CAMERAS_FILE = "cameras_gt.json"
 BACKGROUND = (1.0, 1.0, 1.0)
 
 
-def camera_dome(views: int, size: int, vertices: np.ndarray, rng) -> tuple[list[Camera], int]:
+def camera_dome(views: int, width: int, vertices: np.ndarray, rng, height: int | None = None
+                ) -> tuple[list[Camera], int]:
     """A NeRSemble-like rig: an arc from left to right profile, zig-zagging above and below eye
     level, about 1 m away, with per-camera intrinsics; plus one frontal camera at eye level.
+    Images are ``width`` × ``height`` (square without ``height``); the head fills the shorter side.
 
     Returns the cameras ordered by azimuth and the index of the frontal (held-out) camera.
     """
+    height = width if height is None else height
     centre = 0.5 * (vertices.min(0) + vertices.max(0))
     extent = float(np.max(vertices.max(0) - vertices.min(0)))
     azimuths = np.linspace(-90.0, 90.0, views - 1)
@@ -58,17 +61,17 @@ def camera_dome(views: int, size: int, vertices: np.ndarray, rng) -> tuple[list[
         distance = 1.0 + rng.normal(scale=0.03)
         direction = np.array([np.sin(az) * np.cos(el), np.sin(el), np.cos(az) * np.cos(el)])
         target = centre + rng.normal(scale=0.008, size=3)
-        fx = 0.85 * size * distance / extent * (1.0 + rng.normal(scale=0.02))
+        fx = 0.85 * min(width, height) * distance / extent * (1.0 + rng.normal(scale=0.02))
         cameras.append(
             Camera.look_at(
                 centre + distance * direction,
                 target,
-                width=size,
-                height=size,
+                width=width,
+                height=height,
                 fx=fx,
                 fy=fx * (1.0 + rng.normal(scale=0.003)),
-                cx=size / 2 + rng.normal(scale=0.012 * size),
-                cy=size / 2 + rng.normal(scale=0.012 * size),
+                cx=width / 2 + rng.normal(scale=0.012 * width),
+                cy=height / 2 + rng.normal(scale=0.012 * height),
                 camera_id=f"cam{index:02d}",
             )
         )
@@ -189,7 +192,7 @@ def make_capture(
     rng = np.random.default_rng([settings.seed, settings.subject])
     with torch.no_grad():
         rest = model()[0].double().numpy()
-    cameras, frontal = camera_dome(settings.views, settings.size, rest, rng)
+    cameras, frontal = camera_dome(settings.views, settings.size, rest, rng, settings.image_height)
     reported = [perturb_camera(c, settings.camera_noise, rng, settings.camera_centre_noise) for c in cameras]
     sequences = make_sequences(settings.timesteps, model.n_shape, model.n_expr, mouth_components(arrays),
                                seed=settings.seed + 7919 * settings.subject)
