@@ -10,6 +10,8 @@ from . import step_counts
 
 BENCHMARKS = {
     "cancel_latency": "SIGINT to exit while a raster kernel runs, at the largest allowed frame and in train",
+    "converge": "time to quality at a real capture's scale (802x550, 16 cameras): the held-out camera's PSNR, SSIM "
+                "and LPIPS against minutes of training, Freeze + fine-tuning and the full method",
     "distributed": "data-parallel training: ranks against threads, all-reduce volume and time per step",
     "refiner": "the multi-view refiner against test-time fitting on unseen frames: seconds per frame, PSNR gained, "
                "parameter errors; several runs (--avatar RUN,RUN,…): the table over them, by subject",
@@ -38,6 +40,10 @@ def add_arguments(parser):
     parser.add_argument("--split", choices=SCORE_SPLITS,
                         help="refiner: score the test frames (default) or the validation sequence's; "
                              "refiner_search: validation only")
+    parser.add_argument("--minutes", type=float,
+                        help="converge only: minutes of training time per variant (default 60)")
+    parser.add_argument("--work", help="converge only: folder for its capture (made once, reused) and runs "
+                                       "(default out/bench_converge)")
     parser.add_argument("--scale", choices=["small", "real"],
                         help="train only: 'real' times the full method at 802x550, 16 cameras, 100k Gaussians")
 
@@ -60,7 +66,15 @@ def run(args) -> int:
     if args.split is not None and args.name not in ("refiner", "refiner_search"):
         print("error: --split applies to the refiner and refiner_search benchmarks only", file=sys.stderr)
         return 2
+    for name in ("minutes", "work"):
+        if getattr(args, name) is not None and args.name != "converge":
+            print(f"error: --{name} applies to the converge benchmark only", file=sys.stderr)
+            return 2
+    if args.minutes is not None and not args.minutes > 0:
+        print("error: --minutes must be positive", file=sys.stderr)
+        return 2
     options = {"scale": args.scale} if args.scale is not None else {}
+    options.update({name: getattr(args, name) for name in ("minutes", "work") if getattr(args, name) is not None})
     if args.split is not None:
         options["split"] = args.split
     if args.fit_steps is not None:

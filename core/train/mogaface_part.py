@@ -62,18 +62,20 @@ def mogaface_render(part: CorrectionTraining, avatar, table, frame, camera, back
 
 
 @torch.no_grad()
-def finish_mogaface(part: CorrectionTraining, avatar, table, root: pathlib.Path):
-    """Save ``mogaface.pt`` and ``flame_param_corrected/``.
-
-    Returns the corrected table and the modulated avatar (whose texture attention reads the
-    corrected parameters).
-    """
-    model = part.model
+def corrected_avatar(part: CorrectionTraining, avatar, table):
+    """The corrected table and the modulated avatar (whose texture attention reads the corrected
+    parameters): what the run draws once written, at any step of its training."""
     corrected = copy.deepcopy(table)
     for t in table.timesteps:
         row = table.row[t]
         corrected.expr[row] += part.timestep_correction(t, table.expr[row])
-    model.save(root / MODULES_FILE)
+    return corrected, ModulatedAvatar(avatar, part.model)
+
+
+def finish_mogaface(part: CorrectionTraining, avatar, table, root: pathlib.Path):
+    """Save ``mogaface.pt`` and ``flame_param_corrected/``; returns :func:`corrected_avatar`'s pair."""
+    corrected, modulated = corrected_avatar(part, avatar, table)
+    part.model.save(root / MODULES_FILE)
     for t in table.timesteps:
         save_npz(root / CORRECTED_DIR / f"{t:05d}.npz", layout.batched_flame_params(corrected.numpy(t)))
-    return corrected, ModulatedAvatar(avatar, model)
+    return corrected, modulated

@@ -17,7 +17,7 @@ from ..io.atomic import write_json
 from ..io.npz import save_npz
 from ..run.names import DELAYS_FILE, REFINED_CAMERAS_FILE, RUN_FORMAT, RUN_VERSION
 from .camera_refine import write_refined_cameras
-from .mogaface_part import finish_mogaface
+from .mogaface_part import corrected_avatar, finish_mogaface
 
 if TYPE_CHECKING:
     from .trainer import Trainer
@@ -79,6 +79,16 @@ def write_run_json(trainer: Trainer, complete: bool) -> None:
     })
 
 
+def current_avatar(trainer: Trainer):
+    """``(table, avatar)`` as the run would write them at this step: the corrected parameters and
+    the modulated avatar for a MoGaFace run (:func:`.mogaface_part.corrected_avatar`), so a check
+    during training scores what ``render`` will draw."""
+    trainer.avatar.gaussians.active_sh_degree = trainer.strategy.schedule.sh_degree(trainer.step)
+    if trainer.mogaface is None:
+        return trainer.table, trainer.avatar
+    return corrected_avatar(trainer.mogaface, trainer.avatar, trainer.table)
+
+
 def quick_check(trainer: Trainer) -> None:
     """A few val frames' PSNR/SSIM as a 'val' event (not counted in the training time)."""
     if "val" not in trainer.data.capture.splits:
@@ -86,8 +96,8 @@ def quick_check(trainer: Trainer) -> None:
     from .config import EvalSection
     from .quick_eval import evaluate_val
 
-    trainer.avatar.gaussians.active_sh_degree = trainer.strategy.schedule.sh_degree(trainer.step)
+    table, avatar = current_avatar(trainer)
     settings = EvalSection(max_frames=trainer.config.eval.every_frames, lpips=False)
-    metrics = evaluate_val(trainer.avatar, trainer.data, trainer.table, settings)
+    metrics = evaluate_val(avatar, trainer.data, table, settings)
     trainer.events.emit("val", step=trainer.step, **{k: metrics[k] for k in ("frames", "psnr", "ssim", "psnr_masked",
                                                                          "ssim_masked")})

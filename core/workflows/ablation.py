@@ -44,7 +44,8 @@ LABELS = {"freeze": "Freeze", "finetune": "Freeze + FLAME fine-tuning", "single"
           "full": "Full (multi + bank + texture)", "full_prior": "Full + zero-mean prior (the presets)"}
 
 
-def _merge(a: dict, b: dict) -> dict:
+def merge_sections(a: dict, b: dict) -> dict:
+    """``a``'s ``{section: {key: value}}`` settings updated by ``b``'s, section by section."""
     out = {k: dict(v) for k, v in a.items()}
     for section, values in b.items():
         out.setdefault(section, {}).update(values)
@@ -65,7 +66,7 @@ def train_variant(capture, run_dir: pathlib.Path, name: str, preset, config_path
     if _complete(run_dir):
         return
     resume = latest_checkpoint(run_dir / "checkpoints") is not None
-    config = config_module.resolve(preset, config_path, _merge(overrides or {}, LADDER[name]))
+    config = config_module.resolve(preset, config_path, merge_sections(overrides or {}, LADDER[name]))
     listeners = []
     if progress:
         from ..progress import ProgressBar
@@ -224,7 +225,7 @@ def run_ablation(capture, out, variants, *, seeds=(0,), preset="mogaface-ablatio
     for seed in seeds:
         for name in variants:
             run_dir = run_folder(out, name, seed)
-            seeded = _merge(overrides or {}, {"train": {"seed": int(seed)}})
+            seeded = merge_sections(overrides or {}, {"train": {"seed": int(seed)}})
             train_variant(capture, run_dir, name, preset, config_path, seeded, progress)
             entry = {"train": _train_summary(run_dir), **score_variant(run_dir, max_frames, lpips, fit_steps, split)}
             scored.setdefault(name, {})[str(seed)] = entry

@@ -1,0 +1,145 @@
+"""``bench converge``: time to quality at a real capture's scale, the number a user feels.
+
+A synthetic capture at NeRSemble's scale is made once under ``--work`` (default
+``out/bench_converge``; reused while its settings are the same): 802×550 rendered at that size
+(``make-capture --size 802 --height 550``), 16 training cameras and the held-out frontal one,
+:data:`TIMESTEPS` timesteps of which about three quarters train (``FREE`` and ``VAL`` are held
+out), the default tracker error. Each variant (the ablation ladder's ``finetune``, Freeze + FLAME
+fine-tuning, and ``full_prior``, the full method of the presets) trains from the default settings
+for ``--minutes`` of training time (``train.max_minutes``) on the machine's cores. Every
+:data:`EVERY` minutes of training time, with the training clock stopped, the held-out camera is
+scored on the same evenly spaced training timesteps (the novel view: PSNR, SSIM, LPIPS), drawn as
+``render`` draws the run (the MoGaFace modules included, :func:`..core.train.results.current_avatar`).
+
+Prints JSON (the curve per variant, steps per second, Gaussians, the load average) and writes
+``converge.png`` (the curves against minutes) in the work folder. ``--quick``: a 96×66 capture of
+4 views, a few seconds per variant (a smoke run).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import pathlib
+import shutil
+import time
+
+WIDTH, HEIGHT = 802, 550
+TRAIN_VIEWS = 16
+TIMESTEPS = 400  # about 300 training timesteps
+SUPERSAMPLE = 2
+MINUTES = 60.0
+EVERY = 5.0  # minutes of training time between scores
+SCORED_FRAMES = 12
+VARIANTS = ("finetune", "full_prior")
+QUICK = {"size": 96, "height": 66, "views": 4, "timesteps": 20, "minutes": 0.25, "every": 0.08, "frames": 3}
+WORK = "out/bench_converge"
+
+
+def capture_settings(quick: bool):
+    from mogaface.core.data.capture_settings import CaptureSettings
+
+    if quick:
+        return CaptureSettings(views=QUICK["views"], timesteps=QUICK["timesteps"], size=QUICK["size"],
+                               height=QUICK["height"], supersample=1)
+    return CaptureSettings(views=TRAIN_VIEWS + 1, timesteps=TIMESTEPS, size=WIDTH, height=HEIGHT,
+                           supersample=SUPERSAMPLE)
+
+
+def ensure_capture(folder: pathlib.Path, settings) -> tuple[pathlib.Path, float]:
+    """The capture of ``settings`` in ``folder`` and the seconds it took to make (0: reused). A
+    folder whose ``capture_info.json`` (written last) holds other settings, or none, is made again."""
+    from mogaface.core.data.capture_info import INFO_FILE
+    from mogaface.core.data.generator import make_capture
+
+    info = folder / INFO_FILE
+    if info.is_file() and json.loads(info.read_text(encoding="utf-8")).get("settings") == dataclasses.asdict(settings):
+        return folder, 0.0
+    shutil.rmtree(folder, ignore_errors=True)
+    start = time.monotonic()
+    make_capture(folder, settings, progress=False)
+    return folder, time.monotonic() - start
+
+
+def _scored_trainer(every_s: float, frames: int):
+    """A trainer that scores the held-out camera every ``every_s`` seconds of training time. The
+    score runs where the trainer's own quick check runs (``eval.every = 1``), which the training
+    clock does not count."""
+    from mogaface.core.train.trainer import Trainer
+
+    class ScoredTrainer(Trainer):
+        curve: list
+
+        def _quick_check(self) -> None:
+            if self.elapsed >= self.next_score:
+                self.score()
+
+        def score(self) -> None:
+            from mogaface.core.train.config import EvalSection
+            from mogaface.core.train.quick_eval import evaluate_val
+            from mogaface.core.train.results import current_avatar
+
+            while self.next_score <= self.elapsed:
+                self.next_score += every_s
+            table, avatar = current_avatar(self)
+            metrics = evaluate_val(avatar, self.data, table, EvalSection(max_frames=frames, lpips=True))
+            self.curve.append({"minutes": round(self.elapsed / 60, 3), "step": self.step,
+                               "gaussians": len(self.avatar.gaussians),
+                               **{k: round(metrics[k], 4) for k in ("psnr", "ssim", "lpips")}})
+
+    return ScoredTrainer
+
+
+def train_variant(capture: pathlib.Path, run: pathlib.Path, variant: str, minutes: float, every: float,
+                  frames: int, threads: int) -> dict:
+    """Train ``variant`` for ``minutes`` of training time from the defaults, scoring as it goes."""
+    from mogaface.core.train import config as config_module
+    from mogaface.core.workflows.ablation import LADDER, merge_sections
+
+    shutil.rmtree(run, ignore_errors=True)
+    overrides = merge_sections({"train": {"max_minutes": minutes, "threads": threads, "seed": 0},
+                                "eval": {"every": 1, "at_end": False}}, LADDER[variant])
+    config = config_module.resolve(None, None, overrides)
+    trainer = _scored_trainer(every * 60, frames)(capture, run, config)
+    trainer.curve, trainer.next_score = [], 0.0
+    trainer.score()  # the start: minute 0
+    try:
+        result = trainer.run()
+    finally:
+        trainer.events.close()
+    trainer.next_score = trainer.elapsed  # the state the budget ends on
+    trainer.score()
+    return {"curve": trainer.curve, "steps": result["step"], "training_minutes": round(trainer.elapsed / 60, 3),
+            "it_s": round(result["step"] / max(trainer.elapsed, 1e-9), 3), "gaussians": len(trainer.avatar.gaussians)}
+
+
+def run(threads: int = 2, quick: bool = False, minutes: float | None = None, work: str | None = None) -> dict:
+    from mogaface.core.data.capture import Capture
+
+    from .plot import line_plots
+
+    folder = pathlib.Path(work or WORK)
+    settings = capture_settings(quick)
+    minutes = minutes if minutes is not None else (QUICK["minutes"] if quick else MINUTES)
+    every = QUICK["every"] if quick else EVERY
+    frames = QUICK["frames"] if quick else SCORED_FRAMES
+    capture, made_s = ensure_capture(folder / "capture", settings)
+    opened = Capture.open(capture)
+    load_before = os.getloadavg()
+    variants = {name: train_variant(capture, folder / "runs" / name, name, minutes, every, frames, threads)
+                for name in VARIANTS}
+    plot = folder / "converge.png"
+    line_plots(plot, [{"title": f"held-out camera {metric.upper()}", "x_label": "minutes of training",
+                       "series": {name: [(p["minutes"], p[metric]) for p in v["curve"]] for name, v in variants.items()}}
+                      for metric in ("psnr", "ssim", "lpips")])
+    return {
+        "capture": {"path": str(capture), "width": settings.size, "height": settings.image_height,
+                    "training_cameras": len({f.camera_id for f in opened.frames("train")}),
+                    "training_timesteps": len({f.timestep_index for f in opened.frames("train")}),
+                    "training_images": len(opened.frames("train")), "made_in_s": round(made_s, 1)},
+        "minutes": minutes, "every_minutes": every, "scored_frames": frames, "threads": threads,
+        "variants": variants, "plot": str(plot),
+        "load_average_before": [round(x, 2) for x in load_before],
+        "load_average_after": [round(x, 2) for x in os.getloadavg()],
+    }

@@ -1,0 +1,44 @@
+"""``bench converge`` (a smoke run at its quick size): the capture is made at its own non-square
+size and reused, each variant trains to its time budget and is scored as it goes (the modules'
+avatar for the full method), and the plot is written."""
+
+import json
+
+import numpy as np
+from PIL import Image
+
+from mogaface.core.cli import main
+
+
+def test_the_curve_is_scored_as_training_goes_and_the_capture_is_reused(tmp_path, capsys):
+    work = tmp_path / "work"
+    out = tmp_path / "converge.json"
+    assert main(["bench", "converge", "--quick", "--threads", "1", "--work", str(work), "--out", str(out)]) == 0
+    report = json.loads(out.read_text())
+    capture = report["capture"]
+    assert (capture["width"], capture["height"]) == (96, 66) and capture["made_in_s"] > 0
+    assert capture["training_cameras"] == 3 and capture["training_images"] > 0
+    for name in ("finetune", "full_prior"):
+        variant = report["variants"][name]
+        curve = variant["curve"]
+        assert len(curve) >= 2, name
+        minutes = [point["minutes"] for point in curve]
+        assert minutes == sorted(minutes) and minutes[0] == 0.0
+        assert minutes[-1] == variant["training_minutes"] <= report["minutes"] + 0.05  # the budget, give a step
+        assert all(5 < p["psnr"] < 60 and 0 < p["ssim"] <= 1 and 0 <= p["lpips"] < 1 for p in curve)
+        assert curve[-1]["psnr"] > curve[0]["psnr"]  # training helps the held-out view
+    # the last point is the written run as 'eval' scores it: the modules' avatar, not the plain one
+    from mogaface.core.evaluate.evaluation import evaluate_run
+
+    run = work / "runs" / "full_prior"
+    assert (run / "mogaface.pt").is_file()
+    scored = evaluate_run(run, ["novel_view"], 3, lpips=False, out_dir=tmp_path / "eval")["protocols"]["novel_view"]
+    assert abs(scored["psnr"] - report["variants"]["full_prior"]["curve"][-1]["psnr"]) < 0.01
+    plot = np.asarray(Image.open(report["plot"]))
+    assert plot.ndim == 3 and (np.abs(plot.astype(int) - [31, 119, 180]).sum(-1) < 30).any()  # a curve drawn
+    capsys.readouterr()
+    assert main(["bench", "converge", "--quick", "--threads", "1", "--work", str(work), "--minutes", "0.02"]) == 0
+    again = json.loads(capsys.readouterr().out)
+    assert again["capture"]["made_in_s"] == 0.0 and again["minutes"] == 0.02  # the capture reused
+    assert main(["bench", "train", "--minutes", "3"]) == 2
+    assert main(["bench", "converge", "--minutes", "0"]) == 2
