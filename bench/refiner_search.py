@@ -3,9 +3,9 @@
 ``python -m mogaface bench refiner_search --avatar RUN[,RUN…]`` (runs with ``refiner.pt``) scores
 self-reenactment frames of the validation sequence (``capture_info.json``'s ``val_sequence``; 12
 per run for the refiner, 8 for fitting, 4 with ``--quick``; the scored view never an input) for
-each setting it tries, and prints
-every setting tried with its score: mean PSNR over the runs, each run's, and the mesh and
-expression errors raw and in the avatar's gauge. ``bench refiner`` then scores the test frames once.
+each setting it tries, and prints every setting tried with its score (also a line on stderr as it
+goes): mean PSNR over the runs, each run's, and the mesh and expression errors raw and in the
+avatar's gauge. ``bench refiner`` then scores the test frames once.
 
 The search goes one setting at a time from the current defaults (coordinate descent, two rounds
 for the refiner, one for fitting, whose every try costs 30 fitting steps a frame). A new value is
@@ -21,6 +21,7 @@ step sizes (the prior's width over a divisor) and its prior weight are searched 
 from __future__ import annotations
 
 import os
+import sys
 
 MIN_GAIN_DB = 0.05
 REFINER_GRID = {"prior": (8.0, 16.0, 32.0, 64.0, 128.0), "gap_rank": (0, 1, 2, 4), "full_size_steps": (0, 1, 2, 3),
@@ -94,6 +95,8 @@ def coordinate_search(grid: dict, start: dict, evaluate, rounds: int, min_gain: 
         key = tuple(sorted(settings.items()))
         if key not in tried:
             tried[key] = {"settings": dict(settings), **evaluate(settings)}
+            shown = " ".join(f"{k}={v:g}" for k, v in settings.items())
+            print(f"tried {shown}: {tried[key]['psnr_db']:.3f} dB", file=sys.stderr, flush=True)
         return tried[key]["psnr_db"]
 
     current = dict(start)
