@@ -8,7 +8,9 @@ goes): mean PSNR over the runs, each run's, and the mesh and expression errors r
 avatar's gauge. ``bench refiner`` then scores the test frames once.
 
 The search goes one setting at a time from the current defaults (coordinate descent, two rounds
-for the refiner, one for fitting, whose every try costs 30 fitting steps a frame). A new value is
+for the refiner, one for fitting, whose every try costs 30 fitting steps a frame). Every try is
+kept in the first run's folder (``refiner_search_tries.json``) and reused by a later search over
+the same runs and scoring code, so widening a grid costs only the new tries. A new value is
 taken only when it raises the mean PSNR by more than :data:`MIN_GAIN_DB`: smaller gains are within
 what other frames would move, and the incumbent keeps its place.
 
@@ -20,15 +22,19 @@ step sizes (the prior's width over a divisor) and its prior weight are searched 
 
 from __future__ import annotations
 
+import hashlib
+import json
 import os
 import sys
 
 MIN_GAIN_DB = 0.05
-REFINER_GRID = {"prior": (8.0, 16.0, 32.0, 64.0, 128.0), "gap_rank": (0, 1, 2, 4), "full_size_steps": (0, 1, 2, 3),
-                "damping": (1e-5, 3e-5, 1e-4, 3e-4)}
-FIT_GRID = {"rate_divisor": (2.5, 5.0, 10.0), "prior_weight": (1e-4, 1e-3, 1e-2)}
+REFINER_GRID = {"prior": (8.0, 16.0, 32.0, 64.0, 128.0), "gap_rank": (0, 1, 2, 4),
+                "full_size_steps": (0, 1, 2, 3, 4, 5), "damping": (1e-5, 3e-5, 1e-4, 3e-4)}
+FIT_GRID = {"rate_divisor": (2.5, 5.0, 10.0), "prior_weight": (0.0, 1e-5, 1e-4, 1e-3, 1e-2)}
 FIT_SEARCH_STEPS = 30
 REFINER_ROUNDS, FIT_ROUNDS = 2, 1
+TRIES_FILE = "refiner_search_tries.json"  # in the first run's folder: every try's score, for a later search
+TRY_VERSION = 1  # how a try is scored (the frames, the sources' inputs): a change makes kept tries stale
 
 
 class _Run:
@@ -85,18 +91,28 @@ class _Run:
                             ), self.fit_frames
 
 
-def coordinate_search(grid: dict, start: dict, evaluate, rounds: int, min_gain: float = MIN_GAIN_DB) -> dict:
+def settings_key(settings: dict) -> str:
+    return json.dumps(settings, sort_keys=True)
+
+
+def coordinate_search(grid: dict, start: dict, evaluate, rounds: int, min_gain: float = MIN_GAIN_DB,
+                      known: dict | None = None) -> dict:
     """``{"chosen", "tried"}``: one setting at a time over ``grid`` from ``start``, keeping a value
     only when ``evaluate(settings)["psnr_db"]`` beats the incumbent's by more than ``min_gain``.
-    Each setting is evaluated once (``tried`` in the order tried)."""
-    tried: dict[tuple, dict] = {}
+    Each setting is evaluated once (``tried`` in the order tried); ``known`` (:func:`settings_key`
+    → an earlier result) is used instead of evaluating again and gains the new results."""
+    tried: dict[str, dict] = {}
+    known = {} if known is None else known
 
     def score(settings: dict) -> float:
-        key = tuple(sorted(settings.items()))
+        key = settings_key(settings)
         if key not in tried:
-            tried[key] = {"settings": dict(settings), **evaluate(settings)}
+            reused = key in known
+            if not reused:
+                known[key] = evaluate(settings)
+            tried[key] = {"settings": dict(settings), **known[key], "reused": reused}
             shown = " ".join(f"{k}={v:g}" for k, v in settings.items())
-            print(f"tried {shown}: {tried[key]['psnr_db']:.3f} dB", file=sys.stderr, flush=True)
+            print(f"{'kept' if reused else 'tried'} {shown}: {tried[key]['psnr_db']:.3f} dB", file=sys.stderr, flush=True)
         return tried[key]["psnr_db"]
 
     current = dict(start)
@@ -124,30 +140,68 @@ def _evaluator(runs: list[_Run], make_source):
     return evaluate
 
 
+class KeptTries:
+    """Every try's result in the first run's folder (:data:`TRIES_FILE`), reused by a later search
+    over the same runs, frames and scoring code (a grid made wider evaluates only what is new);
+    written after each new try, so a stopped search loses nothing."""
+
+    def __init__(self, runs: list[_Run]):
+        from mogaface.core.evaluate.benchmark import scoring_code_hash
+        from mogaface.core.refiner.files import REFINER_FILE
+
+        self.path = runs[0].folder.root / TRIES_FILE
+        self.key = {"code": scoring_code_hash(), "version": TRY_VERSION, "fit_steps": FIT_SEARCH_STEPS,
+                    "runs": [[str(r.folder.root), hashlib.sha256((r.folder.root / REFINER_FILE).read_bytes()).hexdigest(),
+                              len(r.frames), len(r.fit_frames)] for r in runs]}
+        self.parts = {"refiner": {}, "fitting": {}}
+        try:
+            kept = json.loads(self.path.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            kept = None
+        if isinstance(kept, dict) and kept.get("key") == self.key and isinstance(kept.get("parts"), dict):
+            self.parts.update({k: dict(v) for k, v in kept["parts"].items() if k in self.parts})
+
+    def evaluator(self, part: str, evaluate):
+        from mogaface.core.io.atomic import write_json
+
+        def evaluate_and_keep(settings: dict) -> dict:
+            result = evaluate(settings)
+            self.parts[part][settings_key(settings)] = result
+            write_json(self.path, {"key": self.key, "parts": self.parts})
+            return result
+
+        return evaluate_and_keep
+
+
 def run(threads: int = 2, quick: bool = False, avatar: str | None = None, split: str = "validation") -> dict:
     import torch
 
     from mogaface.core.errors import InputError
     from mogaface.core.evaluate.protocols import scored_views
     from mogaface.core.evaluate.sources.fitted import PRIOR_SIGMA, PRIOR_WEIGHT, RATES
+    from mogaface.core.refiner.training import DEFAULT_SPEC
 
     if split != "validation":
         raise InputError(None, "split", "settings are chosen on the validation frames only; the test frames are "
                                         "scored once, by 'bench refiner'")
     torch.set_num_threads(threads)
     runs = [_Run(root, 4 if quick else 12, 4 if quick else 8) for root in (avatar or "out/demo/run").split(",") if root]
+    kept = KeptTries(runs)
     load_before = os.getloadavg()
-    spec = runs[0].refiner.spec
-    refiner = coordinate_search(REFINER_GRID, {k: spec[k] for k in REFINER_GRID},
-                                _evaluator(runs, lambda run, s: run.refiner_source(s)), REFINER_ROUNDS)
+    refiner_start = {k: DEFAULT_SPEC[k] for k in REFINER_GRID}
+    refiner = coordinate_search(REFINER_GRID, refiner_start,
+                                kept.evaluator("refiner", _evaluator(runs, lambda run, s: run.refiner_source(s))),
+                                REFINER_ROUNDS, known=dict(kept.parts["refiner"]))
     fit_start = {"rate_divisor": round(PRIOR_SIGMA["expr"] / RATES["expr"], 6), "prior_weight": PRIOR_WEIGHT}
-    fitting = coordinate_search(FIT_GRID, fit_start, _evaluator(runs, lambda run, s: run.fit_source(s)), FIT_ROUNDS)
+    fitting = coordinate_search(FIT_GRID, fit_start,
+                                kept.evaluator("fitting", _evaluator(runs, lambda run, s: run.fit_source(s))),
+                                FIT_ROUNDS, known=dict(kept.parts["fitting"]))
     return {
         "split": "validation", "runs": [str(r.folder.root) for r in runs],
         "scored": [scored_views(r.capture, r.frames) for r in runs],
         "scored_by_fitting": [scored_views(r.capture, r.fit_frames) for r in runs],
-        "min_gain_db": MIN_GAIN_DB, "threads": threads,
-        "refiner": {"defaults": {k: spec[k] for k in REFINER_GRID}, **refiner},
+        "min_gain_db": MIN_GAIN_DB, "threads": threads, "kept_tries": str(kept.path),
+        "refiner": {"defaults": refiner_start, **refiner},
         "fitting": {"steps": FIT_SEARCH_STEPS, "defaults": fit_start, **fitting},
         "load_average_before": [round(x, 2) for x in load_before],
         "load_average_after": [round(x, 2) for x in os.getloadavg()],

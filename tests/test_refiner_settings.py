@@ -3,6 +3,8 @@ generalised least-squares answer of its changed noise model (against numpy), the
 finds a grid's best and keeps an incumbent that others beat only within the margin, and the
 parameter-source table gives each subject's mean ± std and the unseen subjects pooled."""
 
+import json
+
 import numpy as np
 import pytest
 import torch
@@ -60,6 +62,13 @@ def test_the_coordinate_search_finds_the_best_and_keeps_an_incumbent_within_the_
     result = coordinate_search({"a": (0, 1, 2, 3), "b": (0, 1, 2)}, {"a": 0, "b": 0}, evaluate, rounds=2)
     assert result["chosen"] == {"a": 2, "b": 1} and result["chosen_psnr_db"] == 30.0
     assert len(calls) == len(result["tried"]) == len({tuple(sorted(c.items())) for c in calls})  # each once
+    # a wider grid over what was tried: only the new values are evaluated
+    known = {key: {"psnr_db": t["psnr_db"]} for key, t in
+             ((json.dumps(t["settings"], sort_keys=True), t) for t in result["tried"])}
+    calls.clear()
+    wider = coordinate_search({"a": (0, 1, 2, 3, 4), "b": (0, 1, 2)}, {"a": 2, "b": 1}, evaluate, rounds=2, known=known)
+    assert calls == [{"a": 4, "b": 1}] and wider["chosen"] == {"a": 2, "b": 1}
+    assert [t["reused"] for t in wider["tried"]].count(False) == 1
     nearly = coordinate_search({"a": (0, 1)}, {"a": 0}, lambda s: {"psnr_db": 30.0 + 0.04 * s["a"]}, rounds=1)
     assert nearly["chosen"] == {"a": 0}  # +0.04 dB is within the margin: the incumbent stays
     assert coordinate_search({"a": (0, 1)}, {"a": 0}, lambda s: {"psnr_db": 30.0 + 0.2 * s["a"]},

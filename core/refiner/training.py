@@ -36,7 +36,9 @@ from .model import LinearRefiner
 from .sampler import OffsetSampler
 from .views import crop_cameras, image_crop, pooled_difference, posed, render_crop
 
-DEFAULT_SPEC = {"grid": 16, "render_limit": 512, "prior": 32.0, "gap_rank": 4, "full_size_steps": 2, "damping": 3e-5}
+# The inference settings (prior, gap_rank, full_size_steps, damping) as chosen on validation frames by
+# ``bench refiner_search`` (docs/notebook/2026-11-27-validation-and-unseen-subjects.md).
+DEFAULT_SPEC = {"grid": 16, "render_limit": 512, "prior": 32.0, "gap_rank": 4, "full_size_steps": 3, "damping": 3e-5}
 _DIFFERENCE_STEP = 0.3  # finite-difference step of the curvature, in multiples of each group's expected error
 _CAMERAS_AT_ONCE = 4  # crops held per posing while measuring the curvature (memory: a crop per regressed value)
 

@@ -19,12 +19,13 @@ from .base import ParamSource, input_views, timestep_of
 # The width of the prior toward the start per parameter (make-capture's default tracker error for
 # the expression, twice it for rotations and translation), and the scale of the Adam step sizes,
 # which start at a fifth of it and decay to zero over the fit (cosine). Constant rates of a tenth
-# kept walking away from a start that was already right; measured choices in
-# docs/notebook/2026-11-23-parameter-sources.md.
+# kept walking away from a start that was already right (docs/notebook/2026-11-23-parameter-sources.md).
+# The step sizes and the prior's weight as chosen on validation frames by ``bench refiner_search``
+# (docs/notebook/2026-11-27-validation-and-unseen-subjects.md).
 PRIOR_SIGMA = {"expr": 0.5, "rotation": 0.02, "neck_pose": 0.02, "jaw_pose": 0.02, "eyes_pose": 0.02,
                "translation": 2e-3}
 RATES = {k: v / 5 for k, v in PRIOR_SIGMA.items()}
-PRIOR_WEIGHT = 1e-3
+PRIOR_WEIGHT = 1e-4
 # Renders at the views' full size: at half size the avatar (trained at full size) renders what a
 # downsampled capture does not show, and fitting read the expression worse than it started
 # (docs/notebook/2026-11-26-multiview-refiner.md, "Fitting at full size").
