@@ -137,22 +137,22 @@ class CorrectionTraining:
 
     # -- after training -----------------------------------------------------------------------
     @torch.no_grad()
+    @torch.no_grad()
     def timestep_correction(self, timestep: int, tracked_expr: torch.Tensor) -> torch.Tensor:
         """The final ``Δψ`` of a training timestamp, from its training views only.
 
-        With the bank, ``Δψ`` is the bank's mean (what training posed the mesh with); without it,
-        the modules' regression over all the timestamp's training views.
+        With the bank, ``Δψ`` is the bank's mean (what training posed the mesh with; no view is
+        read); without it, the modules' regression over all the timestamp's training views.
         """
         model = self.model
-        frames = self.by_timestep[timestep]
-        if model.mode == "single":  # one view per regression, averaged over every training view
-            outputs = [model.correct(self.views.batch([f]), tracked_expr) for f in frames]
-            per_view = torch.cat([o[0] for o in outputs])
-        else:
-            per_view, _ = model.correct(self.views.batch(frames), tracked_expr)
         row = model.row[timestep]
         if model.bank is not None and model.bank.has(row):
             return model.bank.mean(row)
+        frames = self.by_timestep[timestep]
+        if model.mode == "single":  # one view per regression, averaged over every training view
+            per_view = torch.cat([model.correct(self.views.batch([f]), tracked_expr)[0] for f in frames])
+        else:
+            per_view, _ = model.correct(self.views.batch(frames), tracked_expr)
         return per_view.mean(0)
 
     def state_dict(self) -> dict:
