@@ -109,7 +109,7 @@ def coordinate_search(grid: dict, start: dict, evaluate, rounds: int, min_gain: 
         if key not in tried:
             reused = key in known
             if not reused:
-                known[key] = evaluate(settings)
+                known[key] = evaluate(settings)  # (an evaluate that keeps its results may have stored it already)
             tried[key] = {"settings": dict(settings), **known[key], "reused": reused}
             shown = " ".join(f"{k}={v:g}" for k, v in settings.items())
             print(f"{'kept' if reused else 'tried'} {shown}: {tried[key]['psnr_db']:.3f} dB", file=sys.stderr, flush=True)
@@ -191,11 +191,11 @@ def run(threads: int = 2, quick: bool = False, avatar: str | None = None, split:
     refiner_start = {k: DEFAULT_SPEC[k] for k in REFINER_GRID}
     refiner = coordinate_search(REFINER_GRID, refiner_start,
                                 kept.evaluator("refiner", _evaluator(runs, lambda run, s: run.refiner_source(s))),
-                                REFINER_ROUNDS, known=dict(kept.parts["refiner"]))
+                                REFINER_ROUNDS, known=kept.parts["refiner"])
     fit_start = {"rate_divisor": round(PRIOR_SIGMA["expr"] / RATES["expr"], 6), "prior_weight": PRIOR_WEIGHT}
     fitting = coordinate_search(FIT_GRID, fit_start,
                                 kept.evaluator("fitting", _evaluator(runs, lambda run, s: run.fit_source(s))),
-                                FIT_ROUNDS, known=dict(kept.parts["fitting"]))
+                                FIT_ROUNDS, known=kept.parts["fitting"])
     return {
         "split": "validation", "runs": [str(r.folder.root) for r in runs],
         "scored": [scored_views(r.capture, r.frames) for r in runs],

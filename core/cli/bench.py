@@ -23,6 +23,10 @@ BENCHMARKS = {
     "viewport": "the avatar in the 3D viewport: frames per second of its render request at 256 and 512 px",
 }
 
+# the options only some benchmarks take, and which
+OPTION_BENCHMARKS = {"scale": ("train",), "avatar": ("viewport", "refiner", "refiner_search"), "fit_steps": ("refiner",),
+                     "split": ("refiner", "refiner_search"), "minutes": ("converge",), "work": ("converge",)}
+
 
 def add_arguments(parser):
     from ..evaluate.protocol_names import SCORE_SPLITS
@@ -54,33 +58,16 @@ def run(args) -> int:
     except ModuleNotFoundError as error:
         print(f"error: benchmarks are not part of this install ({error})", file=sys.stderr)
         return 2
-    if args.scale is not None and args.name != "train":
-        print("error: --scale applies to the train benchmark only", file=sys.stderr)
-        return 2
-    if args.avatar is not None and args.name not in ("viewport", "refiner", "refiner_search"):
-        print("error: --avatar applies to the viewport, refiner and refiner_search benchmarks only", file=sys.stderr)
-        return 2
-    if args.fit_steps is not None and args.name != "refiner":
-        print("error: --fit-steps applies to the refiner benchmark only", file=sys.stderr)
-        return 2
-    if args.split is not None and args.name not in ("refiner", "refiner_search"):
-        print("error: --split applies to the refiner and refiner_search benchmarks only", file=sys.stderr)
-        return 2
-    for name in ("minutes", "work"):
-        if getattr(args, name) is not None and args.name != "converge":
-            print(f"error: --{name} applies to the converge benchmark only", file=sys.stderr)
+    for name, benchmarks in OPTION_BENCHMARKS.items():
+        if getattr(args, name) is not None and args.name not in benchmarks:
+            which = ", ".join(benchmarks[:-1]) + " and " + benchmarks[-1] if len(benchmarks) > 1 else benchmarks[0]
+            print(f"error: --{name.replace('_', '-')} applies to the {which} benchmark{'s' if len(benchmarks) > 1 else ''} "
+                  "only", file=sys.stderr)
             return 2
     if args.minutes is not None and not args.minutes > 0:
         print("error: --minutes must be positive", file=sys.stderr)
         return 2
-    options = {"scale": args.scale} if args.scale is not None else {}
-    options.update({name: getattr(args, name) for name in ("minutes", "work") if getattr(args, name) is not None})
-    if args.split is not None:
-        options["split"] = args.split
-    if args.fit_steps is not None:
-        options["fit_steps"] = args.fit_steps
-    if args.avatar is not None:
-        options["avatar"] = args.avatar
+    options = {name: getattr(args, name) for name in OPTION_BENCHMARKS if getattr(args, name) is not None}
     report = module.run(threads=args.threads, quick=args.quick, **options)
     text = json.dumps(report, indent=2)
     print(text)
