@@ -1,7 +1,8 @@
 """Where one training step's time goes: a stage-by-stage profile of Freeze and the full method.
 
 Same scene as ``bench train`` (10 views, 256², default head, every Gaussian tripled: about 38k),
-densification off. The trainer runs unchanged; the functions that make up a step are wrapped
+densification off; ``--scale real``: the scene of ``bench train --scale real`` (802×550, 16
+training cameras, about 100k Gaussians), where a user's capture spends its time. The trainer runs unchanged; the functions that make up a step are wrapped
 with a stopwatch that counts each stage's exclusive time (a stage called inside another is
 subtracted from it), so the stages plus "other" add up to the whole step. "other" is what no
 wrapper covers: Python and torch dispatch between the stages, the frame sampler, the learning
@@ -61,7 +62,7 @@ def _instrument(watch: Stopwatch) -> list:
     from mogaface.core.mogaface.training import CorrectionTraining
     from mogaface.core.splat import api
     from mogaface.core.splat.function import Project, Rasterize
-    from mogaface.core.train import data, losses, mogaface_part, trainer
+    from mogaface.core.train import data, losses, mogaface_part, training_view
 
     undo = [
         watch.wrap(data.TrainingData, "target", "image loading"),
@@ -76,15 +77,15 @@ def _instrument(watch: Stopwatch) -> list:
         watch.wrap(Project, "backward", "render: projection backward", static=True),
         watch.wrap(Rasterize, "backward", "render: rasterise backward", static=True),
         watch.wrap(losses, "ssim", "loss: SSIM"),
-        watch.wrap(trainer, "image_loss", "loss: L1 and the rest"),
-        watch.wrap(trainer, "position_hinge", "loss: hinges"),
-        watch.wrap(trainer, "scaling_hinge", "loss: hinges"),
+        watch.wrap(training_view, "image_loss", "loss: L1 and the rest"),
+        watch.wrap(training_view, "position_hinge", "loss: hinges"),
+        watch.wrap(training_view, "scaling_hinge", "loss: hinges"),
         watch.wrap(torch.Tensor, "backward", "backward: everything but the render"),
         watch.wrap(torch.optim.Adam, "step", "optimiser (Adam)"),
         watch.wrap(DensifyStrategy, "observe", "densification statistics"),
         watch.wrap(CorrectionTraining, "record", "MoGaFace commit (bank, running means)"),
         watch.wrap(CorrectionTraining, "commit", "MoGaFace commit (bank, running means)"),
-        watch.wrap(trainer, "psnr", "progress values"),
+        watch.wrap(training_view, "psnr", "progress values"),
     ]
     return undo
 
@@ -180,10 +181,21 @@ def path_ratios(trainer, repeats: int) -> dict:
     return out
 
 
-def run(threads: int = 2, quick: bool = False) -> dict:
+def _scene(folder: str, scale: str):
+    """``(capture, growth factor or None)``: None grows to about 100k Gaussians (the real scale)."""
+    from mogaface.bench.train import _make_capture
+    from mogaface.bench.train_real import make_real_capture
+
+    if scale == "real":
+        return make_real_capture(folder), None
+    return _make_capture(os.path.join(folder, "capture"), 256), 3
+
+
+def run(threads: int = 2, quick: bool = False, scale: str = "small") -> dict:
     import torch
 
-    from mogaface.bench.train import _grow, _make_capture, _variants
+    from mogaface.bench.train import _grow, _variants
+    from mogaface.bench.train_real import HEIGHT, TARGET_GAUSSIANS, WIDTH
     from mogaface.core.train import config as config_module
     from mogaface.core.train.trainer import Trainer
 
@@ -191,14 +203,14 @@ def run(threads: int = 2, quick: bool = False) -> dict:
     results = []
     load_before = os.getloadavg()
     with tempfile.TemporaryDirectory(prefix="mogaface-bench-step-") as folder:
-        capture = _make_capture(os.path.join(folder, "capture"), 256)
+        capture, factor = _scene(folder, scale)
         for variant, settings in _variants().items():
             config = config_module.resolve(overrides={
                 "train": {"steps": 100000, "threads": threads, "checkpoint_every": 0},
                 "densify": {"start": 100000, "stop": 100000, "opacity_reset_interval": 0},
                 "eval": {"at_end": False}, **settings})
             trainer = Trainer(capture, os.path.join(folder, variant), config)
-            _grow(trainer, 3)
+            _grow(trainer, factor or max(1, round(TARGET_GAUSSIANS / len(trainer.avatar.gaussians))))
             with torch.no_grad():
                 trainer.avatar.gaussians.opacity_logit.fill_(2.0)
             for _ in range(3):
@@ -210,8 +222,9 @@ def run(threads: int = 2, quick: bool = False) -> dict:
             trainer.events.close()
     return {
         "benchmark": "step",
+        "scale": scale,
         "threads": threads,
-        "image": [256, 256],
+        "image": [WIDTH, HEIGHT] if scale == "real" else [256, 256],
         "load_average_before": [round(x, 2) for x in load_before],
         "load_average_after": [round(x, 2) for x in os.getloadavg()],
         "machine": {"cpu_count": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version()},
