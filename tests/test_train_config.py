@@ -74,3 +74,22 @@ def test_every_setting_is_documented():
     for section in dataclasses.fields(C.TrainConfig):
         for f in dataclasses.fields(section.type if not isinstance(section.type, str) else getattr(C, section.type)):
             assert f.metadata.get("doc")
+
+
+def test_a_batch_sees_the_same_images_on_a_schedule_divided_by_it():
+    one = C.resolve(overrides={"cameras": {"refine": True, "settle_at": 3000, "settle_steps": 100}})
+    four = C.for_batch(one, 4)
+    assert (four.train.batch, four.train.steps, four.densify.start, four.densify.stop) == (4, 1000, 75, 500)
+    assert (four.densify.opacity_reset_interval, four.densify.sh_degree_interval) == (300, 100)
+    assert (four.cameras.settle_at, four.cameras.settle_steps, four.train.checkpoint_every) == (750, 25, 125)
+    assert four.lr.position == pytest.approx(2 * one.lr.position)  # √4
+    assert four.flame.expression_lr == pytest.approx(2 * one.flame.expression_lr)
+    assert four.mogaface.texture_lr == pytest.approx(2 * one.mogaface.texture_lr)
+    assert four.lr.position_final_ratio == one.lr.position_final_ratio  # a ratio, not a rate
+    assert one.train.batch == 1 and one.train.steps == 4000  # the original is left alone
+    plain = C.for_batch(one, 4, "none")
+    assert plain.lr.position == one.lr.position and plain.train.steps == 1000
+    off = C.for_batch(C.resolve(overrides={"densify": {"opacity_reset_interval": 0}}), 8)
+    assert off.densify.opacity_reset_interval == 0  # "never" stays never
+    with pytest.raises(InputError, match="batch rule"):
+        C.for_batch(one, 2, "linear")

@@ -9,6 +9,7 @@ import sys
 from . import step_counts
 
 BENCHMARKS = {
+    "batch": "quality per image seen at batch 1, 2, 4 and 8 (the data-parallel batch), under each learning-rate rule",
     "cancel_latency": "SIGINT to exit while a raster kernel runs, at the largest allowed frame and in train",
     "converge": "time to quality at a real capture's scale (802x550, 16 cameras): the held-out camera's PSNR, SSIM "
                 "and LPIPS against minutes of training, Freeze + fine-tuning and the full method",
@@ -24,8 +25,10 @@ BENCHMARKS = {
 }
 
 # the options only some benchmarks take, and which
-OPTION_BENCHMARKS = {"scale": ("train",), "avatar": ("viewport", "refiner", "refiner_search"), "fit_steps": ("refiner",),
-                     "split": ("refiner", "refiner_search"), "minutes": ("converge",), "work": ("converge",)}
+OPTION_BENCHMARKS = {"scale": ("train", "step"), "avatar": ("viewport", "refiner", "refiner_search"),
+                     "fit_steps": ("refiner",),
+                     "split": ("refiner", "refiner_search"), "minutes": ("converge",),
+                     "work": ("converge", "batch")}
 
 
 def add_arguments(parser):
@@ -46,10 +49,11 @@ def add_arguments(parser):
                              "refiner_search: validation only")
     parser.add_argument("--minutes", type=float,
                         help="converge only: minutes of training time per variant (default 60)")
-    parser.add_argument("--work", help="converge only: folder for its capture (made once, reused) and runs "
-                                       "(default out/bench_converge)")
+    parser.add_argument("--work", help="converge, batch: folder for the capture (made once, reused) and runs "
+                                       "(default out/bench_converge, out/bench_batch)")
     parser.add_argument("--scale", choices=["small", "real"],
-                        help="train only: 'real' times the full method at 802x550, 16 cameras, 100k Gaussians")
+                        help="train, step: 'real' times 802x550 images, 16 cameras, 100k Gaussians "
+                             "(train: the full method; step: both variants stage by stage)")
 
 
 def run(args) -> int:

@@ -7,6 +7,7 @@ run can be repeated or resumed from its folder alone.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
 import os
@@ -284,6 +285,37 @@ PRESETS: dict[str, dict] = {
                           "eval": {"at_end": False},
                           "flame": {**FLAME_FINETUNE, "finetune": False}},
 }
+
+
+# Settings counted in steps, which a batch of B images a step reaches B times sooner in images seen.
+STEP_COUNTS = ("train.steps", "train.checkpoint_every", "densify.start", "densify.stop", "densify.interval",
+               "densify.opacity_reset_interval", "densify.sh_degree_interval", "cameras.settle_at",
+               "cameras.settle_steps")
+# Learning rates a batch rule scales: the Gaussians', the per-timestep FLAME parameters', the
+# cameras', the MoGaFace modules'.
+RATES = ("lr.position", "lr.scaling", "lr.opacity", "lr.rotation", "lr.color", "flame.expression_lr",
+         "flame.joints_lr", "flame.translation_lr", "cameras.rotation_lr", "cameras.translation_lr",
+         "cameras.delay_lr", "mogaface.lr", "mogaface.texture_lr")
+BATCH_RULES = ("sqrt", "none")  # the rates times √B (the square-root rule for Adam, as gsplat's batches), or as given
+
+
+def for_batch(config: TrainConfig, batch: int, rule: str = "sqrt") -> TrainConfig:
+    """``config``, written for one image a step, for ``batch`` images a step and the same images
+    seen: every step count (:data:`STEP_COUNTS`) divided by ``batch`` (at least 1 where it was
+    set), the rates (:data:`RATES`) times √batch under ``rule`` "sqrt", ``train.batch`` set."""
+    if rule not in BATCH_RULES:
+        raise InputError(None, "batch rule", f"expected one of {', '.join(BATCH_RULES)}, got {rule!r}")
+    out = copy.deepcopy(config)
+    updates: dict[str, dict] = {"train": {"batch": batch}}
+    for dotted in STEP_COUNTS:
+        section, key = dotted.split(".")
+        value = _get(config, dotted)
+        updates.setdefault(section, {})[key] = max(1, round(value / batch)) if value else 0
+    for dotted in RATES if rule == "sqrt" else ():
+        section, key = dotted.split(".")
+        updates.setdefault(section, {})[key] = _get(config, dotted) * math.sqrt(batch)
+    _apply(out, updates, f"batch {batch} ({rule} rule)")
+    return out.check()
 
 
 def _type_name(kind) -> str:
