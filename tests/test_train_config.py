@@ -1,6 +1,7 @@
 """Training settings: TOML round trip, presets, errors that name the file and the key."""
 
 import dataclasses
+import json
 
 import pytest
 
@@ -93,3 +94,24 @@ def test_a_batch_sees_the_same_images_on_a_schedule_divided_by_it():
     assert off.densify.opacity_reset_interval == 0  # "never" stays never
     with pytest.raises(InputError, match="batch rule"):
         C.for_batch(one, 2, "linear")
+
+
+def test_train_with_a_batch_rule_keeps_the_images_seen(tmp_path):
+    from mogaface.core.cli import main
+    from mogaface.core.data.capture_settings import CaptureSettings
+    from mogaface.core.data.generator import make_capture
+
+    capture = tmp_path / "capture"
+    make_capture(capture, CaptureSettings(views=3, timesteps=16, size=32, supersample=1), progress=False)
+    run = tmp_path / "run"
+    common = ["train", str(capture), "--out", str(run), "--preset", "quick", "--steps", "8", "--threads", "1",
+              "--quiet"]
+    assert main([*common, "--batch-rule", "sqrt"]) == 2  # a rule needs a batch
+    assert main([*common, "--batch", "2", "--batch-rule", "sqrt"]) == 0
+    saved = C.load(run / "config.toml")
+    quick = C.resolve("quick")
+    assert (saved.train.steps, saved.train.batch) == (4, 2)
+    assert saved.densify.interval == round(quick.densify.interval / 2)
+    assert saved.lr.opacity == pytest.approx(quick.lr.opacity * 2 ** 0.5)
+    assert json.loads((run / "run.json").read_text())["final_step"] == 4
+    assert main(["train", str(capture), "--out", str(run), "--resume", "--batch", "2", "--batch-rule", "sqrt"]) == 2

@@ -7,7 +7,7 @@ import sys
 
 
 def add_arguments(parser):
-    from ..train.config import CAMERA_GAUGES, PRESETS
+    from ..train.config import BATCH_RULES, CAMERA_GAUGES, PRESETS
 
     parser.add_argument("capture", type=pathlib.Path, help="capture folder (GaussianAvatars/VHAP layout)")
     parser.add_argument("--out", type=pathlib.Path, required=True, help="run folder (created)")
@@ -18,6 +18,11 @@ def add_arguments(parser):
     parser.add_argument("--seed", type=int, help="random seed (overrides the config)")
     parser.add_argument("--threads", type=int, help="CPU threads (overrides the config)")
     parser.add_argument("--batch", type=int, help="training images per step over all ranks (overrides the config)")
+    parser.add_argument("--batch-rule", choices=BATCH_RULES,
+                        help="with --batch B: read the settings (and --steps) as written for one image a step and "
+                             "keep the images seen, every step count divided by B, the learning rates times sqrt(B) "
+                             "('sqrt', measured: docs/training.md) or as they are ('none'); without it --batch "
+                             "changes nothing else")
     parser.add_argument("--head", type=pathlib.Path, help="head model file (default: the capture's)")
     parser.add_argument("--refine-cameras", type=int, nargs="?", const=1, metavar="ROUNDS",
                         help="refine the cameras for a capture whose calibration is off; with ROUNDS > 1, in that "
@@ -142,6 +147,10 @@ def _train(args, comm) -> int:
 
     overrides = _overrides(args)
     rounds_config = args.out / ROUNDS_DIR / "config.toml"  # the whole run's, while earlier rounds train
+    if args.batch_rule is not None and (args.batch is None or args.resume):
+        print("error: --batch-rule goes with --batch on a new run (a resumed run's config.toml holds the schedule "
+              "already divided)", file=sys.stderr)
+        return 2
     if args.resume:
         if args.config is not None or args.preset is not None:
             print("error: --resume continues with the run's own config.toml; drop --config/--preset",
@@ -151,6 +160,8 @@ def _train(args, comm) -> int:
         config = config_module.resolve(path=saved, overrides=overrides) if saved is not None else None
     else:
         config = config_module.resolve(args.preset, args.config, overrides)
+        if args.batch_rule is not None:
+            config = config_module.for_batch(config, args.batch, args.batch_rule)
     resume = args.resume
     if config is not None and config.cameras.rounds > 1 and latest_checkpoint(args.out / "checkpoints") is None:
         if comm.is_writer:
