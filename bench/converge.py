@@ -11,6 +11,11 @@ for ``--minutes`` of training time (``train.max_minutes``) on the machine's core
 scored on the same evenly spaced training timesteps (the novel view: PSNR, SSIM, LPIPS), drawn as
 ``render`` draws the run (the MoGaFace modules included, :func:`..core.train.results.current_avatar`).
 
+``--ranks N`` trains each variant data-parallel instead: N torchrun ranks on this machine, the
+``--threads`` shared among them, N images a step under the square-root rule
+(:func:`mogaface.core.train.config.for_batch`: the same images seen, the rates times √N); rank 0
+keeps the clock and scores. ``--variants`` picks some of :data:`VARIANTS`.
+
 Prints JSON (the curve per variant, steps per second, Gaussians, the load average) and writes
 ``converge.png`` (the curves against minutes) in the work folder. ``--quick``: a 96×66 capture of
 4 views, a few seconds per variant (a smoke run).
@@ -23,6 +28,8 @@ import json
 import os
 import pathlib
 import shutil
+import subprocess
+import sys
 import time
 
 WIDTH, HEIGHT = 802, 550
@@ -91,35 +98,89 @@ def _scored_trainer(every_s: float, frames: int):
     return ScoredTrainer
 
 
-def train_variant(capture: pathlib.Path, run: pathlib.Path, variant: str, minutes: float, every: float,
-                  frames: int, threads: int) -> dict:
-    """Train ``variant`` for ``minutes`` of training time from the defaults, scoring as it goes."""
+def variant_config(variant: str, minutes: float, threads: int, ranks: int = 1):
+    """The default settings with the ladder's ``variant``, ``minutes`` of training time and, for
+    ``ranks`` > 1, a batch of one image per rank under the square-root rule."""
     from mogaface.core.train import config as config_module
     from mogaface.core.workflows.ablation import LADDER, merge_sections
 
-    shutil.rmtree(run, ignore_errors=True)
     overrides = merge_sections({"train": {"max_minutes": minutes, "threads": threads, "seed": 0},
                                 "eval": {"every": 1, "at_end": False}}, LADDER[variant])
     config = config_module.resolve(None, None, overrides)
-    trainer = _scored_trainer(every * 60, frames)(capture, run, config)
+    return config_module.for_batch(config, ranks, "sqrt") if ranks > 1 else config
+
+
+def train_variant(capture: pathlib.Path, run: pathlib.Path, config, every: float, frames: int, comm=None) -> dict:
+    """Train with ``config`` for its minutes of training time from scratch, scoring as it goes
+    (``comm``: this process's place among data-parallel ranks; rank 0 scores and reports)."""
+    if comm is None or comm.is_writer:
+        shutil.rmtree(run, ignore_errors=True)
+    if comm is not None:
+        comm.barrier()  # the folder is fresh before any rank reads it
+    trainer = _scored_trainer(every * 60, frames)(capture, run, config, comm=comm)
     trainer.curve, trainer.next_score = [], 0.0
-    trainer.score()  # the start: minute 0
+    writer = comm is None or comm.is_writer
+    if writer:
+        trainer.score()  # the start: minute 0
     try:
         result = trainer.run()
     finally:
         trainer.events.close()
+    if not writer:
+        return {}
     trainer.next_score = trainer.elapsed  # the state the budget ends on
     trainer.score()
     return {"curve": trainer.curve, "steps": result["step"], "training_minutes": round(trainer.elapsed / 60, 3),
-            "it_s": round(result["step"] / max(trainer.elapsed, 1e-9), 3), "gaussians": len(trainer.avatar.gaussians)}
+            "it_s": round(result["step"] / max(trainer.elapsed, 1e-9), 3), "batch": config.train.batch,
+            "images_per_s": round(result["step"] * config.train.batch / max(trainer.elapsed, 1e-9), 3),
+            "gaussians": len(trainer.avatar.gaussians)}
 
 
-def run(threads: int = 2, quick: bool = False, minutes: float | None = None, work: str | None = None) -> dict:
+def worker(capture: str, run: str, variant: str, minutes: float, every: float, frames: int, threads: int,
+           out: str) -> None:
+    """One rank of a data-parallel variant (started by torchrun); rank 0 writes the result."""
+    from mogaface.core.train.distributed import communicator_from_environment
+
+    comm = communicator_from_environment()
+    try:
+        config = variant_config(variant, minutes, threads, comm.world)
+        result = train_variant(pathlib.Path(capture), pathlib.Path(run), config, every, frames, comm)
+        if comm.is_writer:
+            pathlib.Path(out).write_text(json.dumps(result), encoding="utf-8")
+    finally:
+        comm.close()
+
+
+def train_ranks(capture: pathlib.Path, run: pathlib.Path, variant: str, minutes: float, every: float, frames: int,
+                threads: int, ranks: int) -> dict:
+    """``variant`` on ``ranks`` torchrun ranks of this machine, the threads shared among them."""
+    per_rank = max(1, threads // ranks)
+    out = run.parent / f"{run.name}.result.json"
+    out.unlink(missing_ok=True)
+    command = [sys.executable, "-m", "torch.distributed.run", "--standalone", f"--nproc_per_node={ranks}",
+               "-m", "mogaface.bench.converge", "worker", str(capture), str(run), variant, str(minutes), str(every),
+               str(frames), str(per_rank), str(out)]
+    done = subprocess.run(command, env={**os.environ, "OMP_NUM_THREADS": str(per_rank)}, capture_output=True,
+                          text=True)
+    if done.returncode:
+        raise RuntimeError(f"{variant} on {ranks} ranks failed:\n{done.stderr[-4000:]}")
+    return {**json.loads(out.read_text(encoding="utf-8")), "ranks": ranks, "threads_per_rank": per_rank}
+
+
+def run(threads: int = 2, quick: bool = False, minutes: float | None = None, work: str | None = None,
+        ranks: int | None = None, variants: str | None = None) -> dict:
     from mogaface.core.data.capture import Capture
 
     from .plot import line_plots
 
     folder = pathlib.Path(work or WORK)
+    names = tuple(variants.split(",")) if variants else VARIANTS
+    unknown = [name for name in names if name not in VARIANTS]
+    if unknown:
+        from mogaface.core.errors import InputError
+
+        raise InputError(None, "--variants", f"unknown {', '.join(unknown)} (known: {', '.join(VARIANTS)})")
+    ranks = ranks or 1
     settings = capture_settings(quick)
     minutes = minutes if minutes is not None else (QUICK["minutes"] if quick else MINUTES)
     every = QUICK["every"] if quick else EVERY
@@ -127,8 +188,14 @@ def run(threads: int = 2, quick: bool = False, minutes: float | None = None, wor
     capture, made_s = ensure_capture(folder / "capture", settings)
     opened = Capture.open(capture)
     load_before = os.getloadavg()
-    variants = {name: train_variant(capture, folder / "runs" / name, name, minutes, every, frames, threads)
-                for name in VARIANTS}
+    variants = {}
+    for name in names:
+        if ranks == 1:
+            variants[name] = train_variant(capture, folder / "runs" / name, variant_config(name, minutes, threads),
+                                           every, frames)
+        else:
+            variants[f"{name}_{ranks}ranks"] = train_ranks(capture, folder / "runs" / f"{name}_{ranks}ranks", name,
+                                                           minutes, every, frames, threads, ranks)
     plot = folder / "converge.png"
     line_plots(plot, [{"title": f"held-out camera {metric.upper()}", "x_label": "minutes of training",
                        "series": {name: [(p["minutes"], p[metric]) for p in v["curve"]] for name, v in variants.items()}}
@@ -138,8 +205,18 @@ def run(threads: int = 2, quick: bool = False, minutes: float | None = None, wor
                     "training_cameras": len({f.camera_id for f in opened.frames("train")}),
                     "training_timesteps": len({f.timestep_index for f in opened.frames("train")}),
                     "training_images": len(opened.frames("train")), "made_in_s": round(made_s, 1)},
-        "minutes": minutes, "every_minutes": every, "scored_frames": frames, "threads": threads,
+        "minutes": minutes, "every_minutes": every, "scored_frames": frames, "threads": threads, "ranks": ranks,
         "variants": variants, "plot": str(plot),
         "load_average_before": [round(x, 2) for x in load_before],
         "load_average_after": [round(x, 2) for x in os.getloadavg()],
     }
+
+
+if __name__ == "__main__":
+    if len(sys.argv) == 10 and sys.argv[1] == "worker":
+        worker(sys.argv[2], sys.argv[3], sys.argv[4], float(sys.argv[5]), float(sys.argv[6]), int(sys.argv[7]),
+               int(sys.argv[8]), sys.argv[9])
+    else:
+        print("usage: python -m mogaface.bench.converge worker CAPTURE RUN VARIANT MINUTES EVERY FRAMES THREADS "
+              "OUT.json", file=sys.stderr)
+        sys.exit(2)

@@ -42,3 +42,17 @@ def test_the_curve_is_scored_as_training_goes_and_the_capture_is_reused(tmp_path
     assert again["capture"]["made_in_s"] == 0.0 and again["minutes"] == 0.02  # the capture reused
     assert main(["bench", "train", "--minutes", "3"]) == 2
     assert main(["bench", "converge", "--minutes", "0"]) == 2
+
+
+def test_a_variant_trains_on_ranks_with_one_image_each_and_rank_zero_scores(tmp_path):
+    out = tmp_path / "ranks.json"
+    assert main(["bench", "converge", "--quick", "--threads", "2", "--ranks", "2", "--variants", "finetune",
+                 "--minutes", "0.05", "--work", str(tmp_path / "work"), "--out", str(out)]) == 0
+    report = json.loads(out.read_text())
+    assert report["ranks"] == 2 and list(report["variants"]) == ["finetune_2ranks"]
+    variant = report["variants"]["finetune_2ranks"]
+    assert (variant["batch"], variant["threads_per_rank"]) == (2, 1)
+    assert abs(variant["images_per_s"] - 2 * variant["it_s"]) < 0.01
+    curve = variant["curve"]
+    assert len(curve) >= 2 and curve[0]["minutes"] == 0.0 and curve[-1]["step"] == variant["steps"] > 0
+    assert main(["bench", "converge", "--quick", "--variants", "nope", "--work", str(tmp_path / "work")]) == 2

@@ -28,7 +28,7 @@ BENCHMARKS = {
 OPTION_BENCHMARKS = {"scale": ("train", "step"), "avatar": ("viewport", "refiner", "refiner_search"),
                      "fit_steps": ("refiner",),
                      "split": ("refiner", "refiner_search"), "minutes": ("converge",),
-                     "work": ("converge", "batch")}
+                     "work": ("converge", "batch"), "ranks": ("converge",), "variants": ("converge",)}
 
 
 def add_arguments(parser):
@@ -51,6 +51,10 @@ def add_arguments(parser):
                         help="converge only: minutes of training time per variant (default 60)")
     parser.add_argument("--work", help="converge, batch: folder for the capture (made once, reused) and runs "
                                        "(default out/bench_converge, out/bench_batch)")
+    parser.add_argument("--ranks", type=int,
+                        help="converge only: train each variant on this many torchrun ranks of this machine, the "
+                             "threads shared among them, one image per rank a step (square-root rule)")
+    parser.add_argument("--variants", help="converge only: comma-separated subset of finetune,full_prior")
     parser.add_argument("--scale", choices=["small", "real"],
                         help="train, step: 'real' times 802x550 images, 16 cameras, 100k Gaussians "
                              "(train: the full method; step: both variants stage by stage)")
@@ -70,6 +74,9 @@ def run(args) -> int:
             return 2
     if args.minutes is not None and not args.minutes > 0:
         print("error: --minutes must be positive", file=sys.stderr)
+        return 2
+    if args.ranks is not None and args.ranks < 1:
+        print("error: --ranks must be at least 1", file=sys.stderr)
         return 2
     options = {name: getattr(args, name) for name in OPTION_BENCHMARKS if getattr(args, name) is not None}
     report = module.run(threads=args.threads, quick=args.quick, **options)
