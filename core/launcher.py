@@ -27,3 +27,14 @@ def with_launcher(command: list[str], launcher: str) -> list[str]:
     except ValueError as error:
         raise InputError(None, "launcher", f"not a command line ({error}): {launcher!r}") from None
     return prefix + module_arguments(command)
+
+
+def launcher_arguments(launcher: str, resume: bool) -> list[str]:
+    """The ``train`` options a launched run adds: one image per rank a step (``--batch auto``),
+    kept to the images seen under :data:`~mogaface.core.train.config.LAUNCHED_BATCH_RULE`, so the
+    ranks shorten the run instead of lengthening it; a resumed run keeps its own settings."""
+    from .train.config import LAUNCHED_BATCH_RULE
+
+    if not launcher.strip() or resume:
+        return []
+    return ["--batch", "auto", "--batch-rule", LAUNCHED_BATCH_RULE]

@@ -100,6 +100,7 @@ class MOGAFACE_OT_train(FollowsChildJob, bpy.types.Operator):
             return None
         if not dependencies_ready(self, context):
             return None
+        from ..core.launcher import launcher_arguments
         from ..core.worker import TrainWorker, train_command
 
         settings = context.scene.mogaface
@@ -113,17 +114,18 @@ class MOGAFACE_OT_train(FollowsChildJob, bpy.types.Operator):
         resume = self.resume == "RESUME" or (self.resume == "AUTO" and resumable(run))
         steps = self.steps or None
         python = bpy.path.abspath(self.python) if self.python else interpreter(context)
+        launcher = _preference(context, "launcher", "")  # e.g. torchrun --nproc_per_node 2
         command = train_command(
             python, capture, run, preset=self.preset, steps=steps,
             seed=settings.seed if self.seed < 0 else self.seed, threads=preferred_threads(context), resume=resume,
             camera_rounds=settings.camera_rounds if self.camera_rounds < 0 else self.camera_rounds,
             cameras_from_landmarks=settings.cameras_from_landmarks,
             centres_measured=settings.camera_centres_measured, camera_delays=settings.camera_delays,
-            paths=worker_paths(python),
+            paths=worker_paths(python), extra=launcher_arguments(launcher, resume),
         )
         from ..core.launcher import with_launcher
 
-        command = with_launcher(command, _preference(context, "launcher", ""))  # e.g. torchrun --nproc_per_node 2
+        command = with_launcher(command, launcher)
         os.makedirs(run, exist_ok=True)
         worker = TrainWorker(command, run)
         try:

@@ -13,6 +13,7 @@ import pathlib
 import subprocess
 import sys
 import time
+import tomllib
 
 import test_blender_addon as addon_test  # sets Blender's user folders to a temporary one first
 
@@ -98,6 +99,9 @@ def test_train_operator_starts_a_data_parallel_run_through_the_launcher(trained,
     assert trained["train"].last_progress().state == "done"
     events = [json.loads(line) for line in (run / "events.jsonl").read_text().splitlines()]
     assert [e["event"] for e in events].count("start") == 1 and events[-1]["event"] == "done"
+    assert not any(e["event"] == "warning" for e in events)  # no rank left without an image
+    settings = tomllib.loads((run / "config.toml").read_text())["train"]
+    assert (settings["batch"], settings["steps"]) == (2, 2)  # an image per rank, 3 images' steps halved
 
 
 def test_camera_rounds_train_in_one_operator_call_and_show_their_stage(trained, tmp_path):

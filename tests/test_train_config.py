@@ -115,3 +115,41 @@ def test_train_with_a_batch_rule_keeps_the_images_seen(tmp_path):
     assert saved.lr.opacity == pytest.approx(quick.lr.opacity * 2 ** 0.5)
     assert json.loads((run / "run.json").read_text())["final_step"] == 4
     assert main(["train", str(capture), "--out", str(run), "--resume", "--batch", "2", "--batch-rule", "sqrt"]) == 2
+
+
+def test_batch_auto_and_threads_per_rank(monkeypatch):
+    import argparse
+
+    from mogaface.core.cli.train import _batch_size, _per_rank_threads
+    from mogaface.core.train.distributed import Communicator
+
+    assert _batch_size("auto") == "auto" and _batch_size("3") == 3
+    for bad in ("0", "-2", "two"):
+        with pytest.raises(argparse.ArgumentTypeError, match="positive count or 'auto'"):
+            _batch_size(bad)
+    monkeypatch.setattr("os.cpu_count", lambda: 8)
+    monkeypatch.setenv("LOCAL_WORLD_SIZE", "4")
+    assert _per_rank_threads(16, Communicator()) == 16  # one process: as asked
+    assert _per_rank_threads(8, Communicator(0, 4)) == 2  # 4 ranks here share 8 cores
+    assert _per_rank_threads(2, Communicator(0, 4)) == 2  # they fit already
+    monkeypatch.setenv("LOCAL_WORLD_SIZE", "16")
+    assert _per_rank_threads(4, Communicator(0, 16)) == 1  # never below one
+
+
+def test_ranks_left_without_an_image_are_warned_of(tmp_path):
+    from mogaface.core.data.capture_settings import CaptureSettings
+    from mogaface.core.data.generator import make_capture
+    from mogaface.core.train.distributed import Communicator
+    from mogaface.core.train.trainer import Trainer
+
+    class TwoRanksNoPeer(Communicator):  # rank 0 of two, with the collectives of one process
+        def barrier(self):
+            pass
+
+    capture = tmp_path / "capture"
+    make_capture(capture, CaptureSettings(views=3, timesteps=16, size=32, supersample=1), progress=False)
+    seen = []
+    trainer = Trainer(capture, tmp_path / "run", C.resolve("quick"), listeners=[seen.append],
+                      comm=TwoRanksNoPeer(0, 2))
+    trainer.events.close()
+    assert any(e["event"] == "warning" and "ranks 1 and up render nothing" in e["message"] for e in seen)

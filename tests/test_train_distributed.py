@@ -256,6 +256,16 @@ def test_launcher_prefix_replaces_the_interpreter():
         with_launcher(command, "torchrun 'unclosed")
 
 
+def test_a_launched_run_gives_each_rank_an_image_and_keeps_the_images_seen():
+    from mogaface.core.launcher import launcher_arguments
+    from mogaface.core.train.config import BATCH_RULES, LAUNCHED_BATCH_RULE
+
+    assert launcher_arguments("torchrun --nproc_per_node 2", resume=False) == [
+        "--batch", "auto", "--batch-rule", LAUNCHED_BATCH_RULE]
+    assert LAUNCHED_BATCH_RULE in BATCH_RULES
+    assert launcher_arguments("  ", resume=False) == [] and launcher_arguments("torchrun", resume=True) == []
+
+
 def test_a_worker_started_by_torchrun_reports_progress_and_cancels_with_a_checkpoint(capture, config_file, tmp_path):
     """What the Blender panel and the headless script do with a launcher in the preferences."""
     from mogaface.core.launcher import with_launcher

@@ -17,7 +17,9 @@ def add_arguments(parser):
     parser.add_argument("--steps", type=int, help="total optimisation steps (overrides the config)")
     parser.add_argument("--seed", type=int, help="random seed (overrides the config)")
     parser.add_argument("--threads", type=int, help="CPU threads (overrides the config)")
-    parser.add_argument("--batch", type=int, help="training images per step over all ranks (overrides the config)")
+    parser.add_argument("--batch", type=_batch_size,
+                        help="training images per step over all ranks (overrides the config); 'auto': one per rank "
+                             "(torchrun's WORLD_SIZE, 1 in a single process)")
     parser.add_argument("--batch-rule", choices=BATCH_RULES,
                         help="with --batch B: read the settings (and --steps) as written for one image a step and "
                              "keep the images seen, every step count divided by B, the learning rates times sqrt(B) "
@@ -45,6 +47,34 @@ def add_arguments(parser):
     parser.add_argument("--events", choices=["file", "stdout"], default="file",
                         help="'stdout': also print every event as a JSON line on stdout (for other programs)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def _batch_size(text: str) -> int | str:
+    """An argparse type: a positive count, or ``auto`` (one image per rank)."""
+    if text == "auto":
+        return text
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        import argparse
+
+        raise argparse.ArgumentTypeError(f"expected a positive count or 'auto', got {text!r}")
+    return value
+
+
+def _per_rank_threads(threads: int, comm) -> int:
+    """``threads`` for each of this machine's ranks, lowered so they do not share cores: torchrun's
+    ``LOCAL_WORLD_SIZE`` ranks × threads stay within the machine's cores (threads fighting over a
+    core stall the splat engine's parallel kernels)."""
+    import os
+
+    if comm.world == 1:  # one process: the threads asked for
+        return threads
+    local = int(os.environ.get("LOCAL_WORLD_SIZE", "1") or 1)
+    cores = os.cpu_count() or 1
+    return max(1, cores // local) if threads * local > cores else threads
 
 
 def _overrides(args) -> dict:
@@ -145,6 +175,8 @@ def _train(args, comm) -> int:
     from ..train.rounds import ROUNDS_DIR, train_earlier_rounds
     from ..train.trainer import Trainer
 
+    if args.batch == "auto":
+        args.batch = comm.world
     overrides = _overrides(args)
     rounds_config = args.out / ROUNDS_DIR / "config.toml"  # the whole run's, while earlier rounds train
     if args.batch_rule is not None and (args.batch is None or args.resume):
@@ -162,6 +194,11 @@ def _train(args, comm) -> int:
         config = config_module.resolve(args.preset, args.config, overrides)
         if args.batch_rule is not None:
             config = config_module.for_batch(config, args.batch, args.batch_rule)
+    if config is not None and (threads := _per_rank_threads(config.train.threads, comm)) != config.train.threads:
+        if comm.is_writer:
+            print(f"note: {threads} thread(s) per rank instead of {config.train.threads}: this machine's ranks "
+                  "would share cores", file=sys.stderr)
+        config.train.threads = threads
     resume = args.resume
     if config is not None and config.cameras.rounds > 1 and latest_checkpoint(args.out / "checkpoints") is None:
         if comm.is_writer:

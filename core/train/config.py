@@ -297,6 +297,9 @@ RATES = ("lr.position", "lr.scaling", "lr.opacity", "lr.rotation", "lr.color", "
          "flame.joints_lr", "flame.translation_lr", "cameras.rotation_lr", "cameras.translation_lr",
          "cameras.delay_lr", "mogaface.lr", "mogaface.texture_lr")
 BATCH_RULES = ("sqrt", "none")  # the rates times √B (the square-root rule for Adam, as gsplat's batches), or as given
+# The rule of a run started through a launcher (one image per rank): the one that kept the quality
+# per image seen in ``bench batch`` (docs/training.md).
+LAUNCHED_BATCH_RULE = "sqrt"
 
 
 def for_batch(config: TrainConfig, batch: int, rule: str = "sqrt") -> TrainConfig:

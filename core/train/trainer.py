@@ -127,6 +127,10 @@ class Trainer:
         self.events = EventLog(self.run_folder.events_path if writer else None, listeners if writer else None)
         for note in self._notes:
             self.events.emit("warning", message=note)
+        if self.comm.world > self.config.train.batch:
+            self.events.emit("warning", message=f"{self.comm.world} ranks share a batch of {self.config.train.batch} "
+                                                f"image(s) a step: ranks {self.config.train.batch} and up render "
+                                                "nothing (train --batch auto gives each rank an image)")
 
     # -- setting up ----------------------------------------------------------------------------
     def _start_fresh(self, head_file) -> None:
