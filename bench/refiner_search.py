@@ -16,7 +16,7 @@ what other frames would move, and the incumbent keeps its place.
 
 The refiner's inference settings (prior, gap rank, full-size steps, damping) are searched on the
 trained refiner (:meth:`mogaface.core.refiner.model.LinearRefiner.with_settings`); its training
-settings (grid, offsets) would need a refiner trained per try and are not searched here. Fitting's
+settings (grid, offsets) need a refiner trained per try: ``bench refiner_training_search``. Fitting's
 step sizes (the prior's width over a divisor) and its prior weight are searched at 30 steps.
 """
 
@@ -40,7 +40,7 @@ TRY_VERSION = 1  # how a try is scored (the frames, the sources' inputs): a chan
 class _Run:
     """What scoring one setting on one run needs, loaded once."""
 
-    def __init__(self, root, frames: int, fit_frames: int):
+    def __init__(self, root, frames: int, fit_frames: int, needs_refiner: bool = True):
         from mogaface.core.evaluate.benchmark import run_gauge
         from mogaface.core.evaluate.protocols import protocol_frames
         from mogaface.core.evaluate.sources.base import training_cameras
@@ -54,7 +54,7 @@ class _Run:
         self.capture = self.folder.open_capture()
         self.avatar = frozen_avatar(self.folder.root)
         self.refiner = run_refiner(self.folder.root, self.avatar)
-        if self.refiner is None:
+        if self.refiner is None and needs_refiner:
             from mogaface.core.errors import InputError
 
             raise InputError(self.folder.root / "refiner.pt", None, "no refiner: run 'train-refiner RUN' first")
@@ -140,6 +140,10 @@ def _evaluator(runs: list[_Run], make_source):
     return evaluate
 
 
+def _file_hash(path) -> str | None:
+    return hashlib.sha256(path.read_bytes()).hexdigest() if path.is_file() else None
+
+
 class KeptTries:
     """Every try's result in the first run's folder (:data:`TRIES_FILE`), reused by a later search
     over the same runs, frames and scoring code (a grid made wider evaluates only what is new);
@@ -151,15 +155,15 @@ class KeptTries:
 
         self.path = runs[0].folder.root / TRIES_FILE
         self.key = {"code": scoring_code_hash(), "version": TRY_VERSION, "fit_steps": FIT_SEARCH_STEPS,
-                    "runs": [[str(r.folder.root), hashlib.sha256((r.folder.root / REFINER_FILE).read_bytes()).hexdigest(),
-                              len(r.frames), len(r.fit_frames)] for r in runs]}
-        self.parts = {"refiner": {}, "fitting": {}}
+                    "runs": [[str(r.folder.root), _file_hash(r.folder.root / REFINER_FILE), len(r.frames),
+                              len(r.fit_frames)] for r in runs]}
+        self.parts = {"refiner": {}, "fitting": {}}  # and whatever other searches keep here
         try:
             kept = json.loads(self.path.read_text(encoding="utf-8"))
         except (OSError, ValueError):
             kept = None
         if isinstance(kept, dict) and kept.get("key") == self.key and isinstance(kept.get("parts"), dict):
-            self.parts.update({k: dict(v) for k, v in kept["parts"].items() if k in self.parts})
+            self.parts.update({k: dict(v) for k, v in kept["parts"].items() if isinstance(v, dict)})
 
     def evaluator(self, part: str, evaluate):
         from mogaface.core.io.atomic import write_json

@@ -460,3 +460,29 @@ def test_the_command_trains_a_refiner_that_eval_then_uses(run_root, tmp_path, ca
     capsys.readouterr()
     assert main(["bench", "refiner_search", "--avatar", str(run), "--split", "test"]) == 2
     assert "validation frames only" in capsys.readouterr().err
+
+
+def test_the_training_search_trains_a_refiner_per_try_on_validation_frames_and_reuses_them(run_root, tmp_path,
+                                                                                           monkeypatch):
+    import mogaface.bench.refiner_training_search as search
+    from mogaface.core.cli import main
+
+    run = tmp_path / "run"
+    shutil.copytree(run_root, run, ignore=shutil.ignore_patterns("refiner.pt"))  # a run without its own refiner
+    monkeypatch.setattr(search, "TRAINING_GRID", {"grid": (4,), "offsets_per_start": (1,)})
+    out = tmp_path / "search.json"
+    assert main(["bench", "refiner_training_search", "--avatar", str(run), "--quick", "--threads", "1",
+                 "--out", str(out)]) == 0
+    found = json.loads(out.read_text())
+    tried = found["training"]["tried"]
+    assert [t["settings"] for t in tried] == [{"grid": 16, "offsets_per_start": 4}, {"grid": 4, "offsets_per_start": 4},
+                                              {"grid": 16, "offsets_per_start": 1}]
+    assert all("VAL" in s["label"] for s in found["scored"]) and not (run / "refiner.pt").exists()
+    trained = sorted(p.name for p in (run / search.TRIES_DIR).glob("*.pt"))
+    assert len(trained) == 3 and all(name.endswith("_quick.pt") for name in trained)
+    times = {p: p.stat().st_mtime_ns for p in (run / search.TRIES_DIR).glob("*.pt")}
+    assert main(["bench", "refiner_training_search", "--avatar", str(run), "--quick", "--threads", "1",
+                 "--out", str(out)]) == 0
+    assert all(t["reused"] for t in json.loads(out.read_text())["training"]["tried"])
+    assert {p: p.stat().st_mtime_ns for p in (run / search.TRIES_DIR).glob("*.pt")} == times
+    assert main(["bench", "refiner_training_search", "--avatar", str(run), "--split", "test"]) == 2

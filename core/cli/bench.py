@@ -17,6 +17,8 @@ BENCHMARKS = {
     "refiner": "the multi-view refiner against test-time fitting on unseen frames: seconds per frame, PSNR gained, "
                "parameter errors; several runs (--avatar RUN,RUN,…): the table over them, by subject",
     "refiner_search": "choose the refiner's and fitting's settings on validation frames: every setting tried, scored",
+    "refiner_training_search": "choose the refiner's training settings (feature grid, offsets) on validation frames: "
+                               "a refiner trained per setting tried",
     "splat": "the CPU Gaussian splat engine against its torch reference",
     "splat_fuzz": "the splat engine on degenerate Gaussians and intrinsics (hangs, non-finite values)",
     "step": "one training step stage by stage (FLAME, binding, render, loss, optimiser, MoGaFace modules)",
@@ -25,9 +27,10 @@ BENCHMARKS = {
 }
 
 # the options only some benchmarks take, and which
-OPTION_BENCHMARKS = {"scale": ("train", "step"), "avatar": ("viewport", "refiner", "refiner_search"),
+OPTION_BENCHMARKS = {"scale": ("train", "step"),
+                     "avatar": ("viewport", "refiner", "refiner_search", "refiner_training_search"),
                      "fit_steps": ("refiner",),
-                     "split": ("refiner", "refiner_search"), "minutes": ("converge",),
+                     "split": ("refiner", "refiner_search", "refiner_training_search"), "minutes": ("converge",),
                      "work": ("converge", "batch"), "ranks": ("converge",), "variants": ("converge",)}
 
 
@@ -39,14 +42,14 @@ def add_arguments(parser):
     parser.add_argument("--quick", action="store_true", help="fewer sizes and repeats (smoke run)")
     parser.add_argument("--out", help="also write the JSON report to this file")
     parser.add_argument("--avatar", help="viewport: the avatar (run folder or avatar.pt); refiner, refiner_search: "
-                                         "the run folder with refiner.pt, or several, comma-separated "
-                                         "(default out/demo/run)")
+                                         "the run folder with refiner.pt, or several, comma-separated; "
+                                         "refiner_training_search: run folders (default out/demo/run)")
     parser.add_argument("--fit-steps", type=step_counts,
                         help="refiner only: fitting lengths to time, comma-separated (default 10,30,100); the "
                              "refiner's time is also set against the length that matches its PSNR")
     parser.add_argument("--split", choices=SCORE_SPLITS,
                         help="refiner: score the test frames (default) or the validation sequence's; "
-                             "refiner_search: validation only")
+                             "refiner_search, refiner_training_search: validation only")
     parser.add_argument("--minutes", type=float,
                         help="converge only: minutes of training time per variant (default 60)")
     parser.add_argument("--work", help="converge, batch: folder for the capture (made once, reused) and runs "
