@@ -78,11 +78,13 @@ def test_every_setting_is_documented():
 
 
 def test_a_batch_sees_the_same_images_on_a_schedule_divided_by_it():
-    one = C.resolve(overrides={"cameras": {"refine": True, "settle_at": 3000, "settle_steps": 100}})
+    one = C.resolve(overrides={"cameras": {"refine": True, "settle_at": 3000, "settle_steps": 100},
+                               "eval": {"every": 500}})
     four = C.for_batch(one, 4)
     assert (four.train.batch, four.train.steps, four.densify.start, four.densify.stop) == (4, 1000, 75, 500)
     assert (four.densify.opacity_reset_interval, four.densify.sh_degree_interval) == (300, 100)
     assert (four.cameras.settle_at, four.cameras.settle_steps, four.train.checkpoint_every) == (750, 25, 125)
+    assert four.eval.every == 125 and four.train.log_every == one.train.log_every  # a display rate stays
     assert four.lr.position == pytest.approx(2 * one.lr.position)  # √4
     assert four.flame.expression_lr == pytest.approx(2 * one.flame.expression_lr)
     assert four.mogaface.texture_lr == pytest.approx(2 * one.mogaface.texture_lr)

@@ -290,7 +290,7 @@ PRESETS: dict[str, dict] = {
 # Settings counted in steps, which a batch of B images a step reaches B times sooner in images seen.
 STEP_COUNTS = ("train.steps", "train.checkpoint_every", "densify.start", "densify.stop", "densify.interval",
                "densify.opacity_reset_interval", "densify.sh_degree_interval", "cameras.settle_at",
-               "cameras.settle_steps")
+               "cameras.settle_steps", "eval.every")
 # Learning rates a batch rule scales: the Gaussians', the per-timestep FLAME parameters', the
 # cameras', the MoGaFace modules'.
 RATES = ("lr.position", "lr.scaling", "lr.opacity", "lr.rotation", "lr.color", "flame.expression_lr",
