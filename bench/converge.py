@@ -14,7 +14,8 @@ scored on the same evenly spaced training timesteps (the novel view: PSNR, SSIM,
 ``--ranks N`` trains each variant data-parallel instead: N torchrun ranks on this machine, the
 ``--threads`` shared among them, N images a step under the square-root rule
 (:func:`mogaface.core.train.config.for_batch`: the same images seen, the rates times √N); rank 0
-keeps the clock and scores. ``--variants`` picks some of :data:`VARIANTS`.
+keeps the clock and scores. ``--variants`` picks some of :data:`VARIANTS`; ``--config FILE.toml``
+trains them under those settings (a schedule to compare; the curve is named after the file).
 
 Prints JSON (the curve per variant, steps per second, Gaussians, the load average) and writes
 ``converge.png`` (the curves against minutes) in the work folder. ``--quick``: a 96×66 capture of
@@ -98,15 +99,16 @@ def _scored_trainer(every_s: float, frames: int):
     return ScoredTrainer
 
 
-def variant_config(variant: str, minutes: float, threads: int, ranks: int = 1):
-    """The default settings with the ladder's ``variant``, ``minutes`` of training time and, for
-    ``ranks`` > 1, a batch of one image per rank under the square-root rule."""
+def variant_config(variant: str, minutes: float, threads: int, ranks: int = 1, config_path: str | None = None):
+    """The default settings (under the TOML at ``config_path``, if any) with the ladder's
+    ``variant``, ``minutes`` of training time and, for ``ranks`` > 1, a batch of one image per rank
+    under the square-root rule."""
     from mogaface.core.train import config as config_module
     from mogaface.core.workflows.ablation import LADDER, merge_sections
 
     overrides = merge_sections({"train": {"max_minutes": minutes, "threads": threads, "seed": 0},
                                 "eval": {"every": 1, "at_end": False}}, LADDER[variant])
-    config = config_module.resolve(None, None, overrides)
+    config = config_module.resolve(None, config_path, overrides)
     return config_module.for_batch(config, ranks, "sqrt") if ranks > 1 else config
 
 
@@ -137,13 +139,13 @@ def train_variant(capture: pathlib.Path, run: pathlib.Path, config, every: float
 
 
 def worker(capture: str, run: str, variant: str, minutes: float, every: float, frames: int, threads: int,
-           out: str) -> None:
+           out: str, config_path: str = "") -> None:
     """One rank of a data-parallel variant (started by torchrun); rank 0 writes the result."""
     from mogaface.core.train.distributed import communicator_from_environment
 
     comm = communicator_from_environment()
     try:
-        config = variant_config(variant, minutes, threads, comm.world)
+        config = variant_config(variant, minutes, threads, comm.world, config_path or None)
         result = train_variant(pathlib.Path(capture), pathlib.Path(run), config, every, frames, comm)
         if comm.is_writer:
             pathlib.Path(out).write_text(json.dumps(result), encoding="utf-8")
@@ -152,14 +154,14 @@ def worker(capture: str, run: str, variant: str, minutes: float, every: float, f
 
 
 def train_ranks(capture: pathlib.Path, run: pathlib.Path, variant: str, minutes: float, every: float, frames: int,
-                threads: int, ranks: int) -> dict:
+                threads: int, ranks: int, config_path: str | None = None) -> dict:
     """``variant`` on ``ranks`` torchrun ranks of this machine, the threads shared among them."""
     per_rank = max(1, threads // ranks)
     out = run.parent / f"{run.name}.result.json"
     out.unlink(missing_ok=True)
     command = [sys.executable, "-m", "torch.distributed.run", "--standalone", f"--nproc_per_node={ranks}",
                "-m", "mogaface.bench.converge", "worker", str(capture), str(run), variant, str(minutes), str(every),
-               str(frames), str(per_rank), str(out)]
+               str(frames), str(per_rank), str(out), config_path or ""]
     done = subprocess.run(command, env={**os.environ, "OMP_NUM_THREADS": str(per_rank)}, capture_output=True,
                           text=True)
     if done.returncode:
@@ -168,8 +170,9 @@ def train_ranks(capture: pathlib.Path, run: pathlib.Path, variant: str, minutes:
 
 
 def run(threads: int = 2, quick: bool = False, minutes: float | None = None, work: str | None = None,
-        ranks: int | None = None, variants: str | None = None) -> dict:
+        ranks: int | None = None, variants: str | None = None, config: str | None = None) -> dict:
     from mogaface.core.data.capture import Capture
+    from mogaface.core.train import config as config_module
 
     from .plot import line_plots
 
@@ -188,14 +191,17 @@ def run(threads: int = 2, quick: bool = False, minutes: float | None = None, wor
     capture, made_s = ensure_capture(folder / "capture", settings)
     opened = Capture.open(capture)
     load_before = os.getloadavg()
+    if config is not None:
+        config_module.resolve(None, config)  # a bad file fails here, before the first variant trains
     variants = {}
     for name in names:
+        label = name + (f"_{pathlib.Path(config).stem}" if config else "") + (f"_{ranks}ranks" if ranks > 1 else "")
         if ranks == 1:
-            variants[name] = train_variant(capture, folder / "runs" / name, variant_config(name, minutes, threads),
-                                           every, frames)
+            variants[label] = train_variant(capture, folder / "runs" / label,
+                                            variant_config(name, minutes, threads, 1, config), every, frames)
         else:
-            variants[f"{name}_{ranks}ranks"] = train_ranks(capture, folder / "runs" / f"{name}_{ranks}ranks", name,
-                                                           minutes, every, frames, threads, ranks)
+            variants[label] = train_ranks(capture, folder / "runs" / label, name, minutes, every, frames, threads,
+                                          ranks, config)
     plot = folder / "converge.png"
     line_plots(plot, [{"title": f"held-out camera {metric.upper()}", "x_label": "minutes of training",
                        "series": {name: [(p["minutes"], p[metric]) for p in v["curve"]] for name, v in variants.items()}}
@@ -213,10 +219,10 @@ def run(threads: int = 2, quick: bool = False, minutes: float | None = None, wor
 
 
 if __name__ == "__main__":
-    if len(sys.argv) == 10 and sys.argv[1] == "worker":
+    if len(sys.argv) == 11 and sys.argv[1] == "worker":
         worker(sys.argv[2], sys.argv[3], sys.argv[4], float(sys.argv[5]), float(sys.argv[6]), int(sys.argv[7]),
-               int(sys.argv[8]), sys.argv[9])
+               int(sys.argv[8]), sys.argv[9], sys.argv[10])
     else:
         print("usage: python -m mogaface.bench.converge worker CAPTURE RUN VARIANT MINUTES EVERY FRAMES THREADS "
-              "OUT.json", file=sys.stderr)
+              "OUT.json CONFIG.toml|''", file=sys.stderr)
         sys.exit(2)

@@ -3,6 +3,7 @@ size and reused, each variant trains to its time budget and is scored as it goes
 avatar for the full method), and the plot is written."""
 
 import json
+import tomllib
 
 import numpy as np
 from PIL import Image
@@ -44,13 +45,17 @@ def test_the_curve_is_scored_as_training_goes_and_the_capture_is_reused(tmp_path
     assert main(["bench", "converge", "--minutes", "0"]) == 2
 
 
-def test_a_variant_trains_on_ranks_with_one_image_each_and_rank_zero_scores(tmp_path):
-    out = tmp_path / "ranks.json"
+def test_a_variant_trains_on_ranks_with_one_image_each_under_a_settings_file(tmp_path):
+    out, schedule = tmp_path / "ranks.json", tmp_path / "early_sh.toml"
+    schedule.write_text("[densify]\nsh_degree_interval = 40\n")
     assert main(["bench", "converge", "--quick", "--threads", "2", "--ranks", "2", "--variants", "finetune",
-                 "--minutes", "0.05", "--work", str(tmp_path / "work"), "--out", str(out)]) == 0
+                 "--config", str(schedule), "--minutes", "0.05", "--work", str(tmp_path / "work"),
+                 "--out", str(out)]) == 0
     report = json.loads(out.read_text())
-    assert report["ranks"] == 2 and list(report["variants"]) == ["finetune_2ranks"]
-    variant = report["variants"]["finetune_2ranks"]
+    assert report["ranks"] == 2 and list(report["variants"]) == ["finetune_early_sh_2ranks"]
+    settings = tomllib.loads((tmp_path / "work" / "runs" / "finetune_early_sh_2ranks" / "config.toml").read_text())
+    assert settings["densify"]["sh_degree_interval"] == 20 and settings["train"]["batch"] == 2  # the file's, halved
+    variant = report["variants"]["finetune_early_sh_2ranks"]
     assert (variant["batch"], variant["threads_per_rank"]) == (2, 1)
     assert abs(variant["images_per_s"] - 2 * variant["it_s"]) < 0.01
     curve = variant["curve"]

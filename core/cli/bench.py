@@ -31,7 +31,8 @@ OPTION_BENCHMARKS = {"scale": ("train", "step"),
                      "avatar": ("viewport", "refiner", "refiner_search", "refiner_training_search"),
                      "fit_steps": ("refiner",),
                      "split": ("refiner", "refiner_search", "refiner_training_search"), "minutes": ("converge",),
-                     "work": ("converge", "batch"), "ranks": ("converge",), "variants": ("converge",)}
+                     "work": ("converge", "batch"), "ranks": ("converge",), "variants": ("converge",),
+                     "config": ("converge",)}
 
 
 def add_arguments(parser):
@@ -58,6 +59,8 @@ def add_arguments(parser):
                         help="converge only: train each variant on this many torchrun ranks of this machine, the "
                              "threads shared among them, one image per rank a step (square-root rule)")
     parser.add_argument("--variants", help="converge only: comma-separated subset of finetune,full_prior")
+    parser.add_argument("--config", help="converge only: train the variants under this TOML settings file (a "
+                                         "schedule to compare; its curve is named after the file)")
     parser.add_argument("--scale", choices=["small", "real"],
                         help="train, step: 'real' times 802x550 images, 16 cameras, 100k Gaussians "
                              "(train: the full method; step: both variants stage by stage)")
