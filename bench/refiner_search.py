@@ -147,7 +147,9 @@ def _file_hash(path) -> str | None:
 class KeptTries:
     """Every try's result in the first run's folder (:data:`TRIES_FILE`), reused by a later search
     over the same runs, frames and scoring code (a grid made wider evaluates only what is new);
-    written after each new try, so a stopped search loses nothing."""
+    written after each new try, so a stopped search loses nothing. The tries of searches over other
+    runs, frames or code stay in the file beside them (a search over one run does not wipe the one
+    over two)."""
 
     def __init__(self, runs: list[_Run]):
         from mogaface.core.evaluate.benchmark import scoring_code_hash
@@ -158,20 +160,29 @@ class KeptTries:
                     "runs": [[str(r.folder.root), _file_hash(r.folder.root / REFINER_FILE), len(r.frames),
                               len(r.fit_frames)] for r in runs]}
         self.parts = {"refiner": {}, "fitting": {}}  # and whatever other searches keep here
+        self.others: list[dict] = []  # the other searches' entries, written back as they were
         try:
             kept = json.loads(self.path.read_text(encoding="utf-8"))
         except (OSError, ValueError):
             kept = None
-        if isinstance(kept, dict) and kept.get("key") == self.key and isinstance(kept.get("parts"), dict):
-            self.parts.update({k: dict(v) for k, v in kept["parts"].items() if isinstance(v, dict)})
+        entries = kept.get("searches", [kept]) if isinstance(kept, dict) else []  # [kept]: the one-search layout
+        for entry in entries if isinstance(entries, list) else []:
+            if not (isinstance(entry, dict) and isinstance(entry.get("parts"), dict)):
+                continue
+            if entry.get("key") == self.key:
+                self.parts.update({k: dict(v) for k, v in entry["parts"].items() if isinstance(v, dict)})
+            else:
+                self.others.append(entry)
 
     def evaluator(self, part: str, evaluate):
         from mogaface.core.io.atomic import write_json
 
+        self.parts.setdefault(part, {})
+
         def evaluate_and_keep(settings: dict) -> dict:
             result = evaluate(settings)
             self.parts[part][settings_key(settings)] = result
-            write_json(self.path, {"key": self.key, "parts": self.parts})
+            write_json(self.path, {"searches": [*self.others, {"key": self.key, "parts": self.parts}]})
             return result
 
         return evaluate_and_keep

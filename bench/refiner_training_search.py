@@ -67,12 +67,11 @@ def run(threads: int = 2, quick: bool = False, avatar: str | None = None, split:
     runs = [_Run(root, 4 if quick else 12, 1, needs_refiner=False) for root in (avatar or "out/demo/run").split(",") if root]
     kept = KeptTries(runs)
     part = "training_quick" if quick else "training"
-    kept.parts.setdefault(part, {})
     load_before = os.getloadavg()
     start = {"grid": DEFAULT_SPEC["grid"], "offsets_per_start": RefinerSettings().offsets_per_start}
-    evaluate = _evaluator(runs, lambda one, settings: refiner_source(one, settings, threads, quick))
-    found = coordinate_search(TRAINING_GRID, start, kept.evaluator(part, evaluate), TRAINING_ROUNDS,
-                              known=kept.parts[part])
+    evaluate = kept.evaluator(part, _evaluator(runs, lambda one, settings: refiner_source(one, settings, threads,
+                                                                                         quick)))
+    found = coordinate_search(TRAINING_GRID, start, evaluate, TRAINING_ROUNDS, known=kept.parts[part])
     return {
         "split": "validation", "runs": [str(r.folder.root) for r in runs],
         "scored": [scored_views(r.capture, r.frames) for r in runs], "threads": threads,

@@ -101,3 +101,25 @@ def test_the_table_gives_each_subject_and_the_unseen_ones_pooled():
     assert "25.0 ± 0.0 (interpolated) | 7.0 ± 0.0×" in pooled
     assert len(blocks) > 8 and "load 1.0–1.5" in table["markdown"]
     assert "pooled" not in summary_table(reports[:3])["markdown"]  # one unseen subject: nothing to pool
+
+
+def test_kept_tries_of_other_searches_stay_in_the_file(tmp_path):
+    from types import SimpleNamespace
+
+    from mogaface.bench.refiner_search import TRIES_FILE, KeptTries
+
+    def runs(*roots, frames=12):
+        return [SimpleNamespace(folder=SimpleNamespace(root=root), frames=[0] * frames, fit_frames=[0] * 8)
+                for root in roots]
+
+    first, second = tmp_path / "a", tmp_path / "b"
+    first.mkdir(), second.mkdir()
+    # the one-search layout a file may still hold: kept, and read back under its own key
+    earlier = KeptTries(runs(first, second))
+    (first / TRIES_FILE).write_text(json.dumps({"key": earlier.key, "parts": {"refiner": {"x": {"psnr_db": 30.0}}}}))
+    alone = KeptTries(runs(first))  # another search over the first run alone
+    alone.evaluator("training", lambda settings: {"psnr_db": 31.0})({"grid": 8})
+    both = KeptTries(runs(first, second))
+    assert both.parts["refiner"] == {"x": {"psnr_db": 30.0}} and "training" not in both.parts
+    assert KeptTries(runs(first)).parts["training"] == {'{"grid": 8}': {"psnr_db": 31.0}}
+    assert KeptTries(runs(first, frames=4)).parts == {"refiner": {}, "fitting": {}}  # other frames: its own
