@@ -150,6 +150,16 @@ def test_schedule_steps_and_sh_degree():
     assert [s.sh_degree(step) for step in (0, 99, 100, 250, 300, 10000)] == [0, 0, 1, 2, 3, 3]
 
 
+def test_passes_between_are_the_latest_due_of_each_kind():
+    s = schedule(start=300, stop=2000, interval=150, opacity_reset_interval=1200)
+    for done in range(0, 2300, 7):
+        for moved in (1, 2, 40, 151, 400, 1300):
+            now = done + moved
+            each = [[k for k in range(done + 1, now + 1) if is_due(k)] for is_due in (s.densifies_at, s.resets_opacity_at)]
+            assert s.passes_between(done, now) == sorted({kind[-1] for kind in each if kind}), (done, now)
+    assert [s.passes_between(k - 1, k) for k in (450, 451, 1200)] == [[450], [], [1200]]  # a step at a time
+
+
 def test_state_dict_round_trip():
     strategy = DensifyStrategy(schedule(), 8, 4)
     observe_all(strategy, 8, grad=0.5)

@@ -239,3 +239,56 @@ def test_time_budget_finishes_early_with_results(tiny_capture, tmp_path):
     assert info["time_limited"] and info["final_step"] == result["step"]
     assert (run / "avatar.pt").exists()
     assert any(e["event"] == "time_limit" for e in read_events(run))
+
+
+def test_progressive_resolution_stages_double_to_full_size():
+    from mogaface.core.train.trainer import image_scale
+
+    config = tiny_config(train={"resolution_start": 0.25, "resolution_full": 0.5})
+    assert [image_scale(config, p) for p in (0.0, 0.24, 0.25, 0.49, 0.5, 1.0)] == [0.25, 0.25, 0.5, 0.5, 1.0, 1.0]
+    assert image_scale(tiny_config(), 0.0) == 1.0  # the default: full size throughout
+
+
+def test_progressive_resolution_trains_on_smaller_images_then_full_size(tiny_capture, tmp_path, monkeypatch):
+    from mogaface.core.train.training_view import ViewRenderer, area_resized
+
+    seen = []
+    render = ViewRenderer.render
+
+    def spy(self, frame, step, generator, scale=1.0):
+        result = render(self, frame, step, generator, scale)
+        seen.append((step, tuple(result.target.shape), tuple(result.render.rgb.shape)))
+        return result
+
+    monkeypatch.setattr(ViewRenderer, "render", spy)
+    config = tiny_config(train={"steps": 8, "resolution_start": 0.5, "resolution_full": 0.5})
+    trainer = Trainer(tiny_capture, tmp_path / "run", config)
+    assert trainer.run()["complete"]
+    full = tuple(trainer.data.target(trainer.data.frames[0]).shape)
+    half = (round(full[0] / 2), round(full[1] / 2), 3)
+    assert [shape for _, shape, _ in seen] == [half] * 4 + [full] * 4
+    assert all(target == rgb for _, target, rgb in seen)  # the render at the target's size
+    image = torch.rand(6, 8, 3)
+    assert torch.allclose(area_resized(image, 4, 3)[1, 2], image[2:4, 4:6].mean(dim=(0, 1)))
+
+
+def test_a_time_budget_runs_the_whole_schedule_whatever_the_speed(tiny_capture, tmp_path):
+    from mogaface.core.train.trainer import position_lr
+
+    config = tiny_config(train={"steps": 1000, "max_minutes": 1.0, "resolution_start": 0.5},
+                         densify={"start": 100, "stop": 900, "interval": 100, "opacity_reset_interval": 0,
+                                  "sh_degree_interval": 100})
+    trainer = Trainer(tiny_capture, tmp_path / "run", config)
+    trainer.elapsed = 30.0  # half the budget in one step: the schedules stand at step 500
+    assert (trainer.schedule_step(), trainer.progress()) == (500, 0.5)
+    report = trainer.train_step()["densify"]
+    assert report and trainer.avatar.gaussians.active_sh_degree == 3  # the pass at 500 ran; SH as at step 500
+    group = next(g for g in trainer.optimizer.param_groups if g["name"] == "local_position")
+    assert group["lr"] == position_lr(config, trainer.extent, 500)
+    assert not trainer.train_step()["densify"]  # no time passed: nothing more is due
+    trainer.elapsed = 48.0  # past the passes at 600, 700 and 800: the latest one runs, once
+    passes, after_step = [], trainer.strategy.after_step
+    trainer.strategy.after_step = lambda step, *rest: passes.append(step) or after_step(step, *rest)
+    assert trainer.train_step()["densify"] and passes == [800]
+    trainer.elapsed = 0.0  # without the budget the steps alone drive it, as they always did
+    assert trainer.schedule_step() == trainer.step == 3

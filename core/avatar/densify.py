@@ -43,6 +43,17 @@ class DensifySchedule:
         every = self.opacity_reset_interval
         return every > 0 and step <= self.stop and step % every == 0
 
+    def passes_between(self, done: int, now: int) -> list[int]:
+        """The steps in ``(done, now]`` whose pass to run: the latest that densifies and the latest
+        that resets opacities (one step apart: the step itself, if due). A time budget can move
+        the schedule several steps at once; a second pass in a row would find no new statistics."""
+        latest = set()
+        for every, first in ((self.interval, self.start + 1), (self.opacity_reset_interval, 1)):
+            step = min(now, self.stop) // every * every if every > 0 else 0
+            if step > done and step >= first:
+                latest.add(step)
+        return sorted(latest)
+
     def sh_degree(self, step: int) -> int:
         """The active SH degree while running step ``step`` (0-based count of steps already done)."""
         return min(self.max_sh_degree, step // self.sh_degree_interval)

@@ -30,7 +30,14 @@ class TrainSection:
     log_every: int = _setting(10, "steps between 'iter' progress events")
     checkpoint_every: int = _setting(500, "steps between checkpoints (0: only at the end and on a signal)")
     keep_checkpoints: int = _setting(3, "how many of the newest checkpoints to keep")
-    max_minutes: float = _setting(0.0, "finish early (avatar, metrics) after this much training time; 0: no limit")
+    max_minutes: float = _setting(0.0, "finish early (avatar, metrics) after this much training time, the schedules "
+                                       "(rates, densification, SH degree, cameras, bank, resolution) run through "
+                                       "in it when it ends the run before train.steps; 0: no limit")
+    resolution_start: float = _setting(1.0, "progressive resolution: the first steps train on images at this scale "
+                                            "of their size, doubling in even stages to full size at "
+                                            "resolution_full (1: full size throughout)")
+    resolution_full: float = _setting(0.5, "fraction of the training (of train.steps, or of train.max_minutes "
+                                           "when that is the nearer end) from which the images are at full size")
 
 
 @dataclasses.dataclass

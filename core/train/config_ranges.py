@@ -12,7 +12,7 @@ BIG = 10 ** 9
 RANGES: dict[str, tuple[float, float]] = {
     "train.steps": (1, BIG), "train.seed": (0, 2 ** 63 - 1), "train.threads": (1, 256),
     "train.log_every": (1, BIG), "train.checkpoint_every": (0, BIG), "train.keep_checkpoints": (1, 1000),
-    "train.max_minutes": (0, 10 ** 7),
+    "train.max_minutes": (0, 10 ** 7), "train.resolution_start": (1 / 64, 1), "train.resolution_full": (0, 1),
     # views per step; more would hold that many renders' autograd graphs at once
     "train.batch": (1, 256),
     "loss.ssim_weight": (0, 1), "loss.position_weight": (0, 1e6), "loss.position_threshold": (0, 1e6),

@@ -34,7 +34,7 @@ def write_learned_cameras(root: pathlib.Path, offsets, delays) -> None:
 def write_results(trainer: Trainer) -> None:
     """Write the final avatar, the FLAME parameters used, run.json and the val metrics; emit ``done``."""
     run_folder, config = trainer.run_folder, trainer.config
-    trainer.avatar.gaussians.active_sh_degree = trainer.strategy.schedule.sh_degree(trainer.step)
+    trainer.avatar.gaussians.active_sh_degree = trainer.strategy.schedule.sh_degree(trainer.schedule_step())
     trainer.avatar.save(run_folder.avatar_path)
     write_learned_cameras(run_folder.root, trainer.camera_offsets, trainer.camera_delays)
     table, avatar = trainer.table, trainer.avatar
@@ -83,7 +83,7 @@ def current_avatar(trainer: Trainer):
     """``(table, avatar)`` as the run would write them at this step: the corrected parameters and
     the modulated avatar for a MoGaFace run (:func:`.mogaface_part.corrected_avatar`), so a check
     during training scores what ``render`` will draw."""
-    trainer.avatar.gaussians.active_sh_degree = trainer.strategy.schedule.sh_degree(trainer.step)
+    trainer.avatar.gaussians.active_sh_degree = trainer.strategy.schedule.sh_degree(trainer.schedule_step())
     if trainer.mogaface is None:
         return trainer.table, trainer.avatar
     return corrected_avatar(trainer.mogaface, trainer.avatar, trainer.table)

@@ -77,6 +77,18 @@ def camera_lrs(config: TrainConfig, step: int) -> dict[str, float]:
                                ("delay", cams.delay_lr))}
 
 
+def image_scale(config: TrainConfig, progress: float) -> float:
+    """Progressive resolution: the scale of the training images at ``progress`` (0 to 1) of the
+    training. From ``train.resolution_start`` it doubles in even stages up to full size at
+    ``train.resolution_full``: early steps, which shape the avatar coarsely, cost a fraction of a
+    full-size step."""
+    start, full = config.train.resolution_start, config.train.resolution_full
+    if start >= 1.0 or full <= 0.0:
+        return 1.0
+    stages = math.ceil(math.log2(1.0 / start) - 1e-9)
+    return min(1.0, start * 2.0 ** min(stages, int(progress / full * stages)))
+
+
 def hold_still(optimizer, holds) -> None:
     """Drop the gradients of the parameter groups whose name ``holds``: Adam skips them this step."""
     for group in optimizer.param_groups:
@@ -122,6 +134,7 @@ class Trainer:
             self._start_fresh(head_file)
         else:
             self._restore(checkpoint)
+        self._scheduled_through = int(self._schedule_position(self.step))  # scheduled passes done up to here
         self.views = ViewRenderer(self.config, self.data, self.avatar, self.table, self.background,
                                   self.camera_offsets, self.camera_delays, self.mogaface)
         self.events = EventLog(self.run_folder.events_path if writer else None, listeners if writer else None)
@@ -197,7 +210,7 @@ class Trainer:
     # -- state ----------------------------------------------------------------------------------
     def state(self) -> dict:
         """Everything a resumed run needs, as tensors and plain values (``weights_only`` safe)."""
-        self.avatar.gaussians.active_sh_degree = self.strategy.schedule.sh_degree(self.step)
+        self.avatar.gaussians.active_sh_degree = self.strategy.schedule.sh_degree(self.schedule_step())
         return {
             "elapsed_s": self.elapsed,
             "config": self.config.to_dict(),
@@ -243,9 +256,27 @@ class Trainer:
         """
         return torch.Generator().manual_seed(hash((self.config.train.seed, self.step, index)) & (2**63 - 1))
 
+    def _schedule_position(self, steps_done: int) -> float:
+        """Where the schedules stand, in steps: ``steps_done``, or with ``train.max_minutes`` the step
+        its share of the training time stands for when that is further (the time will end the run
+        first). Every schedule (rates, densification, SH degree, cameras, bank, resolution) reads
+        it, so a budget in minutes runs the whole schedule whatever the machine's speed."""
+        cfg = self.config.train
+        by_time = self.elapsed / (cfg.max_minutes * 60) * cfg.steps if cfg.max_minutes > 0 else 0.0
+        return min(float(cfg.steps), max(float(steps_done), by_time))
+
+    def schedule_step(self) -> int:
+        """The step the schedules read while running step :attr:`step` (:meth:`_schedule_position`)."""
+        return int(self._schedule_position(self.step))
+
+    def progress(self) -> float:
+        """How far the training is, 0 to 1 (:meth:`_schedule_position` over ``train.steps``)."""
+        return self._schedule_position(self.step) / self.config.train.steps
+
     def _render_view(self, frame, index: int) -> ViewResult:
         """Render view ``index`` of the step (training image ``frame``) and score it."""
-        return self.views.render(frame, self.step, self.view_generator(index))
+        return self.views.render(frame, self.schedule_step(), self.view_generator(index),
+                                 image_scale(self.config, self.progress()))
 
     def _trainable(self) -> list[torch.Tensor]:
         """Every parameter an optimiser steps, in the same order on every rank."""
@@ -257,7 +288,8 @@ class Trainer:
     def _settling(self) -> bool:
         """Whether this step is in the cameras-only phase (``[cameras] settle_at``, ``settle_steps``)."""
         cams = self.config.cameras
-        return self.camera_offsets is not None and cams.settle_at <= self.step < cams.settle_at + cams.settle_steps
+        step = self.schedule_step()
+        return self.camera_offsets is not None and cams.settle_at <= step < cams.settle_at + cams.settle_steps
 
     def train_step(self) -> dict:
         """Run step ``self.step`` (0-based) and advance; returns its losses and what densification did.
@@ -284,16 +316,18 @@ class Trainer:
         cfg = self.config
         comm = self.comm
         gaussians = self.avatar.gaussians
-        rates = {"local_position": position_lr(cfg, self.extent, self.step), **camera_lrs(cfg, self.step)}
+        at = self.schedule_step()
+        rates = {"local_position": position_lr(cfg, self.extent, at), **camera_lrs(cfg, at)}
         for group in self.optimizer.param_groups:
             if group["name"] in rates:
                 group["lr"] = rates[group["name"]]
-        gaussians.active_sh_degree = self.strategy.schedule.sh_degree(self.step)
+        gaussians.active_sh_degree = self.strategy.schedule.sh_degree(at)
         batch = cfg.train.batch
         frames = [self._next_frame() for _ in range(batch)]
         names = self.views.terms.names  # the same on every rank, one without a view included
         views = {j: self._render_view(frames[j], j) for j in comm.share(batch)}
         settling = self._settling()
+        after = int(self._schedule_position(self.step + 1))  # where the schedules stand once this step is done
         sums = torch.zeros(len(names), dtype=torch.float64)
         if views:
             total = sum(view.losses["loss"] for view in views.values()) / batch
@@ -303,11 +337,11 @@ class Trainer:
                 values = view.logged()
                 sums += torch.tensor([values[name] for name in names], dtype=torch.float64)
                 if not settling:  # settling, the Gaussians hold still: their densification statistics too
-                    view.observe(self.strategy, self.step + 1, batch)
+                    view.observe(self.strategy, after, batch)
         sums = comm.reduce_step(self._trainable(), sums)
-        if self.camera_offsets is not None and self.step < cfg.cameras.begin * cfg.train.steps:
+        if self.camera_offsets is not None and at < cfg.cameras.begin * cfg.train.steps:
             hold_still(self.optimizer, lambda name: name in ("cameras.rotation", "cameras.translation"))
-        if self.camera_delays is not None and self.step < cfg.cameras.delay_begin * cfg.train.steps:
+        if self.camera_delays is not None and at < cfg.cameras.delay_begin * cfg.train.steps:
             hold_still(self.optimizer, lambda name: name == "cameras.delay")
         if settling:  # only the cameras step
             hold_still(self.optimizer, lambda name: not name.startswith("cameras."))
@@ -328,15 +362,17 @@ class Trainer:
         self.step += 1
         report = {}
         schedule = self.strategy.schedule
-        if not settling and (schedule.densifies_at(self.step) or schedule.resets_opacity_at(self.step)):
-            if self.strategy.schedule.densifies_at(self.step):
+        due = schedule.passes_between(self._scheduled_through, after)  # one step's, or a time budget's
+        self._scheduled_through = max(self._scheduled_through, after)
+        for passed in [] if settling else due:
+            if schedule.densifies_at(passed):
                 comm.reduce_statistics(self.strategy)
             with torch.no_grad():
                 # The triangle sizes of the step's first timestep, tracked pose: the same on every rank.
                 vertices = self.avatar.posed_vertices(self.table.params(frames[0].timestep_index))
                 face_scale = triangle_frames(vertices, self.avatar.flame.faces).scale
-                report = self.strategy.after_step(self.step, gaussians, self.optimizer, face_scale, self.extent,
-                                                  self.generator)
+                report.update(self.strategy.after_step(passed, gaussians, self.optimizer, face_scale, self.extent,
+                                                       self.generator))
         values = dict(zip(names, (sums / batch).tolist()))
         return {"losses": values, "densify": report}
 
@@ -379,8 +415,11 @@ class Trainer:
         try:
             while self.step < end:
                 # Every rank stops at the same step: a signal to any, or rank 0's clock.
-                signum, timed = self.comm.agree([self._stop_signal or 0,
-                                                 float(self.comm.is_writer and self.elapsed >= budget)])
+                # Rank 0's training time too: the schedules read it, so every rank must read the same.
+                signum, timed, clock = self.comm.agree([self._stop_signal or 0,
+                                                        float(self.comm.is_writer and self.elapsed >= budget),
+                                                        self.elapsed if self.comm.is_writer else 0.0])
+                self.elapsed = clock
                 if signum:
                     self._stop_signal = int(signum)
                     break
@@ -404,8 +443,9 @@ class Trainer:
                     self.events.emit("iter", step=self.step, steps=cfg.steps, **result["losses"],
                                      gaussians=len(self.avatar.gaussians),
                                      sh_degree=self.avatar.gaussians.active_sh_degree,
-                                     lr_position=position_lr(self.config, self.extent, self.step),
-                                     it_s=rate, eta_s=(cfg.steps - self.step) / max(rate, 1e-9),
+                                     lr_position=position_lr(self.config, self.extent, self.schedule_step()),
+                                     it_s=rate, eta_s=min((cfg.steps - self.step) / max(rate, 1e-9),
+                                                          max(budget - self.elapsed, 0.0)),
                                      elapsed_s=self.elapsed)
                     window_start, window_steps = now, 0
                 if self.config.eval.every and self.step % self.config.eval.every == 0 and self.comm.is_writer:

@@ -23,6 +23,12 @@ from .mogaface_part import mogaface_render
 IMAGE_TERMS = ("l1", "ssim", "rgb")  # ``rgb`` = (1 − λ)·l1 + λ·(1 − ssim): the image term of the total
 
 
+def area_resized(image: torch.Tensor, width: int, height: int) -> torch.Tensor:
+    """An ``(H,W,3)`` image averaged down to ``(height,width,3)``: each pixel the mean of the area it covers."""
+    scaled = torch.nn.functional.interpolate(image.permute(2, 0, 1)[None], size=(height, width), mode="area")
+    return scaled[0].permute(1, 2, 0).contiguous()
+
+
 class LossTerms:
     """The weighted terms added to a view's image loss ``rgb``: the position and scaling hinges and,
     with the MoGaFace modules, the correction's consistency, centring and rendered losses (those
@@ -111,11 +117,15 @@ class ViewRenderer:
         """The step's meshes (and their graphs) are spent."""
         self._step_posed.clear()
 
-    def render(self, frame, step: int, generator: torch.Generator) -> ViewResult:
+    def render(self, frame, step: int, generator: torch.Generator, scale: float = 1.0) -> ViewResult:
         """Render training image ``frame`` at ``step`` and score it (``generator``: the view's random
-        source, for the encoder's views and the rendered targets)."""
+        source, for the encoder's views and the rendered targets), both at ``scale`` of the image's
+        size (progressive resolution; the target area-averaged)."""
         camera = self.data.capture.camera(frame)
         target = self.data.target(frame)
+        if scale < 1.0:
+            camera = camera.scaled(scale)
+            target = area_resized(target, camera.width, camera.height)
         offsets = self.camera_offsets
         move = None if offsets is None else (lambda world: offsets.move_scene(world, frame.camera_id, camera.center))
         shift = None if self.camera_delays is None else self.camera_delays.shift(
