@@ -38,9 +38,11 @@ def test_the_curve_is_scored_as_training_goes_and_the_capture_is_reused(tmp_path
     plot = np.asarray(Image.open(report["plot"]))
     assert plot.ndim == 3 and (np.abs(plot.astype(int) - [31, 119, 180]).sum(-1) < 30).any()  # a curve drawn
     capsys.readouterr()
-    assert main(["bench", "converge", "--quick", "--threads", "1", "--work", str(work), "--minutes", "0.02"]) == 0
+    assert main(["bench", "converge", "--quick", "--threads", "1", "--work", str(work), "--minutes", "0.02",
+                 "--variants", "finetune"]) == 0
     again = json.loads(capsys.readouterr().out)
     assert again["capture"]["made_in_s"] == 0.0 and again["minutes"] == 0.02  # the capture reused
+    assert list(again["variants"]) == ["finetune"]
     assert main(["bench", "train", "--minutes", "3"]) == 2
     assert main(["bench", "converge", "--minutes", "0"]) == 2
 

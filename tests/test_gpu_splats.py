@@ -135,13 +135,18 @@ def shader_draw(packed, values, width, height):
         mid = 0.5 * (sxx + syy)
         radius = np.ceil(3 * np.sqrt(mid + np.sqrt(max(mid * mid - det, 0))))
         mx, my = fx * p[0] / p[2] + cx, fy * p[1] / p[2] + cy
-        dx, dy = xs - mx, ys - my
+        # the pixels whose centres lie in the quad (|dx|, |dy| <= radius); none outside it change
+        x0, x1 = max(0, int(np.ceil(mx - radius - 0.5))), min(width, int(np.floor(mx + radius - 0.5)) + 1)
+        y0, y1 = max(0, int(np.ceil(my - radius - 0.5))), min(height, int(np.floor(my + radius - 0.5)) + 1)
+        if x0 >= x1 or y0 >= y1:
+            continue
+        dx, dy = xs[y0:y1, x0:x1] - mx, ys[y0:y1, x0:x1] - my
         inside = (np.abs(dx) <= radius) & (np.abs(dy) <= radius)
         q = (syy * dx * dx - 2 * sxy * dx * dy + sxx * dy * dy) / det
         alpha = np.minimum(0.99, t0[3] * np.exp(-0.5 * q))
         alpha = np.where(inside & (q <= 9) & (alpha >= 1 / 255), alpha, 0.0)[..., None]
         color = np.append(srgb_to_linear(t3[:3]), 1.0)
-        out = color * alpha + out * (1 - alpha)
+        out[y0:y1, x0:x1] = color * alpha + out[y0:y1, x0:x1] * (1 - alpha)
     return out
 
 

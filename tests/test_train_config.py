@@ -98,7 +98,7 @@ def test_a_batch_sees_the_same_images_on_a_schedule_divided_by_it():
         C.for_batch(one, 2, "linear")
 
 
-def test_train_with_a_batch_rule_keeps_the_images_seen(tmp_path):
+def test_train_with_a_batch_rule_keeps_the_images_seen_and_minutes_end_the_run(tmp_path):
     from mogaface.core.cli import main
     from mogaface.core.data.capture_settings import CaptureSettings
     from mogaface.core.data.generator import make_capture
@@ -117,15 +117,25 @@ def test_train_with_a_batch_rule_keeps_the_images_seen(tmp_path):
     assert saved.lr.opacity == pytest.approx(quick.lr.opacity * 2 ** 0.5)
     assert json.loads((run / "run.json").read_text())["final_step"] == 4
     assert main(["train", str(capture), "--out", str(run), "--resume", "--batch", "2", "--batch-rule", "sqrt"]) == 2
+    timed = tmp_path / "timed"  # --minutes: the schedule in minutes, the time ends the run
+    assert main(["train", str(capture), "--out", str(timed), "--preset", "quick", "--minutes", "0.002",
+                 "--threads", "1", "--quiet"]) == 0
+    saved = C.load(timed / "config.toml")
+    assert (saved.train.max_minutes, saved.train.schedule) == (0.002, "minutes")
+    assert json.loads((timed / "run.json").read_text())["time_limited"]
 
 
 def test_batch_auto_and_threads_per_rank(monkeypatch):
     import argparse
 
-    from mogaface.core.cli.train import _batch_size, _per_rank_threads
+    from mogaface.core.cli.train import _batch_size, _per_rank_threads, _positive_minutes
     from mogaface.core.train.distributed import Communicator
 
     assert _batch_size("auto") == "auto" and _batch_size("3") == 3
+    assert _positive_minutes("2.5") == 2.5
+    for bad in ("0", "-1", "inf", "nan", "soon"):
+        with pytest.raises(argparse.ArgumentTypeError, match="positive number of minutes"):
+            _positive_minutes(bad)
     for bad in ("0", "-2", "two"):
         with pytest.raises(argparse.ArgumentTypeError, match="positive count or 'auto'"):
             _batch_size(bad)

@@ -11,6 +11,7 @@ import torch
 
 from mogaface.core.avatar.avatar import Avatar
 from mogaface.core.data.capture import Capture
+from mogaface.core.errors import InputError
 from mogaface.core.train import config as C
 from mogaface.core.train.checkpoint import latest_checkpoint, load_checkpoint
 from mogaface.core.train.trainer import Trainer
@@ -272,10 +273,10 @@ def test_progressive_resolution_trains_on_smaller_images_then_full_size(tiny_cap
     assert torch.allclose(area_resized(image, 4, 3)[1, 2], image[2:4, 4:6].mean(dim=(0, 1)))
 
 
-def test_a_time_budget_runs_the_whole_schedule_whatever_the_speed(tiny_capture, tmp_path):
+def test_a_schedule_in_minutes_runs_through_the_budget_whatever_the_speed(tiny_capture, tmp_path):
     from mogaface.core.train.trainer import position_lr
 
-    config = tiny_config(train={"steps": 1000, "max_minutes": 1.0, "resolution_start": 0.5},
+    config = tiny_config(train={"steps": 1000, "max_minutes": 1.0, "schedule": "minutes", "resolution_start": 0.5},
                          densify={"start": 100, "stop": 900, "interval": 100, "opacity_reset_interval": 0,
                                   "sh_degree_interval": 100})
     trainer = Trainer(tiny_capture, tmp_path / "run", config)
@@ -290,5 +291,22 @@ def test_a_time_budget_runs_the_whole_schedule_whatever_the_speed(tiny_capture, 
     passes, after_step = [], trainer.strategy.after_step
     trainer.strategy.after_step = lambda step, *rest: passes.append(step) or after_step(step, *rest)
     assert trainer.train_step()["densify"] and passes == [800]
-    trainer.elapsed = 0.0  # without the budget the steps alone drive it, as they always did
-    assert trainer.schedule_step() == trainer.step == 3
+    by_steps = Trainer(tiny_capture, tmp_path / "steps", tiny_config(train={"max_minutes": 1.0}))
+    by_steps.elapsed = 30.0  # by default the steps alone drive the schedules, the time only ends the run
+    assert by_steps.schedule_step() == by_steps.step == 0
+
+
+def test_only_the_time_ends_a_run_whose_schedule_is_in_minutes(tiny_capture, tmp_path):
+    config = tiny_config(train={"steps": 2, "max_minutes": 0.004, "schedule": "minutes", "checkpoint_every": 0})
+    run = tmp_path / "run"
+    result = Trainer(tiny_capture, run, config).run()
+    assert result["complete"] and result["step"] > 2  # more steps than the schedule's length
+    info = json.loads((run / "run.json").read_text())
+    assert info["time_limited"] and info["final_step"] == result["step"]
+    events = read_events(run)
+    iters = [e for e in events if e["event"] == "iter"]
+    assert iters[-1]["steps"] >= iters[-1]["step"] and any(e["event"] == "time_limit" for e in events)
+    with pytest.raises(InputError, match="train.max_minutes > 0"):
+        tiny_config(train={"schedule": "minutes"})
+    with pytest.raises(InputError, match="train.schedule"):
+        tiny_config(train={"schedule": "hours"})

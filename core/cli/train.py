@@ -15,6 +15,10 @@ def add_arguments(parser):
     parser.add_argument("--preset", choices=list(PRESETS), help="a preset under the config file")
     parser.add_argument("--resume", action="store_true", help="continue the run in --out from its latest checkpoint")
     parser.add_argument("--steps", type=int, help="total optimisation steps (overrides the config)")
+    parser.add_argument("--minutes", type=_positive_minutes, metavar="M",
+                        help="train for M minutes of training time, the whole schedule run through them at "
+                             "whatever pace the machine makes (train.max_minutes = M, train.schedule = 'minutes'; "
+                             "overrides the config)")
     parser.add_argument("--seed", type=int, help="random seed (overrides the config)")
     parser.add_argument("--threads", type=int, help="CPU threads (overrides the config)")
     parser.add_argument("--batch", type=_batch_size,
@@ -77,8 +81,23 @@ def _per_rank_threads(threads: int, comm) -> int:
     return max(1, cores // local) if threads * local > cores else threads
 
 
+def _positive_minutes(text: str) -> float:
+    """An argparse type: a positive, finite number of minutes."""
+    try:
+        minutes = float(text)
+    except ValueError:
+        minutes = 0.0
+    if not 0 < minutes < float("inf"):
+        import argparse
+
+        raise argparse.ArgumentTypeError(f"must be a positive number of minutes (got {text})")
+    return minutes
+
+
 def _overrides(args) -> dict:
     train = {k: getattr(args, k) for k in ("steps", "seed", "threads", "batch") if getattr(args, k) is not None}
+    if args.minutes is not None:
+        train.update(max_minutes=args.minutes, schedule="minutes")
     overrides = {"train": train} if train else {}
     if args.refine_cameras is not None:
         overrides["cameras"] = {"refine": True, "rounds": args.refine_cameras}
@@ -122,6 +141,7 @@ def _listeners(args):
                 state["bar"].update(event["step"])
             elif event["event"] == "iter" and state["bar"] is not None:
                 bar = state["bar"]
+                bar.total = max(int(event["steps"]), 1)  # a schedule in minutes refines its estimate
                 note = f"loss {event['loss']:.4f} psnr {event['psnr']:.2f} G {event['gaussians']}"
                 bar.update(event["step"] - bar.done, note)
             elif event["event"] == "done" and event.get("metrics"):

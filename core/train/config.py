@@ -20,6 +20,10 @@ def _setting(default, doc: str):
     return dataclasses.field(default=default, metadata={"doc": doc})
 
 
+#: What the schedules follow (``train.schedule``), the default first.
+SCHEDULES = ("steps", "minutes")
+
+
 @dataclasses.dataclass
 class TrainSection:
     steps: int = _setting(4000, "optimisation steps in all")
@@ -30,9 +34,11 @@ class TrainSection:
     log_every: int = _setting(10, "steps between 'iter' progress events")
     checkpoint_every: int = _setting(500, "steps between checkpoints (0: only at the end and on a signal)")
     keep_checkpoints: int = _setting(3, "how many of the newest checkpoints to keep")
-    max_minutes: float = _setting(0.0, "finish early (avatar, metrics) after this much training time, the schedules "
-                                       "(rates, densification, SH degree, cameras, bank, resolution) run through "
-                                       "in it when it ends the run before train.steps; 0: no limit")
+    max_minutes: float = _setting(0.0, "finish early (avatar, metrics) after this much training time; 0: no limit")
+    schedule: str = _setting("steps", "what the schedules (rates, densification, SH degree, cameras, bank, "
+                                      "resolution) follow: 'steps' (train.steps) or 'minutes' (the schedule of "
+                                      "train.steps run through train.max_minutes of training time, as many steps "
+                                      "as the machine makes in it; the time ends the run)")
     resolution_start: float = _setting(1.0, "progressive resolution: the first steps train on images at this scale "
                                             "of their size, doubling in even stages to full size at "
                                             "resolution_full (1: full size throughout)")
@@ -195,6 +201,12 @@ class TrainConfig:
                     "train.max_minutes", "eval.max_frames", "eval.every", "eval.every_frames", "lr.scene_extent", "train.seed"):
             if _get(self, key) < 0:
                 raise InputError(source, key, f"must be >= 0 (got {_get(self, key)})")
+        if self.train.schedule not in SCHEDULES:
+            raise InputError(source, "train.schedule", f"must be one of {', '.join(SCHEDULES)} "
+                                                       f"(got {self.train.schedule!r})")
+        if self.train.schedule == "minutes" and self.train.max_minutes <= 0:
+            raise InputError(source, "train.schedule", "'minutes' needs train.max_minutes > 0 (the time to run "
+                                                       "the schedule through)")
         if not 0 <= self.densify.max_sh_degree <= 3:
             raise InputError(source, "densify.max_sh_degree", f"must lie in [0, 3] (got {self.densify.max_sh_degree})")
         if not 0 < self.lr.position_final_ratio <= 1:

@@ -75,7 +75,7 @@ def write_run_json(trainer: Trainer, complete: bool) -> None:
         "wall_time_s": round(trainer.elapsed, 3),
         "gaussians": len(trainer.avatar.gaussians),
         "complete": complete,
-        "time_limited": complete and trainer.step < config.train.steps,
+        "time_limited": complete and (trainer.step < config.train.steps or config.train.schedule == "minutes"),
     })
 
 

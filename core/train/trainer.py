@@ -257,13 +257,14 @@ class Trainer:
         return torch.Generator().manual_seed(hash((self.config.train.seed, self.step, index)) & (2**63 - 1))
 
     def _schedule_position(self, steps_done: int) -> float:
-        """Where the schedules stand, in steps: ``steps_done``, or with ``train.max_minutes`` the step
-        its share of the training time stands for when that is further (the time will end the run
-        first). Every schedule (rates, densification, SH degree, cameras, bank, resolution) reads
-        it, so a budget in minutes runs the whole schedule whatever the machine's speed."""
+        """Where the schedules stand, in steps: ``steps_done``, or under ``train.schedule =
+        "minutes"`` the step of ``train.steps`` that the share of ``train.max_minutes`` spent stands
+        for. Every schedule (rates, densification, SH degree, cameras, bank, resolution) reads it,
+        so a budget in minutes runs the whole schedule whatever the machine's speed."""
         cfg = self.config.train
-        by_time = self.elapsed / (cfg.max_minutes * 60) * cfg.steps if cfg.max_minutes > 0 else 0.0
-        return min(float(cfg.steps), max(float(steps_done), by_time))
+        if cfg.schedule == "minutes":
+            return min(float(cfg.steps), self.elapsed / (cfg.max_minutes * 60) * cfg.steps)
+        return float(steps_done)
 
     def schedule_step(self) -> int:
         """The step the schedules read while running step :attr:`step` (:meth:`_schedule_position`)."""
@@ -399,10 +400,13 @@ class Trainer:
         Returns ``{"step", "stopped" (signal number or None), "complete"}``. A run stopped by a
         signal or by ``until`` ends with a checkpoint; a complete one also writes the avatar,
         FLAME parameters, run.json and (when configured) the val metrics. A run that uses up
-        ``train.max_minutes`` of training time finishes early as if complete.
+        ``train.max_minutes`` of training time finishes early as if complete; under
+        ``train.schedule = "minutes"`` only the time (or a signal, or ``until``) ends it.
         """
         cfg = self.config.train
-        end = cfg.steps if until is None else min(until, cfg.steps)
+        by_minutes = cfg.schedule == "minutes"
+        last_step = math.inf if by_minutes else cfg.steps
+        end = last_step if until is None else min(until, last_step)
         self.events.emit("resume" if self.step else "start", step=self.step, steps=cfg.steps,
                          gaussians=len(self.avatar.gaussians), extent=self.extent,
                          frames=len(self.data.frames), timesteps=len(self.data.timesteps))
@@ -440,12 +444,15 @@ class Trainer:
                     self.events.emit("densify", step=self.step, **result["densify"])
                 if self.step % cfg.log_every == 0 or self.step == end:
                     rate = window_steps / max(now - window_start, 1e-9)
-                    self.events.emit("iter", step=self.step, steps=cfg.steps, **result["losses"],
+                    # under a schedule in minutes, the steps the whole budget will make at this pace
+                    steps = round(self.step / max(self.progress(), 1e-9)) if by_minutes else cfg.steps
+                    self.events.emit("iter", step=self.step, steps=max(steps, self.step), **result["losses"],
                                      gaussians=len(self.avatar.gaussians),
                                      sh_degree=self.avatar.gaussians.active_sh_degree,
                                      lr_position=position_lr(self.config, self.extent, self.schedule_step()),
                                      it_s=rate, eta_s=min((cfg.steps - self.step) / max(rate, 1e-9),
-                                                          max(budget - self.elapsed, 0.0)),
+                                                          max(budget - self.elapsed, 0.0)) if not by_minutes
+                                     else max(budget - self.elapsed, 0.0),
                                      elapsed_s=self.elapsed)
                     window_start, window_steps = now, 0
                 if self.config.eval.every and self.step % self.config.eval.every == 0 and self.comm.is_writer:
@@ -454,9 +461,9 @@ class Trainer:
                     except RenderCancelled:
                         break
                     last = time.monotonic()
-                if cfg.checkpoint_every and self.step % cfg.checkpoint_every == 0 and self.step < cfg.steps:
+                if cfg.checkpoint_every and self.step % cfg.checkpoint_every == 0 and self.step < last_step:
                     self.checkpoint()
-            if self._stop_signal is not None or (self.step < cfg.steps and not out_of_time):
+            if self._stop_signal is not None or (self.step < last_step and not out_of_time):
                 self.checkpoint()
                 self.comm.wait_for_writer()
                 if self._stop_signal is not None:
