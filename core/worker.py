@@ -128,12 +128,14 @@ def worker_environment(base: dict | None = None) -> dict:
 def train_command(python: str, capture, run, preset: str | None = None, steps: int | None = None,
                   seed: int | None = None, threads: int | None = None, resume: bool = False,
                   camera_rounds: int = 0, cameras_from_landmarks: bool = False, centres_measured: bool = False,
-                  camera_delays: bool = False, extra: list[str] | None = None, paths=()) -> list[str]:
+                  camera_delays: bool = False, minutes: float = 0.0, extra: list[str] | None = None,
+                  paths=()) -> list[str]:
     """The argument list of a training child process (see :func:`worker_command` for ``paths``);
     ``camera_rounds`` > 0 refines the cameras in that many rounds, from cameras solved from the
     capture's landmarks with ``cameras_from_landmarks``, turning them about centres that hold the
     rig with ``centres_measured`` (gauge none); ``camera_delays`` learns each camera's time offset
-    (unsynchronised cameras). A resumed run keeps its own settings."""
+    (unsynchronised cameras); ``minutes`` > 0 runs the schedule through that much training time
+    (``train --minutes``). A resumed run keeps its own settings."""
     arguments = ["train", os.fspath(capture), "--out", os.fspath(run), "--quiet"]
     if resume:
         arguments.append("--resume")
@@ -143,6 +145,7 @@ def train_command(python: str, capture, run, preset: str | None = None, steps: i
         arguments += ["--cameras-start", "landmarks"] if camera_rounds > 0 and cameras_from_landmarks else []
         arguments += ["--camera-gauge", "none"] if camera_rounds > 0 and centres_measured else []
         arguments += ["--camera-delays"] if camera_delays else []
+        arguments += ["--minutes", f"{float(minutes):g}"] if minutes > 0 else []
     for flag, value in (("--steps", steps), ("--seed", seed), ("--threads", threads)):
         if value is not None:
             arguments += [flag, str(int(value))]

@@ -137,6 +137,7 @@ class MOGAFACE_PT_training(_SubPanel, bpy.types.Panel):
         layout.prop(settings, "preset")
         wrapped_label(layout, context, preset_description(settings), icon="INFO")
         layout.prop(settings, "iterations")
+        layout.prop(settings, "minutes")
         layout.prop(settings, "seed")
         layout.prop(settings, "camera_rounds")
         if settings.camera_rounds > 0:
@@ -152,7 +153,7 @@ class MOGAFACE_PT_training(_SubPanel, bpy.types.Panel):
             return
         if operator_available("mogaface.train"):
             op = layout.operator("mogaface.train", icon="PLAY")
-            op.preset, op.steps = settings.preset, settings.iterations
+            op.preset, op.steps, op.minutes = settings.preset, settings.iterations, settings.minutes
         else:
             draw_stage_operators(layout, "training")
         if progress is not None:

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import bpy
-from bpy.props import BoolProperty, EnumProperty, IntProperty, StringProperty
+from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, StringProperty
 
 from ..operators.train import PRESET_ITEMS
 
@@ -26,6 +26,9 @@ class MoGaFaceSceneSettings(bpy.types.PropertyGroup):
     run_folder: StringProperty(name="Run", subtype="DIR_PATH", description="Folder for a training run's checkpoints")
     avatar_file: StringProperty(name="Avatar", subtype="FILE_PATH", description="A trained avatar file")
     iterations: IntProperty(name="Steps", default=0, min=0, description="Training steps (0: the preset's)")
+    minutes: FloatProperty(name="Minutes", default=0.0, min=0.0, soft_max=24 * 60.0,
+                           description="Train for this many minutes, the preset's whole schedule run through them "
+                                       "at this machine's pace (0: train the steps)")
     preset: EnumProperty(name="Preset", default="demo", description="Training settings preset (docs/training.md)",
                          items=PRESET_ITEMS)
     seed: IntProperty(name="Seed", default=0, min=0, description="Random seed of training")

@@ -12,7 +12,7 @@ from __future__ import annotations
 import os
 
 import bpy
-from bpy.props import EnumProperty, IntProperty, StringProperty
+from bpy.props import EnumProperty, FloatProperty, IntProperty, StringProperty
 
 from .common import dependencies_ready
 from .dependencies import interpreter, top_package, worker_paths
@@ -82,6 +82,8 @@ class MOGAFACE_OT_train(FollowsChildJob, bpy.types.Operator):
     run: StringProperty(name="Run", subtype="DIR_PATH", description="Run folder (empty: the scene's)")
     preset: EnumProperty(name="Preset", default="demo", items=PRESET_ITEMS)
     steps: IntProperty(name="Steps", default=0, min=0, description="Total steps (0: the preset's)")
+    minutes: FloatProperty(name="Minutes", default=0.0, min=0.0,
+                           description="Train for this many minutes, the whole schedule run through them (0: the steps)")
     seed: IntProperty(name="Seed", default=-1, min=-1, description="Random seed (-1: the scene's)")
     camera_rounds: IntProperty(name="Camera Rounds", default=-1, min=-1, max=16,
                                description="Rounds of camera refinement (-1: the scene's; 0: none)")
@@ -121,7 +123,7 @@ class MOGAFACE_OT_train(FollowsChildJob, bpy.types.Operator):
             camera_rounds=settings.camera_rounds if self.camera_rounds < 0 else self.camera_rounds,
             cameras_from_landmarks=settings.cameras_from_landmarks,
             centres_measured=settings.camera_centres_measured, camera_delays=settings.camera_delays,
-            paths=worker_paths(python), extra=launcher_arguments(launcher, resume),
+            minutes=self.minutes, paths=worker_paths(python), extra=launcher_arguments(launcher, resume),
         )
         from ..core.launcher import with_launcher
 

@@ -104,6 +104,16 @@ def test_train_operator_starts_a_data_parallel_run_through_the_launcher(trained,
     assert (settings["batch"], settings["steps"]) == (2, 2)  # an image per rank, 3 images' steps halved
 
 
+def test_a_time_budget_from_the_panel_runs_the_schedule_through_its_minutes(trained, tmp_path):
+    run = tmp_path / "run"
+    assert bpy.ops.mogaface.train(capture=str(trained["capture"]), run=str(run), preset="quick",
+                                  minutes=0.002) == {"FINISHED"}
+    assert trained["train"].last_progress().state == "done"
+    settings = tomllib.loads((run / "config.toml").read_text())["train"]
+    assert (settings["max_minutes"], settings["schedule"]) == (0.002, "minutes")
+    assert json.loads((run / "run.json").read_text())["time_limited"]
+
+
 def test_camera_rounds_train_in_one_operator_call_and_show_their_stage(trained, tmp_path):
     run = tmp_path / "run"
     assert bpy.ops.mogaface.train(capture=str(trained["capture"]), run=str(run), preset="quick", steps=3,

@@ -59,6 +59,9 @@ def test_train_command_is_an_isolated_worker(tmp_path):
     assert spec["path"] == ["/site"] and spec["name"] == "mogaface" and spec["root"] == str(package_root())
     assert command[6:] == ["train", str(tmp_path / "cap"), "--out", str(tmp_path / "run"), "--quiet",
                            "--preset", "quick", "--steps", "5"]
+    timed = train_command("/py", "cap", "run", preset="quick", minutes=90)
+    assert timed[-4:] == ["--preset", "quick", "--minutes", "90"]
+    assert "--minutes" not in train_command("/py", "cap", "run", resume=True, minutes=90)  # a run keeps its own
     rounds = train_command("/py", "cap", "run", preset="quick", camera_rounds=3)
     assert rounds[-4:] == ["--preset", "quick", "--refine-cameras", "3"]
     assert "--refine-cameras" not in train_command("/py", "cap", "run", resume=True, camera_rounds=3)
