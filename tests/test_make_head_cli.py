@@ -5,7 +5,7 @@ import subprocess
 import sys
 
 import numpy as np
-import pytest
+import torch
 
 from mogaface.core.flame.model import FlameModel
 from mogaface.core.io.image import read_image
@@ -20,10 +20,9 @@ def digest(path):
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
-@pytest.mark.parametrize("suffix", [".pkl", ".npz"])
-def test_make_head_is_deterministic_and_loads(tmp_path, suffix):
-    first, second, other = (tmp_path / f"{name}{suffix}" for name in ("a", "b", "c"))
-    for path, subject in ((first, 0), (second, 0), (other, 1)):
+def test_make_head_is_deterministic_and_loads_in_both_formats(tmp_path):
+    first, second, other, npz = tmp_path / "a.pkl", tmp_path / "b.pkl", tmp_path / "c.pkl", tmp_path / "a.npz"
+    for path, subject in ((first, 0), (second, 0), (other, 1), (npz, 0)):
         result = cli("make-head", path, "--subject", subject, "--seed", 5)
         assert result.returncode == 0, result.stderr
         assert "expression components" in result.stdout
@@ -31,6 +30,8 @@ def test_make_head_is_deterministic_and_loads(tmp_path, suffix):
     assert digest(first) != digest(other)
     model = FlameModel.load(first)
     assert 3000 <= model.n_vertices <= 8000 and model.n_expr >= 12
+    from_npz = FlameModel.load(npz)  # the same head, whichever file it was written to
+    assert torch.equal(from_npz.v_template, model.v_template) and torch.equal(from_npz.exprdirs, model.exprdirs)
 
 
 def test_make_head_refuses_unknown_suffix(tmp_path):

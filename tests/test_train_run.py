@@ -291,9 +291,8 @@ def test_a_schedule_in_minutes_runs_through_the_budget_whatever_the_speed(tiny_c
     passes, after_step = [], trainer.strategy.after_step
     trainer.strategy.after_step = lambda step, *rest: passes.append(step) or after_step(step, *rest)
     assert trainer.train_step()["densify"] and passes == [800]
-    by_steps = Trainer(tiny_capture, tmp_path / "steps", tiny_config(train={"max_minutes": 1.0}))
-    by_steps.elapsed = 30.0  # by default the steps alone drive the schedules, the time only ends the run
-    assert by_steps.schedule_step() == by_steps.step == 0
+    trainer.config.train.schedule = "steps"  # the default: the steps alone drive it, the time only ends the run
+    assert trainer.schedule_step() == trainer.step == 3
 
 
 def test_only_the_time_ends_a_run_whose_schedule_is_in_minutes(tiny_capture, tmp_path):
