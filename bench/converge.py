@@ -172,7 +172,6 @@ def train_ranks(capture: pathlib.Path, run: pathlib.Path, variant: str, minutes:
 def run(threads: int = 2, quick: bool = False, minutes: float | None = None, work: str | None = None,
         ranks: int | None = None, variants: str | None = None, config: str | None = None) -> dict:
     from mogaface.core.data.capture import Capture
-    from mogaface.core.train import config as config_module
 
     from .plot import line_plots
 
@@ -191,8 +190,8 @@ def run(threads: int = 2, quick: bool = False, minutes: float | None = None, wor
     capture, made_s = ensure_capture(folder / "capture", settings)
     opened = Capture.open(capture)
     load_before = os.getloadavg()
-    if config is not None:
-        config_module.resolve(None, config)  # a bad file fails here, before the first variant trains
+    if config is not None:  # a bad file fails here, before the first variant trains
+        variant_config(names[0], minutes, threads, ranks, config)
     variants = {}
     for name in names:
         label = name + (f"_{pathlib.Path(config).stem}" if config else "") + (f"_{ranks}ranks" if ranks > 1 else "")

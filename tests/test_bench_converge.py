@@ -49,7 +49,7 @@ def test_the_curve_is_scored_as_training_goes_and_the_capture_is_reused(tmp_path
 
 def test_a_variant_trains_on_ranks_with_one_image_each_under_a_settings_file(tmp_path):
     out, schedule = tmp_path / "ranks.json", tmp_path / "early_sh.toml"
-    schedule.write_text("[densify]\nsh_degree_interval = 40\n")
+    schedule.write_text("[densify]\nsh_degree_interval = 40\n[train]\nschedule = 'minutes'\n")  # the bench's minutes
     assert main(["bench", "converge", "--quick", "--threads", "2", "--ranks", "2", "--variants", "finetune",
                  "--config", str(schedule), "--minutes", "0.05", "--work", str(tmp_path / "work"),
                  "--out", str(out)]) == 0
@@ -57,6 +57,7 @@ def test_a_variant_trains_on_ranks_with_one_image_each_under_a_settings_file(tmp
     assert report["ranks"] == 2 and list(report["variants"]) == ["finetune_early_sh_2ranks"]
     settings = tomllib.loads((tmp_path / "work" / "runs" / "finetune_early_sh_2ranks" / "config.toml").read_text())
     assert settings["densify"]["sh_degree_interval"] == 20 and settings["train"]["batch"] == 2  # the file's, halved
+    assert settings["train"]["schedule"] == "minutes"
     variant = report["variants"]["finetune_early_sh_2ranks"]
     assert (variant["batch"], variant["threads_per_rank"]) == (2, 1)
     assert abs(variant["images_per_s"] - 2 * variant["it_s"]) < 0.01
