@@ -130,8 +130,9 @@ def train_variant(capture: pathlib.Path, run: pathlib.Path, config, every: float
         trainer.events.close()
     if not writer:
         return {}
-    trainer.next_score = trainer.elapsed  # the state the budget ends on
-    trainer.score()
+    if trainer.curve[-1]["step"] != trainer.step:  # the state the budget ends on, unless just scored
+        trainer.next_score = trainer.elapsed
+        trainer.score()
     return {"curve": trainer.curve, "steps": result["step"], "training_minutes": round(trainer.elapsed / 60, 3),
             "it_s": round(result["step"] / max(trainer.elapsed, 1e-9), 3), "batch": config.train.batch,
             "images_per_s": round(result["step"] * config.train.batch / max(trainer.elapsed, 1e-9), 3),

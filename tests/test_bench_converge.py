@@ -25,6 +25,7 @@ def test_the_curve_is_scored_as_training_goes_and_the_capture_is_reused(tmp_path
         assert len(curve) >= 2, name
         minutes = [point["minutes"] for point in curve]
         assert minutes == sorted(minutes) and minutes[0] == 0.0
+        assert [p["step"] for p in curve] == sorted({p["step"] for p in curve})  # no state scored twice
         assert minutes[-1] == variant["training_minutes"] <= report["minutes"] + 0.05  # the budget, give a step
         assert all(5 < p["psnr"] < 60 and 0 < p["ssim"] <= 1 and 0 <= p["lpips"] < 1 for p in curve)
         assert curve[-1]["psnr"] > curve[0]["psnr"]  # training helps the held-out view
