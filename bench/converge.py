@@ -20,6 +20,10 @@ trains them under those settings (a schedule to compare; the curve is named afte
 Prints JSON (the curve per variant, steps per second, Gaussians, the load average) and writes
 ``converge.png`` (the curves against minutes) in the work folder. ``--quick``: a 96×66 capture of
 4 views, a few seconds per variant (a smoke run).
+
+``--compare A.json,B.json,…`` trains nothing: it sets the curves of earlier reports side by side
+(:func:`compare_reports`): one ``converge.png`` of them all and a table of where each ends and
+when it first reaches the PSNR the first curve ends on (the baseline's).
 """
 
 from __future__ import annotations
@@ -99,6 +103,65 @@ def _scored_trainer(every_s: float, frames: int):
     return ScoredTrainer
 
 
+def minutes_to_reach(curve: list[dict], psnr: float) -> float | None:
+    """The training minutes at which ``curve`` first reaches ``psnr`` (linear between its scores),
+    or None if it never does."""
+    for before, after in zip(curve, curve[1:]):
+        if after["psnr"] >= psnr:
+            if before["psnr"] >= psnr:
+                return before["minutes"]
+            share = (psnr - before["psnr"]) / (after["psnr"] - before["psnr"])
+            return before["minutes"] + share * (after["minutes"] - before["minutes"])
+    return curve[0]["minutes"] if curve and curve[0]["psnr"] >= psnr else None
+
+
+def compare_reports(paths: list[str], work: pathlib.Path) -> dict:
+    """The curves of earlier ``bench converge`` reports together: ``converge.png`` in ``work`` and
+    a markdown table, the first report's first curve the reference whose final PSNR every curve
+    is timed to."""
+    from mogaface.core.errors import InputError
+
+    from .plot import line_plots
+
+    curves = {}
+    for path in paths:
+        try:
+            report = json.loads(pathlib.Path(path).read_text(encoding="utf-8"))
+            variants = report["variants"]
+            for name, variant in variants.items():
+                if not variant["curve"]:
+                    raise KeyError("curve")
+                curves[name if name not in curves else f"{name} ({pathlib.Path(path).stem})"] = {
+                    **variant, "load_average": [report["load_average_before"], report["load_average_after"]]}
+        except (OSError, ValueError, KeyError, TypeError, AttributeError) as error:
+            raise InputError(path, "variants", f"expected a bench converge report with its curves ({error})") from None
+    reference_name, reference = next(iter(curves.items()))
+    target = reference["curve"][-1]["psnr"]
+    rows = []
+    for name, variant in curves.items():
+        end = variant["curve"][-1]
+        reached = minutes_to_reach(variant["curve"], target)
+        rows.append({"curve": name, "training_minutes": variant["training_minutes"], "steps": variant["steps"],
+                     "gaussians": variant["gaussians"], "psnr": end["psnr"], "ssim": end["ssim"],
+                     "lpips": end["lpips"], "delta_psnr": round(end["psnr"] - target, 4),
+                     "minutes_to_reference": None if reached is None else round(reached, 2),
+                     "load_average": variant["load_average"]})
+    lines = [f"| curve | training minutes | steps | Gaussians | PSNR / SSIM / LPIPS at the end | Δ PSNR vs "
+             f"{reference_name} | minutes to {target:.2f} dB |", "|---|---:|---:|---:|---|---:|---:|"]
+    for row in rows:
+        reached = "not reached" if row["minutes_to_reference"] is None else f"{row['minutes_to_reference']:.1f}"
+        lines.append(f"| {row['curve']} | {row['training_minutes']:.1f} | {row['steps']} | {row['gaussians']} | "
+                     f"{row['psnr']:.2f} / {row['ssim']:.4f} / {row['lpips']:.4f} | {row['delta_psnr']:+.2f} | "
+                     f"{reached} |")
+    work.mkdir(parents=True, exist_ok=True)
+    plot = work / "converge.png"
+    line_plots(plot, [{"title": f"held-out camera {metric.upper()}", "x_label": "minutes of training",
+                       "series": {name: [(p["minutes"], p[metric]) for p in v["curve"]] for name, v in curves.items()}}
+                      for metric in ("psnr", "ssim", "lpips")])
+    return {"reference": reference_name, "reference_psnr": target, "rows": rows, "plot": str(plot),
+            "markdown": "\n".join(lines)}
+
+
 def variant_config(variant: str, minutes: float, threads: int, ranks: int = 1, config_path: str | None = None):
     """The default settings (under the TOML at ``config_path``, if any) with the ladder's
     ``variant``, ``minutes`` of training time and, for ``ranks`` > 1, a batch of one image per rank
@@ -171,12 +234,15 @@ def train_ranks(capture: pathlib.Path, run: pathlib.Path, variant: str, minutes:
 
 
 def run(threads: int = 2, quick: bool = False, minutes: float | None = None, work: str | None = None,
-        ranks: int | None = None, variants: str | None = None, config: str | None = None) -> dict:
+        ranks: int | None = None, variants: str | None = None, config: str | None = None,
+        compare: str | None = None) -> dict:
     from mogaface.core.data.capture import Capture
 
     from .plot import line_plots
 
     folder = pathlib.Path(work or WORK)
+    if compare is not None:
+        return compare_reports([path for path in compare.split(",") if path], folder)
     names = tuple(variants.split(",")) if variants else VARIANTS
     unknown = [name for name in names if name not in VARIANTS]
     if unknown:

@@ -39,11 +39,22 @@ def test_the_curve_is_scored_as_training_goes_and_the_capture_is_reused(tmp_path
     plot = np.asarray(Image.open(report["plot"]))
     assert plot.ndim == 3 and (np.abs(plot.astype(int) - [31, 119, 180]).sum(-1) < 30).any()  # a curve drawn
     capsys.readouterr()
+    second = tmp_path / "again.json"
     assert main(["bench", "converge", "--quick", "--threads", "1", "--work", str(work), "--minutes", "0.02",
-                 "--variants", "finetune"]) == 0
+                 "--variants", "finetune", "--out", str(second)]) == 0
     again = json.loads(capsys.readouterr().out)
     assert again["capture"]["made_in_s"] == 0.0 and again["minutes"] == 0.02  # the capture reused
     assert list(again["variants"]) == ["finetune"]
+    # the curves of both reports side by side, timed to the first one's final PSNR
+    assert main(["bench", "converge", "--compare", f"{out},{second}", "--work", str(tmp_path / "cmp"),
+                 "--out", str(tmp_path / "cmp.json")]) == 0
+    compared = json.loads((tmp_path / "cmp.json").read_text())
+    rows = {row["curve"]: row for row in compared["rows"]}
+    assert list(rows) == ["finetune", "full_prior", "finetune (again)"] and compared["reference"] == "finetune"
+    assert rows["finetune"]["delta_psnr"] == 0.0
+    assert rows["finetune"]["minutes_to_reference"] <= report["variants"]["finetune"]["training_minutes"]
+    assert "| finetune (again) |" in (tmp_path / "cmp.md").read_text() and (tmp_path / "cmp" / "converge.png").is_file()
+    assert main(["bench", "converge", "--compare", str(tmp_path / "cmp.json")]) == 2  # not a converge report
     assert main(["bench", "train", "--minutes", "3"]) == 2
     assert main(["bench", "converge", "--minutes", "0"]) == 2
 
@@ -65,3 +76,13 @@ def test_a_variant_trains_on_ranks_with_one_image_each_under_a_settings_file(tmp
     curve = variant["curve"]
     assert len(curve) >= 2 and curve[0]["minutes"] == 0.0 and curve[-1]["step"] == variant["steps"] > 0
     assert main(["bench", "converge", "--quick", "--variants", "nope", "--work", str(tmp_path / "work")]) == 2
+
+
+def test_minutes_to_reach_interpolates_between_scores():
+    from mogaface.bench.converge import minutes_to_reach
+
+    curve = [{"minutes": 0.0, "psnr": 15.0}, {"minutes": 5.0, "psnr": 25.0}, {"minutes": 10.0, "psnr": 24.0},
+             {"minutes": 15.0, "psnr": 29.0}]
+    assert minutes_to_reach(curve, 20.0) == 2.5 and minutes_to_reach(curve, 25.0) == 5.0
+    assert minutes_to_reach(curve, 26.0) == 12.0  # the first crossing, after the dip
+    assert minutes_to_reach(curve, 30.0) is None and minutes_to_reach(curve, 10.0) == 0.0

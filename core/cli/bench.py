@@ -32,7 +32,7 @@ OPTION_BENCHMARKS = {"scale": ("train", "step"),
                      "fit_steps": ("refiner",),
                      "split": ("refiner", "refiner_search", "refiner_training_search"), "minutes": ("converge",),
                      "work": ("converge", "batch"), "ranks": ("converge",), "variants": ("converge",),
-                     "config": ("converge",)}
+                     "config": ("converge",), "compare": ("converge",)}
 
 
 def add_arguments(parser):
@@ -61,6 +61,9 @@ def add_arguments(parser):
     parser.add_argument("--variants", help="converge only: comma-separated subset of finetune,full_prior")
     parser.add_argument("--config", help="converge only: train the variants under this TOML settings file (a "
                                          "schedule to compare; its curve is named after the file)")
+    parser.add_argument("--compare", metavar="A.json,B.json",
+                        help="converge only: train nothing; set the curves of these earlier reports side by side "
+                             "(one plot, a table timed to the PSNR the first one ends on)")
     parser.add_argument("--scale", choices=["small", "real"],
                         help="train, step: 'real' times 802x550 images, 16 cameras, 100k Gaussians "
                              "(train: the full method; step: both variants stage by stage)")
