@@ -86,3 +86,15 @@ def test_minutes_to_reach_interpolates_between_scores():
     assert minutes_to_reach(curve, 20.0) == 2.5 and minutes_to_reach(curve, 25.0) == 5.0
     assert minutes_to_reach(curve, 26.0) == 12.0  # the first crossing, after the dip
     assert minutes_to_reach(curve, 30.0) is None and minutes_to_reach(curve, 10.0) == 0.0
+
+
+def test_the_measured_schedules_load_as_the_bench_gives_them():
+    import pathlib
+
+    from mogaface.bench.converge import variant_config
+
+    folder = pathlib.Path(__file__).resolve().parents[1] / "bench" / "schedules"
+    schedules = {path.stem: variant_config("finetune", 15.0, 2, 1, str(path)) for path in folder.glob("*.toml")}
+    assert set(schedules) == {"budget_15", "budget_60"}
+    assert all(c.train.schedule == "minutes" and c.train.resolution_start == 0.5 for c in schedules.values())
+    assert schedules["budget_60"].train.steps == 4 * schedules["budget_15"].train.steps
