@@ -45,7 +45,7 @@ MINUTES = 60.0
 EVERY = 5.0  # minutes of training time between scores
 SCORED_FRAMES = 12
 VARIANTS = ("finetune", "full_prior")
-QUICK = {"size": 96, "height": 66, "views": 4, "timesteps": 20, "minutes": 0.12, "every": 0.05, "frames": 3}
+QUICK = {"size": 96, "height": 66, "views": 4, "timesteps": 20, "minutes": 0.08, "every": 0.04, "frames": 3}
 WORK = "out/bench_converge"
 
 
