@@ -42,8 +42,8 @@ class TrainSection:
     resolution_start: float = _setting(1.0, "progressive resolution: the first steps train on images at this scale "
                                             "of their size, doubling in even stages to full size at "
                                             "resolution_full (1: full size throughout)")
-    resolution_full: float = _setting(0.5, "fraction of the training (of train.steps, or of train.max_minutes "
-                                           "when that is the nearer end) from which the images are at full size")
+    resolution_full: float = _setting(0.5, "fraction of the schedule (of train.steps; under schedule = 'minutes', "
+                                           "of train.max_minutes) from which the images are at full size")
 
 
 @dataclasses.dataclass
