@@ -446,13 +446,13 @@ class Trainer:
                     rate = window_steps / max(now - window_start, 1e-9)
                     # under a schedule in minutes, the steps the whole budget will make at this pace
                     steps = round(self.step / max(self.progress(), 1e-9)) if by_minutes else cfg.steps
+                    budget_left = max(budget - self.elapsed, 0.0)
+                    eta = budget_left if by_minutes else min((cfg.steps - self.step) / max(rate, 1e-9), budget_left)
                     self.events.emit("iter", step=self.step, steps=max(steps, self.step), **result["losses"],
                                      gaussians=len(self.avatar.gaussians),
                                      sh_degree=self.avatar.gaussians.active_sh_degree,
                                      lr_position=position_lr(self.config, self.extent, self.schedule_step()),
-                                     it_s=rate, eta_s=min((cfg.steps - self.step) / max(rate, 1e-9),
-                                                          max(budget - self.elapsed, 0.0)) if not by_minutes
-                                     else max(budget - self.elapsed, 0.0),
+                                     it_s=rate, eta_s=eta,
                                      elapsed_s=self.elapsed)
                     window_start, window_steps = now, 0
                 if self.config.eval.every and self.step % self.config.eval.every == 0 and self.comm.is_writer:
