@@ -14,6 +14,10 @@ def _terminated_while_starting(number, frame):  # nothing is written yet: leave 
 
 
 signal.signal(signal.SIGTERM, _terminated_while_starting)  # core/cli's main() takes over from here
+# Ctrl-C (and the Blender worker's cancel, a SIGINT) stops every command. A child of a script's
+# background job inherits SIGINT ignored, and Python then installs no handler: a SIGINT before the
+# trainer's own handler would be lost, and a cancelled run would train on.
+signal.signal(signal.SIGINT, signal.default_int_handler)
 
 # ``python -m`` puts the working directory first on sys.path. This package is imported by now,
 # so nothing else may come from there (a stray numpy.py beside a capture would shadow numpy).

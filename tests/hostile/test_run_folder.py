@@ -139,14 +139,18 @@ def test_corrupt_image_mid_run_keeps_the_steps_done(copies, tmp_path):
     assert load_checkpoint(latest_checkpoint(run / "checkpoints"))["step"] == (done[-1] if done else 0)
 
 
-def _train_process(copies, tmp_path):
+def _train_process(copies, tmp_path, sigint_ignored: bool = False):
+    """``train`` in a child; ``sigint_ignored``: started as a script's background job is (SIGINT
+    ignored, inherited across exec)."""
     config = tmp_path / "long.toml"
     config.write_text(C.to_toml(C.resolve(overrides={"train": {"steps": 100000, "threads": 1, "checkpoint_every": 0},
                                                      "eval": {"at_end": False, "lpips": False}})))
     out = tmp_path / "sig"
     command = [sys.executable, "-m", "mogaface", "train", str(copies["capture"]), "--out", str(out), "--config",
                str(config), "--quiet"]
-    return subprocess.Popen(command, stderr=subprocess.PIPE, text=True), out
+    disposition = signal.SIG_IGN if sigint_ignored else signal.SIG_DFL
+    return subprocess.Popen(command, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, disposition)), out
 
 
 def _signalled(process, when, *signals) -> str:
@@ -165,6 +169,22 @@ def _signalled(process, when, *signals) -> str:
 def test_interrupt_during_start_up_exits_quietly(copies, tmp_path):
     process, _ = _train_process(copies, tmp_path)
     err = _signalled(process, lambda: time.sleep(1.0), signal.SIGINT)  # importing torch and numba
+    assert process.returncode == 128 + signal.SIGINT, err
+    assert "Traceback" not in err
+
+
+def test_interrupt_while_the_trainer_starts_is_not_lost_when_the_parent_ignores_sigint(copies, tmp_path):
+    """A script's ``&`` job (Blender's worker may be one) hands its children SIGINT ignored; the
+    cancel must still stop the run when it lands after the imports, before the trainer's handler."""
+    process, out = _train_process(copies, tmp_path, sigint_ignored=True)
+
+    def run_folder_made():  # the trainer is starting: the imports are done
+        deadline = time.monotonic() + 120
+        while not out.exists():
+            assert process.poll() is None and time.monotonic() < deadline, process.communicate()
+            time.sleep(0.02)
+
+    err = _signalled(process, run_folder_made, signal.SIGINT)
     assert process.returncode == 128 + signal.SIGINT, err
     assert "Traceback" not in err
 
