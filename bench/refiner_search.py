@@ -111,7 +111,7 @@ def coordinate_search(grid: dict, start: dict, evaluate, rounds: int, min_gain: 
             if not reused:
                 known[key] = evaluate(settings)  # (an evaluate that keeps its results may have stored it already)
             tried[key] = {"settings": dict(settings), **known[key], "reused": reused}
-            shown = " ".join(f"{k}={v:g}" for k, v in settings.items())
+            shown = " ".join(f"{k}={v:g}" if isinstance(v, (int, float)) else f"{k}={v}" for k, v in settings.items())
             print(f"{'kept' if reused else 'tried'} {shown}: {tried[key]['psnr_db']:.3f} dB", file=sys.stderr, flush=True)
         return tried[key]["psnr_db"]
 

@@ -11,6 +11,8 @@ from . import step_counts
 BENCHMARKS = {
     "batch": "quality per image seen at batch 1, 2, 4 and 8 (the data-parallel batch), under each learning-rate rule",
     "cancel_latency": "SIGINT to exit while a raster kernel runs, at the largest allowed frame and in train",
+    "camera_search": "choose camera refinement's settings (rates, start, gauge, rounds) on validation frames: a "
+                     "training run per setting tried on a capture whose cameras are off",
     "converge": "time to quality at a real capture's scale (802x550, 16 cameras): the held-out camera's PSNR, SSIM "
                 "and LPIPS against minutes of training, Freeze + fine-tuning and the full method",
     "distributed": "data-parallel training: ranks against threads, all-reduce volume and time per step",
@@ -30,9 +32,10 @@ BENCHMARKS = {
 OPTION_BENCHMARKS = {"scale": ("train", "step"),
                      "avatar": ("viewport", "refiner", "refiner_search", "refiner_training_search"),
                      "fit_steps": ("refiner",),
-                     "split": ("refiner", "refiner_search", "refiner_training_search"), "minutes": ("converge",),
-                     "work": ("converge", "batch"), "ranks": ("converge",), "variants": ("converge",),
-                     "config": ("converge",), "compare": ("converge",)}
+                     "split": ("refiner", "refiner_search", "refiner_training_search", "camera_search"),
+                     "minutes": ("converge",), "work": ("converge", "batch", "camera_search"),
+                     "ranks": ("converge",), "variants": ("converge",), "config": ("converge",),
+                     "compare": ("converge",)}
 
 
 def add_arguments(parser):
@@ -50,11 +53,12 @@ def add_arguments(parser):
                              "refiner's time is also set against the length that matches its PSNR")
     parser.add_argument("--split", choices=SCORE_SPLITS,
                         help="refiner: score the test frames (default) or the validation sequence's; "
-                             "refiner_search, refiner_training_search: validation only")
+                             "refiner_search, refiner_training_search, camera_search: validation only")
     parser.add_argument("--minutes", type=float,
                         help="converge only: minutes of training time per variant (default 60)")
-    parser.add_argument("--work", help="converge, batch: folder for the capture (made once, reused) and runs "
-                                       "(default out/bench_converge, out/bench_batch)")
+    parser.add_argument("--work", help="converge, batch, camera_search: folder for the capture (made once, reused) "
+                                       "and runs (default out/bench_converge, out/bench_batch, "
+                                       "out/bench_camera_search)")
     parser.add_argument("--ranks", type=int,
                         help="converge only: train each variant on this many torchrun ranks of this machine, the "
                              "threads shared among them, one image per rank a step (square-root rule)")

@@ -1,0 +1,117 @@
+"""Choosing camera refinement's settings on validation frames.
+
+``python -m mogaface bench camera_search [--work DIR]`` makes a capture whose cameras are off
+(as the camera tables' ``cap_cal``: 128², 48 timesteps, 1° and 5 mm per axis; made once, reused)
+and trains Freeze with camera refinement (``--preset demo``, :data:`STEPS` steps a round) per
+setting tried. Each try is scored on the validation sequence's self-reenactment frames: the
+training cameras, at their true poses as every camera score is, on frames no step trained on. The
+search goes one setting at a time from today's recommended settings (three rounds, the config's
+rates, start and gauge), a new value kept only above :data:`.refiner_search.MIN_GAIN_DB`. Each
+try's run folder stays in ``DIR/runs`` (a stopped search resumes; a wider grid trains only what
+is new), and its camera error against the truth is reported beside its score, never chosen on.
+The test table (novel view on other noise draws) is then measured once with what was chosen.
+``--quick``: a tiny capture and a two-value grid (a smoke run).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import pathlib
+
+from .refiner_search import coordinate_search
+
+WORK = "out/bench_camera_search"
+STEPS = 1800
+SCORED_FRAMES = 12
+CAMERA_GRID = {"rotation_lr": (1e-3, 2e-3, 5e-3), "begin": (0.3, 0.45, 0.6), "gauge": ("rigid", "mean"),
+               "rounds": (1, 2, 3)}
+SEARCH_ROUNDS = 2
+QUICK = {"size": 64, "views": 4, "timesteps": 24, "steps": 20, "frames": 2,
+         "grid": {"rotation_lr": (1e-3, 2e-3)}, "start": {"rounds": 1}}
+
+
+def capture_settings(quick: bool):
+    from mogaface.core.data.capture_settings import CaptureSettings
+
+    if quick:
+        return CaptureSettings(views=QUICK["views"], timesteps=QUICK["timesteps"], size=QUICK["size"],
+                               supersample=1, camera_noise=1.0)
+    return CaptureSettings(size=128, timesteps=48, camera_noise=1.0, seed=0)
+
+
+def try_name(settings: dict) -> str:
+    return "_".join(f"{k}{v:g}" if isinstance(v, (int, float)) else f"{k}-{v}" for k, v in sorted(settings.items()))
+
+
+def try_config(settings: dict, threads: int, steps: int):
+    """Freeze under the demo preset with camera refinement set as ``settings``."""
+    from mogaface.core.train import config as config_module
+
+    return config_module.resolve("demo", None, {
+        "train": {"steps": steps, "threads": threads, "seed": 0},
+        "eval": {"at_end": False},
+        "cameras": {"refine": True, **settings}})
+
+
+def trained_run(capture: pathlib.Path, folder: pathlib.Path, settings: dict, threads: int, steps: int) -> pathlib.Path:
+    """The try's run folder, trained through ``train`` (its rounds included); a complete run is
+    reused, a stopped one resumed."""
+    from mogaface.core.cli import main
+    from mogaface.core.io.atomic import write_text
+    from mogaface.core.train import config as config_module
+
+    run = folder / try_name(settings)
+    info = run / "run.json"
+    if info.is_file() and json.loads(info.read_text(encoding="utf-8")).get("complete"):
+        return run
+    if run.exists():
+        arguments = ["--resume"]
+    else:
+        config_file = folder / f"{run.name}.toml"
+        write_text(config_file, config_module.to_toml(try_config(settings, threads, steps)))
+        arguments = ["--config", str(config_file)]
+    code = main(["train", str(capture), "--out", str(run), "--quiet", *arguments])
+    if code:
+        raise RuntimeError(f"training {run} ended with status {code}")
+    return run
+
+
+def scored_try(run: pathlib.Path, frames: int) -> dict:
+    """The run's validation self-reenactment scores (the tracked parameters, as Freeze renders) and
+    its cameras' error against the truth."""
+    from mogaface.core.workflows.ablation import score_variant
+
+    scores = score_variant(run, frames, False, (), split="validation")
+    tracked = scores["protocols"]["self_reenactment"]["tracked"]
+    refined = scores["cameras"].get("refined", {})
+    return {"psnr_db": round(tracked["psnr"], 4), "ssim": round(tracked["ssim"], 4),
+            "rotation_deg": round(refined["rotation_deg"], 4) if refined else None,
+            "position_mm": round(refined["position_mm"], 3) if refined else None,
+            "calibrated_rotation_deg": round(scores["cameras"]["calibrated_refined_cameras"]["rotation_deg"], 4),
+            "run": str(run)}
+
+
+def run(threads: int = 2, quick: bool = False, work: str | None = None, split: str = "validation") -> dict:
+    from mogaface.core.errors import InputError
+    from mogaface.core.train.config import CamerasSection
+
+    from .converge import ensure_capture
+
+    if split != "validation":
+        raise InputError(None, "split", "settings are chosen on the validation frames only")
+    folder = pathlib.Path(work or WORK)
+    capture, made_s = ensure_capture(folder / "capture", capture_settings(quick))
+    steps, frames = (QUICK["steps"], QUICK["frames"]) if quick else (STEPS, SCORED_FRAMES)
+    grid = QUICK["grid"] if quick else CAMERA_GRID
+    defaults = CamerasSection()
+    start = {"rotation_lr": defaults.rotation_lr, "begin": defaults.begin, "gauge": defaults.gauge, "rounds": 3,
+             **(QUICK["start"] if quick else {})}
+    runs = folder / ("runs_quick" if quick else "runs")
+    load_before = os.getloadavg()
+    found = coordinate_search(grid, start, lambda settings: scored_try(
+        trained_run(capture, runs, settings, threads, steps), frames), SEARCH_ROUNDS)
+    return {"split": "validation", "capture": str(capture), "capture_made_s": round(made_s, 1),
+            "steps_per_round": steps, "scored_frames": frames, "threads": threads, "start": start, **found,
+            "load_average_before": [round(x, 2) for x in load_before],
+            "load_average_after": [round(x, 2) for x in os.getloadavg()]}

@@ -1,0 +1,37 @@
+"""``bench camera_search`` (a smoke run at its quick size): a run trained per setting tried on a
+capture whose cameras are off, scored on the validation frames only, its camera error beside the
+score; a second search trains nothing again."""
+
+import json
+
+from mogaface.core.cli import main
+
+
+def test_each_setting_trains_once_and_is_scored_on_validation_frames(tmp_path, capsys):
+    work, out = tmp_path / "work", tmp_path / "search.json"
+    assert main(["bench", "camera_search", "--quick", "--threads", "1", "--work", str(work), "--out", str(out)]) == 0
+    report = json.loads(out.read_text())
+    tried = report["tried"]
+    assert tried[0]["settings"] == report["start"]
+    assert sorted(t["settings"]["rotation_lr"] for t in tried) == [1e-3, 2e-3]  # the quick grid, each once
+    for entry in tried:
+        run = entry["run"]
+        assert json.loads(open(f"{run}/run.json").read())["complete"]
+        scores = json.loads(open(f"{run}/ablation_scores_validation.json").read())["scores"]
+        assert scores["split"] == "validation" and list(scores["protocols"]) == ["self_reenactment"]
+        assert abs(scores["protocols"]["self_reenactment"]["tracked"]["psnr"] - entry["psnr_db"]) < 1e-3
+        assert 5 < entry["psnr_db"] < 60
+        assert 0 <= entry["rotation_deg"] < 10 and entry["calibrated_rotation_deg"] > 0.5  # the capture's 1° per axis
+    best = max(t["psnr_db"] for t in tried)
+    assert report["chosen"] in [t["settings"] for t in tried]
+    assert report["chosen_psnr_db"] == best or best - report["chosen_psnr_db"] <= 0.05  # a new value needs the margin
+
+    stamps = {t["run"]: (work / t["run"] / "events.jsonl").stat().st_mtime_ns for t in tried}
+    capsys.readouterr()
+    assert main(["bench", "camera_search", "--quick", "--threads", "1", "--work", str(work)]) == 0
+    again = json.loads(capsys.readouterr().out)
+    assert [t["psnr_db"] for t in again["tried"]] == [t["psnr_db"] for t in tried]
+    assert {t["run"]: (work / t["run"] / "events.jsonl").stat().st_mtime_ns for t in tried} == stamps
+
+    assert main(["bench", "camera_search", "--quick", "--work", str(work), "--split", "test"]) == 2
+    assert "validation frames only" in capsys.readouterr().err
