@@ -38,6 +38,7 @@ def _runs(batches, rules) -> list[tuple[int, str]]:
 def train_one(capture: pathlib.Path, run: pathlib.Path, batch: int, rule: str, seed: int, images: int,
               frames: int, threads: int) -> dict:
     """Train (or reuse) one run; its scores at the held-out camera and what it cost."""
+    from mogaface.core.run.folder import is_complete
     from mogaface.core.run.names import METRICS_TRAIN_END_FILE
     from mogaface.core.train import config as config_module
     from mogaface.core.train.trainer import Trainer
@@ -47,7 +48,7 @@ def train_one(capture: pathlib.Path, run: pathlib.Path, batch: int, rule: str, s
     config = config_module.for_batch(base, batch, rule)
     info, metrics = run / "run.json", run / METRICS_TRAIN_END_FILE
     same = (run / "config.toml").is_file() and (run / "config.toml").read_text() == config_module.to_toml(config)
-    if not (same and info.is_file() and metrics.is_file() and json.loads(info.read_text()).get("complete")):
+    if not (same and metrics.is_file() and is_complete(run)):
         import shutil
 
         shutil.rmtree(run, ignore_errors=True)

@@ -15,7 +15,6 @@ The test table (novel view on other noise draws) is then measured once with what
 
 from __future__ import annotations
 
-import json
 import os
 import pathlib
 
@@ -59,11 +58,11 @@ def trained_run(capture: pathlib.Path, folder: pathlib.Path, settings: dict, thr
     reused, a stopped one resumed."""
     from mogaface.core.cli import main
     from mogaface.core.io.atomic import write_text
+    from mogaface.core.run.folder import is_complete
     from mogaface.core.train import config as config_module
 
     run = folder / try_name(settings)
-    info = run / "run.json"
-    if info.is_file() and json.loads(info.read_text(encoding="utf-8")).get("complete"):
+    if is_complete(run):
         return run
     if run.exists():
         arguments = ["--resume"]

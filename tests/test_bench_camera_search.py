@@ -35,3 +35,4 @@ def test_each_setting_trains_once_and_is_scored_on_validation_frames(tmp_path, c
 
     assert main(["bench", "camera_search", "--quick", "--work", str(work), "--split", "test"]) == 2
     assert "validation frames only" in capsys.readouterr().err
+

@@ -44,6 +44,17 @@ def load_flame_file(path: str | os.PathLike) -> dict[str, np.ndarray]:
     return layout.normalize_flame_params(load_npz(path, MAX_PARAM_FILE_BYTES), path)
 
 
+def is_complete(root: str | os.PathLike) -> bool:
+    """Whether the run at ``root`` trained to its end (``run.json``'s ``complete``): a finished run a
+    workflow reuses instead of training again. No or an unreadable ``run.json``: not complete."""
+    import json
+
+    try:
+        return bool(json.loads((pathlib.Path(root) / names.RUN_FILE).read_text(encoding="utf-8")).get("complete"))
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
 class RunFolder:
     """A finished run, opened: checks that it holds an avatar and that its ``run.json`` is sound.
 

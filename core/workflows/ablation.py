@@ -16,6 +16,7 @@ import pathlib
 
 import numpy as np
 
+from ..run.folder import is_complete
 from ..train.config import FULL_METHOD
 
 
@@ -52,18 +53,13 @@ def merge_sections(a: dict, b: dict) -> dict:
     return out
 
 
-def _complete(run_dir: pathlib.Path) -> bool:
-    path = run_dir / "run.json"
-    return path.exists() and bool(json.loads(path.read_text(encoding="utf-8")).get("complete"))
-
-
 def train_variant(capture, run_dir: pathlib.Path, name: str, preset, config_path, overrides, progress) -> None:
     """Train one variant (reusing a complete run, resuming an interrupted one)."""
     from ..train import config as config_module
     from ..train.checkpoint import latest_checkpoint
     from ..train.trainer import Trainer
 
-    if _complete(run_dir):
+    if is_complete(run_dir):
         return
     resume = latest_checkpoint(run_dir / "checkpoints") is not None
     config = config_module.resolve(preset, config_path, merge_sections(overrides or {}, LADDER[name]))
@@ -265,7 +261,7 @@ def _write_results(out: pathlib.Path, results: dict, scored: dict) -> dict:
     for name in LADDER:
         seeds = {**earlier.get(name, {}).get("seeds", {}), **scored.get(name, {})}
         seeds = {s: v for s, v in sorted(seeds.items(), key=lambda kv: int(kv[0]))
-                 if _complete(run_folder(out, name, s))}
+                 if is_complete(run_folder(out, name, s))}
         if seeds:
             merged[name] = {"label": LABELS[name], "settings": LADDER[name], "seeds": seeds}
     results = {**results, "variants": merged}

@@ -376,3 +376,12 @@ def test_blenders_auto_resume_looks_for_checkpoints_not_the_pointer(tmp_path):
     assert resumable(run)
     (run / "avatar.pt").write_bytes(b"")
     assert not resumable(run)
+
+
+def test_a_run_is_complete_only_when_its_run_json_says_so(tmp_path):
+    from mogaface.core.run.folder import is_complete
+
+    assert not is_complete(tmp_path / "missing")
+    for text, complete in (("{", False), ("[1]", False), ('{"complete": false}', False), ('{"complete": true}', True)):
+        (tmp_path / "run.json").write_text(text)
+        assert is_complete(tmp_path) is complete, text
