@@ -17,6 +17,9 @@ from __future__ import annotations
 
 import os
 import pathlib
+import signal
+import subprocess
+import sys
 
 from .refiner_search import coordinate_search
 
@@ -54,9 +57,9 @@ def try_config(settings: dict, threads: int, steps: int):
 
 
 def trained_run(capture: pathlib.Path, folder: pathlib.Path, settings: dict, threads: int, steps: int) -> pathlib.Path:
-    """The try's run folder, trained through ``train`` (its rounds included); a complete run is
-    reused, a stopped one resumed."""
-    from mogaface.core.cli import main
+    """The try's run folder, trained by the ``train`` command (its rounds included) in a child
+    process, which a Ctrl-C stops at a checkpoint as any training; a complete run is reused, a
+    stopped one resumed."""
     from mogaface.core.io.atomic import write_text
     from mogaface.core.run.folder import is_complete
     from mogaface.core.train import config as config_module
@@ -70,9 +73,12 @@ def trained_run(capture: pathlib.Path, folder: pathlib.Path, settings: dict, thr
         config_file = folder / f"{run.name}.toml"
         write_text(config_file, config_module.to_toml(try_config(settings, threads, steps)))
         arguments = ["--config", str(config_file)]
-    code = main(["train", str(capture), "--out", str(run), "--quiet", *arguments])
-    if code:
-        raise RuntimeError(f"training {run} ended with status {code}")
+    done = subprocess.run([sys.executable, "-m", "mogaface", "train", str(capture), "--out", str(run), "--quiet",
+                           *arguments], stderr=subprocess.PIPE, text=True)
+    if done.returncode in (128 + signal.SIGINT, 128 + signal.SIGTERM):
+        raise KeyboardInterrupt  # stopped at a checkpoint: the search resumes from it
+    if done.returncode:
+        raise RuntimeError(f"training {run} ended with status {done.returncode}:\n{done.stderr[-4000:]}")
     return run
 
 
