@@ -21,7 +21,7 @@ import signal
 import subprocess
 import sys
 
-from .refiner_search import coordinate_search
+from .refiner_search import coordinate_search, settings_name
 
 WORK = "out/bench_camera_search"
 STEPS = 1800
@@ -42,10 +42,6 @@ def capture_settings(quick: bool):
     return CaptureSettings(size=128, timesteps=48, camera_noise=1.0, seed=0)
 
 
-def try_name(settings: dict) -> str:
-    return "_".join(f"{k}{v:g}" if isinstance(v, (int, float)) else f"{k}-{v}" for k, v in sorted(settings.items()))
-
-
 def try_config(settings: dict, threads: int, steps: int):
     """Freeze under the demo preset with camera refinement set as ``settings``."""
     from mogaface.core.train import config as config_module
@@ -64,7 +60,7 @@ def trained_run(capture: pathlib.Path, folder: pathlib.Path, settings: dict, thr
     from mogaface.core.run.folder import is_complete
     from mogaface.core.train import config as config_module
 
-    run = folder / try_name(settings)
+    run = folder / settings_name(settings)
     if is_complete(run):
         return run
     if run.exists():

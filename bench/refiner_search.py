@@ -95,6 +95,15 @@ def settings_key(settings: dict) -> str:
     return json.dumps(settings, sort_keys=True)
 
 
+def _shown(value) -> str:
+    return f"{value:g}" if isinstance(value, (int, float)) else str(value)
+
+
+def settings_name(settings: dict) -> str:
+    """A try's settings as a file name (``grid16_offsets_per_start4``; a word value after a dash)."""
+    return "_".join(f"{k}{_shown(v)}" if isinstance(v, (int, float)) else f"{k}-{v}" for k, v in sorted(settings.items()))
+
+
 def coordinate_search(grid: dict, start: dict, evaluate, rounds: int, min_gain: float = MIN_GAIN_DB,
                       known: dict | None = None) -> dict:
     """``{"chosen", "tried"}``: one setting at a time over ``grid`` from ``start``, keeping a value
@@ -111,7 +120,7 @@ def coordinate_search(grid: dict, start: dict, evaluate, rounds: int, min_gain: 
             if not reused:
                 known[key] = evaluate(settings)  # (an evaluate that keeps its results may have stored it already)
             tried[key] = {"settings": dict(settings), **known[key], "reused": reused}
-            shown = " ".join(f"{k}={v:g}" if isinstance(v, (int, float)) else f"{k}={v}" for k, v in settings.items())
+            shown = " ".join(f"{k}={_shown(v)}" for k, v in settings.items())
             print(f"{'kept' if reused else 'tried'} {shown}: {tried[key]['psnr_db']:.3f} dB", file=sys.stderr, flush=True)
         return tried[key]["psnr_db"]
 

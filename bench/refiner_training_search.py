@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import os
 
-from .refiner_search import KeptTries, _evaluator, _Run, coordinate_search
+from .refiner_search import KeptTries, _evaluator, _Run, coordinate_search, settings_name
 
 TRAINING_GRID = {"grid": (8, 12, 16, 24), "offsets_per_start": (2, 4, 8)}
 TRAINING_ROUNDS = 2
@@ -37,7 +37,7 @@ def trained_refiner(run: _Run, settings: dict, threads: int, quick: bool):
     from mogaface.core.refiner.files import is_outdated, load_refiner
     from mogaface.core.refiner.training import train_refiner
 
-    name = "_".join(f"{k}{v:g}" for k, v in sorted(settings.items())) + ("_quick" if quick else "")
+    name = settings_name(settings) + ("_quick" if quick else "")
     path = run.folder.root / TRIES_DIR / f"{name}.pt"
     if not path.is_file() or is_outdated(path):
         train_refiner(run.folder.root, refiner_settings(settings, threads, quick), out=path)
