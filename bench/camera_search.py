@@ -9,7 +9,12 @@ search goes one setting at a time from today's recommended settings (three round
 rates, start and gauge), a new value kept only above :data:`.refiner_search.MIN_GAIN_DB`. Each
 try's run folder stays in ``DIR/runs`` (a stopped search resumes; a wider grid trains only what
 is new), and its camera error against the truth is reported beside its score, never chosen on.
-The test table (novel view on other noise draws) is then measured once with what was chosen.
+
+``--test-subjects 1,2``: then the test table, measured once with what was chosen: for each
+subject (its own noise draw: camera error, tracker error), a capture as the search's, trained with
+today's recommended settings and with the chosen ones, scored on the test frames: novel view at the
+true held-out camera (every frame, as ``eval --protocols novel_view`` scores it: the camera tables'
+number) and self-reenactment of the unseen sequence, with the paired gain of the choice.
 ``--quick``: a tiny capture and a two-value grid (a smoke run).
 """
 
@@ -33,13 +38,14 @@ QUICK = {"size": 64, "views": 4, "timesteps": 24, "steps": 20, "frames": 2,
          "grid": {"rotation_lr": (1e-3, 2e-3)}, "start": {"rounds": 1}}
 
 
-def capture_settings(quick: bool):
+def capture_settings(quick: bool, subject: int = 0):
+    """The search's capture (subject 0, draw 0) or a test subject's (subject ``s``, draw ``s``)."""
     from mogaface.core.data.capture_settings import CaptureSettings
 
     if quick:
         return CaptureSettings(views=QUICK["views"], timesteps=QUICK["timesteps"], size=QUICK["size"],
-                               supersample=1, camera_noise=1.0)
-    return CaptureSettings(size=128, timesteps=48, camera_noise=1.0, seed=0)
+                               supersample=1, camera_noise=1.0, subject=subject, seed=subject)
+    return CaptureSettings(size=128, timesteps=48, camera_noise=1.0, subject=subject, seed=subject)
 
 
 def try_config(settings: dict, threads: int, steps: int):
@@ -93,7 +99,63 @@ def scored_try(run: pathlib.Path, frames: int) -> dict:
             "run": str(run)}
 
 
-def run(threads: int = 2, quick: bool = False, work: str | None = None, split: str = "validation") -> dict:
+def tested_try(run: pathlib.Path, frames: int | None) -> dict:
+    """The run's test scores: novel view at the true held-out camera, self-reenactment of the unseen
+    sequence (the tracked parameters, as Freeze renders), and its cameras' error."""
+    from mogaface.core.workflows.ablation import score_variant
+
+    scores = score_variant(run, frames, False, (), split="test")
+    refined = scores["cameras"].get("refined", {})
+    protocols = scores["protocols"]
+    return {"novel_view_psnr_db": round(protocols["novel_view"]["tracked"]["psnr"], 4),
+            "self_reenactment_psnr_db": round(protocols["self_reenactment"]["tracked"]["psnr"], 4),
+            "rotation_deg": round(refined["rotation_deg"], 4) if refined else None,
+            "position_mm": round(refined["position_mm"], 3) if refined else None,
+            "scored_frames": {name: len(views["frames"]) for name, views in scores["scored"].items()},
+            "run": str(run)}
+
+
+def parse_subjects(text: str) -> list[int]:
+    """``"1,2"`` → ``[1, 2]``: the test subjects, never the search's own subject 0."""
+    from mogaface.core.errors import InputError
+
+    try:
+        subjects = [int(part) for part in text.split(",") if part.strip()]
+    except ValueError:
+        raise InputError(None, "--test-subjects", f"expected comma-separated subject numbers, got {text!r}") from None
+    if not subjects or min(subjects) < 1 or len(set(subjects)) != len(subjects):
+        raise InputError(None, "--test-subjects", f"expected distinct subjects from 1 up (0 is the search's own), "
+                                                  f"got {text!r}")
+    return subjects
+
+
+def test_table(folder: pathlib.Path, subjects: list[int], today: dict, chosen: dict, threads: int, steps: int,
+               frames: int | None, quick: bool) -> dict:
+    """Today's settings against the chosen ones on subjects the search never saw: one row per
+    subject and setting, and the chosen settings' paired gain over today's."""
+    from mogaface.core.evaluate.seed_stats import paired_difference
+
+    from .converge import ensure_capture
+
+    rows = []
+    for subject in subjects:
+        capture, _ = ensure_capture(folder / f"test_capture_s{subject}", capture_settings(quick, subject))
+        for label, settings in (("today", today), ("chosen", chosen)):
+            run = trained_run(capture, folder / f"test_runs_s{subject}", settings, threads, steps)
+            rows.append({"subject": subject, "settings": label, **settings, **tested_try(run, frames)})
+            print(f"test subject {subject} {label}: novel view {rows[-1]['novel_view_psnr_db']:.3f} dB",
+                  file=sys.stderr, flush=True)
+
+    def column(label, key):
+        return [row[key] for row in rows if row["settings"] == label]
+
+    gains = {key: paired_difference(column("chosen", key), column("today", key))
+             for key in ("novel_view_psnr_db", "self_reenactment_psnr_db", "rotation_deg")}
+    return {"split": "test", "subjects": subjects, "rows": rows, "chosen_minus_today": gains}
+
+
+def run(threads: int = 2, quick: bool = False, work: str | None = None, split: str = "validation",
+        test_subjects: str | None = None) -> dict:
     from mogaface.core.errors import InputError
     from mogaface.core.train.config import CamerasSection
 
@@ -101,6 +163,7 @@ def run(threads: int = 2, quick: bool = False, work: str | None = None, split: s
 
     if split != "validation":
         raise InputError(None, "split", "settings are chosen on the validation frames only")
+    subjects = parse_subjects(test_subjects) if test_subjects else []  # refused before any training
     folder = pathlib.Path(work or WORK)
     capture, made_s = ensure_capture(folder / "capture", capture_settings(quick))
     steps, frames = (QUICK["steps"], QUICK["frames"]) if quick else (STEPS, SCORED_FRAMES)
@@ -112,7 +175,9 @@ def run(threads: int = 2, quick: bool = False, work: str | None = None, split: s
     load_before = os.getloadavg()
     found = coordinate_search(grid, start, lambda settings: scored_try(
         trained_run(capture, runs, settings, threads, steps), frames), SEARCH_ROUNDS)
+    test = test_table(folder, subjects, start, found["chosen"], threads, steps,
+                      QUICK["frames"] if quick else None, quick) if subjects else None
     return {"split": "validation", "capture": str(capture), "capture_made_s": round(made_s, 1),
-            "steps_per_round": steps, "scored_frames": frames, "threads": threads, "start": start, **found,
+            "steps_per_round": steps, "scored_frames": frames, "threads": threads, "start": start, **found, "test": test,
             "load_average_before": [round(x, 2) for x in load_before],
             "load_average_after": [round(x, 2) for x in os.getloadavg()]}

@@ -1,8 +1,10 @@
 """``bench camera_search`` (a smoke run at its quick size): a run trained per setting tried on a
 capture whose cameras are off, scored on the validation frames only, its camera error beside the
-score; a second search trains nothing again."""
+score; a second search trains nothing again; the test table trains today's and the chosen settings
+on a subject the search never saw and scores its test frames."""
 
 import json
+import pathlib
 
 from mogaface.core.cli import main
 
@@ -35,4 +37,29 @@ def test_each_setting_trains_once_and_is_scored_on_validation_frames(tmp_path, c
 
     assert main(["bench", "camera_search", "--quick", "--work", str(work), "--split", "test"]) == 2
     assert "validation frames only" in capsys.readouterr().err
+    assert main(["bench", "camera_search", "--quick", "--work", str(work), "--test-subjects", "0,1"]) == 2
+    assert "search's own" in capsys.readouterr().err
+
+
+def test_the_test_table_scores_today_and_the_chosen_settings_on_an_unseen_subject(tmp_path, capsys):
+    work = tmp_path / "work"
+    assert main(["bench", "camera_search", "--quick", "--threads", "1", "--work", str(work), "--test-subjects", "1"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    table = report["test"]
+    assert table["split"] == "test" and [(r["subject"], r["settings"]) for r in table["rows"]] == [
+        (1, "today"), (1, "chosen")]
+    info = json.loads((work / "test_capture_s1" / "capture_info.json").read_text())["settings"]
+    assert info["subject"] == 1 and info["seed"] == 1 and info["camera_noise"] == 1.0  # its own draw
+    for row in table["rows"]:
+        settings = {k: row[k] for k in report["start"]}
+        assert settings == (report["start"] if row["settings"] == "today" else report["chosen"])
+        assert pathlib.Path(row["run"]).parent == work / "test_runs_s1"
+        scores = json.loads((pathlib.Path(row["run"]) / "ablation_scores.json").read_text())["scores"]
+        assert scores["split"] == "test"
+        assert abs(scores["protocols"]["novel_view"]["tracked"]["psnr"] - row["novel_view_psnr_db"]) < 1e-3
+        assert row["scored_frames"]["novel_view"] > 0 and row["scored_frames"]["self_reenactment"] > 0
+    rows = {r["settings"]: r for r in table["rows"]}
+    gain = table["chosen_minus_today"]["novel_view_psnr_db"]
+    assert gain["n"] == 1 and gain["beyond_noise"] is None  # one subject can never tell
+    assert abs(gain["mean"] - (rows["chosen"]["novel_view_psnr_db"] - rows["today"]["novel_view_psnr_db"])) < 1e-9
 
