@@ -6,13 +6,22 @@ on a subject the search never saw and scores its test frames."""
 import json
 import pathlib
 
+import pytest
+
 from mogaface.core.cli import main
 
 
-def test_each_setting_trains_once_and_is_scored_on_validation_frames(tmp_path, capsys):
-    work, out = tmp_path / "work", tmp_path / "search.json"
+@pytest.fixture(scope="module")
+def searched(tmp_path_factory):
+    """The quick search's work folder and its report (the test table reuses its runs)."""
+    root = tmp_path_factory.mktemp("camera_search")
+    work, out = root / "work", root / "search.json"
     assert main(["bench", "camera_search", "--quick", "--threads", "1", "--work", str(work), "--out", str(out)]) == 0
-    report = json.loads(out.read_text())
+    return work, json.loads(out.read_text())
+
+
+def test_each_setting_trains_once_and_is_scored_on_validation_frames(searched, capsys):
+    work, report = searched
     tried = report["tried"]
     assert tried[0]["settings"] == report["start"]
     assert sorted(t["settings"]["rotation_lr"] for t in tried) == [1e-3, 2e-3]  # the quick grid, each once
@@ -41,8 +50,8 @@ def test_each_setting_trains_once_and_is_scored_on_validation_frames(tmp_path, c
     assert "search's own" in capsys.readouterr().err
 
 
-def test_the_test_table_scores_today_and_the_chosen_settings_on_an_unseen_subject(tmp_path, capsys):
-    work = tmp_path / "work"
+def test_the_test_table_scores_today_and_the_chosen_settings_on_an_unseen_subject(searched, capsys):
+    work, searched_report = searched
     assert main(["bench", "camera_search", "--quick", "--threads", "1", "--work", str(work), "--test-subjects", "1"]) == 0
     report = json.loads(capsys.readouterr().out)
     table = report["test"]
@@ -58,6 +67,7 @@ def test_the_test_table_scores_today_and_the_chosen_settings_on_an_unseen_subjec
         assert scores["split"] == "test"
         assert abs(scores["protocols"]["novel_view"]["tracked"]["psnr"] - row["novel_view_psnr_db"]) < 1e-3
         assert row["scored_frames"]["novel_view"] > 0 and row["scored_frames"]["self_reenactment"] > 0
+    assert report["tried"] == searched_report["tried"]  # the search's runs reused, not trained again
     rows = {r["settings"]: r for r in table["rows"]}
     gain = table["chosen_minus_today"]["novel_view_psnr_db"]
     assert gain["n"] == 1 and gain["beyond_noise"] is None  # one subject can never tell
