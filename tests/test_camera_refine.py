@@ -374,3 +374,26 @@ def test_rounds_train_fresh_avatars_from_the_last_rounds_cameras_and_resume(capt
     events = [json.loads(line) for line in (run / "events.jsonl").read_text().splitlines()]
     stages = [e.get("stage") for e in events if e["event"] == "iter"]
     assert stages[0] == "camera round 1/3" and "camera round 2/3" in stages and stages[-1] is None
+
+
+def test_a_time_budget_is_shared_by_the_rounds_and_a_resume_divides_it_once(capture, tmp_path):
+    import shutil
+
+    from mogaface.core.cli import main
+    from mogaface.core.train.rounds import ROUNDS_DIR, round_folder
+
+    run = tmp_path / "run"
+    config = refine_config(steps=3, max_minutes=30.0)  # the steps end it; the budget is what is shared
+    config.cameras.rounds = 3
+    settings = tmp_path / "rounds.toml"
+    settings.write_text(C.to_toml(config))
+    assert main(["train", str(capture), "--out", str(run), "--config", str(settings), "--quiet"]) == 0
+    assert C.load(run / ROUNDS_DIR / "config.toml").train.max_minutes == 30.0  # the whole run's
+    for folder in (round_folder(run, 1), round_folder(run, 2), run):
+        assert C.load(folder / "config.toml").train.max_minutes == 10.0
+    # the last round stopped before its first checkpoint: its settings come again from the whole run's
+    shutil.rmtree(run / "checkpoints")
+    (run / "avatar.pt").unlink()
+    assert main(["train", str(capture), "--out", str(run), "--resume", "--quiet"]) == 0
+    assert C.load(run / "config.toml").train.max_minutes == 10.0
+    assert C.load(run / "config.toml").cameras.start == str((round_folder(run, 2) / "cameras_refined.json").resolve())

@@ -208,7 +208,12 @@ def _train(args, comm) -> int:
             print("error: --resume continues with the run's own config.toml; drop --config/--preset",
                   file=sys.stderr)
             return 2
-        saved = next((p for p in (args.out / "config.toml", rounds_config) if p.exists()), None)
+        # RUN's own settings once its (last) round has a checkpoint; before, the whole run's, from which
+        # the rounds derive theirs (RUN/config.toml of a last round that never saved is derived already)
+        order = (args.out / "config.toml", rounds_config)
+        if latest_checkpoint(args.out / "checkpoints") is None:
+            order = order[::-1]
+        saved = next((p for p in order if p.exists()), None)
         config = config_module.resolve(path=saved, overrides=overrides) if saved is not None else None
     else:
         config = config_module.resolve(args.preset, args.config, overrides)

@@ -116,7 +116,7 @@ class CamerasSection:
                                    "keeps its calibrated pose); 'mean': their mean rotation and mean centre shift stay "
                                    "zero; 'none': free (a rig whose centres are measured: they hold it)")
     rounds: int = _setting(1, "train this many times, each round a fresh avatar from the cameras the last one "
-                              "refined (RUN/camera_rounds/<k>; train.steps each)")
+                              "refined (RUN/camera_rounds/<k>; train.steps each, train.max_minutes shared)")
     start: str = _setting("", "a cameras file in the layout of RUN/cameras_refined.json the offsets start from "
                               "(an earlier run's refined cameras: a new round with a fresh avatar); '': calibrated")
     embedding: str = _setting("", "for start = 'landmarks' (ignored otherwise): where the landmarks lie on the "

@@ -8,7 +8,8 @@ refined cameras starts from views that agree better, so its own refinement goes 
 ``RUN/camera_rounds/<k>/`` without the final evaluation; the last round is ``RUN`` itself,
 starting from the cameras of round N−1 (``[cameras] start``). A complete round is skipped and a
 round with a checkpoint resumed, so a stopped training continues where it stopped; each round has
-``train.steps`` steps.
+``train.steps`` steps, and a time budget (``train.max_minutes``) is the whole run's, shared evenly
+by its rounds (a user who asks for an hour gets an hour, not one per round).
 """
 
 from __future__ import annotations
@@ -34,10 +35,20 @@ def round_config(config: TrainConfig, start: str) -> TrainConfig:
     return dataclasses.replace(config, cameras=cameras, eval=dataclasses.replace(config.eval, at_end=False, every=0))
 
 
+def shared_budget(config: TrainConfig) -> TrainConfig:
+    """Each round's settings under the whole run's time budget: ``max_minutes / rounds`` (no budget:
+    unchanged). Applied once, to the whole run's settings (``RUN/camera_rounds/config.toml``)."""
+    if config.train.max_minutes <= 0:
+        return config
+    return dataclasses.replace(config, train=dataclasses.replace(
+        config.train, max_minutes=config.train.max_minutes / config.cameras.rounds))
+
+
 def train_earlier_rounds(run, config: TrainConfig, trainer_for) -> tuple[int | None, TrainConfig]:
-    """Train rounds 1 … N−1 of ``config``; ``trainer_for(folder, config or None, resume, k)`` builds
-    round k's trainer. Returns the signal that stopped a round (else None) and the last round's
-    settings, which start from the cameras of round N−1."""
+    """Train rounds 1 … N−1 of ``config`` (the whole run's settings); ``trainer_for(folder, config or
+    None, resume, k)`` builds round k's trainer. Returns the signal that stopped a round (else None)
+    and the last round's settings, which start from the cameras of round N−1."""
+    config = shared_budget(config)
     start = config.cameras.start
     for k in range(1, config.cameras.rounds):
         folder = round_folder(run, k)
