@@ -166,6 +166,19 @@ def _signalled(process, when, *signals) -> str:
             process.kill()
 
 
+def _wait_until(process, ready, poll_s=0.2):
+    """Until ``ready()``, the training child running all along (a harness deadline against a hang)."""
+    deadline = time.monotonic() + 180
+    while not ready():
+        assert process.poll() is None and time.monotonic() < deadline, process.communicate()
+        time.sleep(poll_s)
+
+
+def _wait_for_first_step(process, out):
+    """Until the training child has logged a step."""
+    _wait_until(process, lambda: (out / "events.jsonl").exists() and any(e["event"] == "iter" for e in events(out)))
+
+
 def test_interrupt_during_start_up_exits_quietly(copies, tmp_path):
     process, _ = _train_process(copies, tmp_path)
     err = _signalled(process, lambda: time.sleep(1.0), signal.SIGINT)  # importing torch and numba
@@ -177,24 +190,10 @@ def test_interrupt_while_the_trainer_starts_is_not_lost_when_the_parent_ignores_
     """A script's ``&`` job (Blender's worker may be one) hands its children SIGINT ignored; the
     cancel must still stop the run when it lands after the imports, before the trainer's handler."""
     process, out = _train_process(copies, tmp_path, sigint_ignored=True)
-
-    def run_folder_made():  # the trainer is starting: the imports are done
-        deadline = time.monotonic() + 120
-        while not out.exists():
-            assert process.poll() is None and time.monotonic() < deadline, process.communicate()
-            time.sleep(0.02)
-
-    err = _signalled(process, run_folder_made, signal.SIGINT)
+    # the run folder made: the imports are done, the trainer is starting
+    err = _signalled(process, lambda: _wait_until(process, out.exists, poll_s=0.02), signal.SIGINT)
     assert process.returncode == 128 + signal.SIGINT, err
     assert "Traceback" not in err
-
-
-def _wait_for_first_step(process, out):
-    """Until the training child has logged a step (a harness deadline against a hang)."""
-    deadline = time.monotonic() + 180
-    while not ((out / "events.jsonl").exists() and any(e["event"] == "iter" for e in events(out))):
-        assert process.poll() is None and time.monotonic() < deadline, process.communicate()
-        time.sleep(0.2)
 
 
 def test_double_interrupt_exits_with_the_signal_status(copies, tmp_path):
