@@ -14,6 +14,7 @@ from ...data.capture import Capture, Frame
 from ...data.capture_info import capture_info
 from ...data.target import target_image
 from ...run.cameras import InputCameras
+from ...train.training_view import area_resized
 from .base import ParamSource, input_views, timestep_of
 
 # The width of the prior toward the start per parameter (make-capture's default tracker error for
@@ -50,13 +51,6 @@ def frozen(*modules):
     finally:
         for p, flag in zip(params, flags):
             p.requires_grad_(flag)
-
-
-def _resized(image: np.ndarray, width: int, height: int) -> torch.Tensor:
-    tensor = torch.tensor(np.asarray(image, np.float32)).permute(2, 0, 1)[None]
-    if tensor.shape[-2:] != (height, width):
-        tensor = torch.nn.functional.interpolate(tensor, size=(height, width), mode="area")
-    return tensor[0].permute(1, 2, 0)
 
 
 class FittedParams:
@@ -108,7 +102,8 @@ class FittedParams:
         for f in frames:
             camera = self.cameras(f).scaled(self.scale)
             image = target_image(self.capture, f, self.background, self.recorded)
-            views.append((camera, _resized(image, camera.width, camera.height)))
+            views.append((camera, area_resized(torch.as_tensor(np.asarray(image, np.float32)), camera.width,
+                                               camera.height)))
         free = {k: torch.tensor(np.asarray(start[k], np.float32))[None].requires_grad_(True)
                 for k in self.rates if k in start}
         fixed = {k: torch.as_tensor(np.asarray(v, np.float32))[None] for k, v in start.items() if k not in free}
