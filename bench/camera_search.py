@@ -1,20 +1,23 @@
 """Choosing camera refinement's settings on validation frames.
 
-``python -m mogaface bench camera_search [--work DIR]`` makes a capture whose cameras are off
-(as the camera tables' ``cap_cal``: 128², 48 timesteps, 1° and 5 mm per axis; made once, reused)
-and trains Freeze with camera refinement (``--preset demo``, :data:`STEPS` steps a round) per
-setting tried. Each try is scored on the validation sequence's self-reenactment frames: the
-training cameras, at their true poses as every camera score is, on frames no step trained on. The
-search goes one setting at a time from today's recommended settings (three rounds, the config's
-rates, start and gauge), a new value kept only above :data:`.refiner_search.MIN_GAIN_DB`. Each
-try's run folder stays in ``DIR/runs`` (a stopped search resumes; a wider grid trains only what
-is new), and its camera error against the truth is reported beside its score, never chosen on.
+``python -m mogaface bench camera_search [--subjects 0,1,2] [--work DIR]`` makes, per subject, a
+capture whose cameras are off (as the camera tables' ``cap_cal``: 128², 48 timesteps, 1° and 5 mm
+per axis; subject ``s`` with its own noise draw ``s``; made once, reused) and trains Freeze with
+camera refinement (``--preset demo``, :data:`STEPS` steps a round) per setting tried and subject.
+Each try is scored on the validation sequence's self-reenactment frames: the training cameras, at
+their true poses as every camera score is, on frames no step trained on; the mean over the
+subjects is what is chosen on (one subject's noise draw is not enough: a choice made on subject 0
+alone lost on two others). The search goes one setting at a time from today's recommended
+settings (three rounds, the config's rates, start and gauge), a new value kept only above
+:data:`.refiner_search.MIN_GAIN_DB`. Each run folder stays in ``DIR`` (a stopped search resumes; a
+wider grid or another subject trains only what is new), and each try's camera error against the
+truth is reported beside its score, never chosen on.
 
-``--test-subjects 1,2``: then the test table, measured once with what was chosen: for each
-subject (its own noise draw: camera error, tracker error), a capture as the search's, trained with
-today's recommended settings and with the chosen ones, scored on the test frames: novel view at the
-true held-out camera (every frame, as ``eval --protocols novel_view`` scores it: the camera tables'
-number) and self-reenactment of the unseen sequence, with the paired gain of the choice.
+``--test-subjects 3,4``: then the test table, measured once with what was chosen, on subjects no
+choice was made on (a searched subject is refused): each trained with today's recommended
+settings and with the chosen ones, scored on the test frames: novel view at the true held-out
+camera (every frame, as ``eval --protocols novel_view`` scores it: the camera tables' number) and
+self-reenactment of the unseen sequence, with the paired gain of the choice.
 ``--quick``: a tiny capture and a two-value grid (a smoke run).
 """
 
@@ -115,34 +118,62 @@ def tested_try(run: pathlib.Path, frames: int | None) -> dict:
             "run": str(run)}
 
 
-def parse_subjects(text: str) -> list[int]:
-    """``"1,2"`` → ``[1, 2]``: the test subjects, never the search's own subject 0."""
+def parse_subjects(text: str, option: str) -> list[int]:
+    """``"1,2"`` → ``[1, 2]``: distinct subject numbers from 0 up."""
     from mogaface.core.errors import InputError
 
     try:
         subjects = [int(part) for part in text.split(",") if part.strip()]
     except ValueError:
-        raise InputError(None, "--test-subjects", f"expected comma-separated subject numbers, got {text!r}") from None
-    if not subjects or min(subjects) < 1 or len(set(subjects)) != len(subjects):
-        raise InputError(None, "--test-subjects", f"expected distinct subjects from 1 up (0 is the search's own), "
-                                                  f"got {text!r}")
+        raise InputError(None, option, f"expected comma-separated subject numbers, got {text!r}") from None
+    if not subjects or min(subjects) < 0 or len(set(subjects)) != len(subjects):
+        raise InputError(None, option, f"expected distinct subject numbers from 0 up, got {text!r}")
     return subjects
 
 
-def test_table(folder: pathlib.Path, subjects: list[int], today: dict, chosen: dict, threads: int, steps: int,
-               frames: int | None, quick: bool) -> dict:
+class Subjects:
+    """One capture and one folder of runs per subject, whatever the subject serves (the search or the
+    test table), so a subject's run of a setting is trained once: subject 0 in ``capture`` and
+    ``runs``, subject ``s`` in ``capture_s<s>`` and ``runs_s<s>`` (``_quick`` after each at the
+    quick size)."""
+
+    def __init__(self, folder: pathlib.Path, quick: bool, threads: int, steps: int):
+        self.folder, self.quick, self.threads, self.steps = folder, quick, threads, steps
+        self.made_s: dict[int, float] = {}
+
+    def capture(self, subject: int) -> pathlib.Path:
+        from .converge import ensure_capture
+
+        name = "capture" + (f"_s{subject}" if subject else "") + ("_quick" if self.quick else "")
+        capture, made_s = ensure_capture(self.folder / name, capture_settings(self.quick, subject))
+        self.made_s[subject] = self.made_s.get(subject, 0.0) + made_s
+        return capture
+
+    def run(self, subject: int, settings: dict) -> pathlib.Path:
+        name = "runs" + (f"_s{subject}" if subject else "") + ("_quick" if self.quick else "")
+        return trained_run(self.capture(subject), self.folder / name, settings, self.threads, self.steps)
+
+
+def searched_try(subjects: Subjects, search_subjects: list[int], settings: dict, frames: int) -> dict:
+    """A setting's validation scores on every search subject, and their mean (what is chosen on)."""
+    from mogaface.core.evaluate.seed_stats import mean_std
+
+    each = [{"subject": s, **scored_try(subjects.run(s, settings), frames)} for s in search_subjects]
+    means = {key: mean_std([t[key] for t in each])[0]
+             for key in ("psnr_db", "ssim", "rotation_deg", "position_mm", "calibrated_rotation_deg")}
+    return {**{key: None if m is None else round(m, 4) for key, m in means.items()}, "subjects": each}
+
+
+def test_table(subjects: Subjects, test_subjects: list[int], today: dict, chosen: dict, frames: int | None) -> dict:
     """Today's settings against the chosen ones on subjects the search never saw: one row per
     subject and setting, and the chosen settings' paired gain over today's."""
     from mogaface.core.evaluate.seed_stats import paired_difference
 
-    from .converge import ensure_capture
-
     rows = []
-    for subject in subjects:
-        capture, _ = ensure_capture(folder / f"test_capture_s{subject}", capture_settings(quick, subject))
+    for subject in test_subjects:
         for label, settings in (("today", today), ("chosen", chosen)):
-            run = trained_run(capture, folder / f"test_runs_s{subject}", settings, threads, steps)
-            rows.append({"subject": subject, "settings": label, **settings, **tested_try(run, frames)})
+            rows.append({"subject": subject, "settings": label, **settings,
+                         **tested_try(subjects.run(subject, settings), frames)})
             print(f"test subject {subject} {label}: novel view {rows[-1]['novel_view_psnr_db']:.3f} dB",
                   file=sys.stderr, flush=True)
 
@@ -151,33 +182,34 @@ def test_table(folder: pathlib.Path, subjects: list[int], today: dict, chosen: d
 
     gains = {key: paired_difference(column("chosen", key), column("today", key))
              for key in ("novel_view_psnr_db", "self_reenactment_psnr_db", "rotation_deg")}
-    return {"split": "test", "subjects": subjects, "rows": rows, "chosen_minus_today": gains}
+    return {"split": "test", "subjects": test_subjects, "rows": rows, "chosen_minus_today": gains}
 
 
 def run(threads: int = 2, quick: bool = False, work: str | None = None, split: str = "validation",
-        test_subjects: str | None = None) -> dict:
+        subjects: str | None = None, test_subjects: str | None = None) -> dict:
     from mogaface.core.errors import InputError
     from mogaface.core.train.config import CamerasSection
 
-    from .converge import ensure_capture
-
     if split != "validation":
         raise InputError(None, "split", "settings are chosen on the validation frames only")
-    subjects = parse_subjects(test_subjects) if test_subjects else []  # refused before any training
-    folder = pathlib.Path(work or WORK)
-    capture, made_s = ensure_capture(folder / "capture", capture_settings(quick))
+    searched = parse_subjects(subjects or "0", "--subjects")  # refused before any training
+    tested = parse_subjects(test_subjects, "--test-subjects") if test_subjects else []
+    if seen := sorted(set(searched) & set(tested)):
+        raise InputError(None, "--test-subjects", f"subject(s) {seen} are searched on: a test subject must be one "
+                                                  "no choice was made on")
     steps, frames = (QUICK["steps"], QUICK["frames"]) if quick else (STEPS, SCORED_FRAMES)
+    folders = Subjects(pathlib.Path(work or WORK), quick, threads, steps)
     grid = QUICK["grid"] if quick else CAMERA_GRID
     defaults = CamerasSection()
     start = {"rotation_lr": defaults.rotation_lr, "begin": defaults.begin, "gauge": defaults.gauge, "rounds": 3,
              **(QUICK["start"] if quick else {})}
-    runs = folder / ("runs_quick" if quick else "runs")
     load_before = os.getloadavg()
-    found = coordinate_search(grid, start, lambda settings: scored_try(
-        trained_run(capture, runs, settings, threads, steps), frames), SEARCH_ROUNDS)
-    test = test_table(folder, subjects, start, found["chosen"], threads, steps,
-                      QUICK["frames"] if quick else None, quick) if subjects else None
-    return {"split": "validation", "capture": str(capture), "capture_made_s": round(made_s, 1),
+    found = coordinate_search(grid, start, lambda settings: searched_try(folders, searched, settings, frames),
+                              SEARCH_ROUNDS)
+    test = test_table(folders, tested, start, found["chosen"], QUICK["frames"] if quick else None) if tested else None
+    return {"split": "validation", "subjects": searched,
+            "captures": {s: str(folders.capture(s)) for s in searched + tested},
+            "capture_made_s": {s: round(t, 1) for s, t in folders.made_s.items()},
             "steps_per_round": steps, "scored_frames": frames, "threads": threads, "start": start, **found, "test": test,
             "load_average_before": [round(x, 2) for x in load_before],
             "load_average_after": [round(x, 2) for x in os.getloadavg()]}

@@ -35,7 +35,8 @@ OPTION_BENCHMARKS = {"scale": ("train", "step"),
                      "split": ("refiner", "refiner_search", "refiner_training_search", "camera_search"),
                      "minutes": ("converge",), "work": ("converge", "batch", "camera_search"),
                      "ranks": ("converge",), "variants": ("converge",), "config": ("converge",),
-                     "compare": ("converge",), "test_subjects": ("camera_search",)}
+                     "compare": ("converge",), "subjects": ("camera_search",),
+                     "test_subjects": ("camera_search",)}
 
 
 def add_arguments(parser):
@@ -59,9 +60,12 @@ def add_arguments(parser):
     parser.add_argument("--work", help="converge, batch, camera_search: folder for the capture (made once, reused) "
                                        "and runs (default out/bench_converge, out/bench_batch, "
                                        "out/bench_camera_search)")
+    parser.add_argument("--subjects", metavar="S,S",
+                        help="camera_search only: search on the mean of these subjects' validation frames (each its "
+                             "own noise draw; default 0)")
     parser.add_argument("--test-subjects", metavar="S,S",
                         help="camera_search only: then score today's and the chosen settings once on the test frames "
-                             "of these subjects (each its own noise draw; never 0, the search's own)")
+                             "of these subjects (each its own noise draw; none searched on)")
     parser.add_argument("--ranks", type=int,
                         help="converge only: train each variant on this many torchrun ranks of this machine, the "
                              "threads shared among them, one image per rank a step (square-root rule)")
