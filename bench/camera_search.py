@@ -42,7 +42,7 @@ QUICK = {"size": 64, "views": 4, "timesteps": 24, "steps": 20, "frames": 2,
 
 
 def capture_settings(quick: bool, subject: int = 0):
-    """The search's capture (subject 0, draw 0) or a test subject's (subject ``s``, draw ``s``)."""
+    """Subject ``s``'s capture, with its own noise draw ``s`` (camera and tracker errors)."""
     from mogaface.core.data.capture_settings import CaptureSettings
 
     if quick:
