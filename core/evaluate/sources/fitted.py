@@ -102,7 +102,7 @@ class FittedParams:
         for f in frames:
             camera = self.cameras(f).scaled(self.scale)
             image = target_image(self.capture, f, self.background, self.recorded)
-            views.append((camera, area_resized(torch.as_tensor(np.asarray(image, np.float32)), camera.width,
+            views.append((camera, area_resized(torch.tensor(np.asarray(image, np.float32)), camera.width,
                                                camera.height)))
         free = {k: torch.tensor(np.asarray(start[k], np.float32))[None].requires_grad_(True)
                 for k in self.rates if k in start}
