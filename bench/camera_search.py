@@ -139,19 +139,23 @@ class Subjects:
 
     def __init__(self, folder: pathlib.Path, quick: bool, threads: int, steps: int):
         self.folder, self.quick, self.threads, self.steps = folder, quick, threads, steps
+        self.captures: dict[int, pathlib.Path] = {}
         self.made_s: dict[int, float] = {}
 
+    def _folder(self, kind: str, subject: int) -> pathlib.Path:
+        return self.folder / (kind + (f"_s{subject}" if subject else "") + ("_quick" if self.quick else ""))
+
     def capture(self, subject: int) -> pathlib.Path:
+        """The subject's capture, made (or checked) once per search."""
         from .converge import ensure_capture
 
-        name = "capture" + (f"_s{subject}" if subject else "") + ("_quick" if self.quick else "")
-        capture, made_s = ensure_capture(self.folder / name, capture_settings(self.quick, subject))
-        self.made_s[subject] = self.made_s.get(subject, 0.0) + made_s
-        return capture
+        if subject not in self.captures:
+            self.captures[subject], self.made_s[subject] = ensure_capture(
+                self._folder("capture", subject), capture_settings(self.quick, subject))
+        return self.captures[subject]
 
     def run(self, subject: int, settings: dict) -> pathlib.Path:
-        name = "runs" + (f"_s{subject}" if subject else "") + ("_quick" if self.quick else "")
-        return trained_run(self.capture(subject), self.folder / name, settings, self.threads, self.steps)
+        return trained_run(self.capture(subject), self._folder("runs", subject), settings, self.threads, self.steps)
 
 
 def searched_try(subjects: Subjects, search_subjects: list[int], settings: dict, frames: int) -> dict:
