@@ -87,6 +87,13 @@ def trained_run(capture: pathlib.Path, folder: pathlib.Path, settings: dict, thr
     return run
 
 
+def _camera_error(scores: dict) -> dict:
+    """The refined cameras' error against the truth (``None`` for a run that kept its cameras)."""
+    refined = scores["cameras"].get("refined", {})
+    return {"rotation_deg": round(refined["rotation_deg"], 4) if refined else None,
+            "position_mm": round(refined["position_mm"], 3) if refined else None}
+
+
 def scored_try(run: pathlib.Path, frames: int) -> dict:
     """The run's validation self-reenactment scores (the tracked parameters, as Freeze renders) and
     its cameras' error against the truth."""
@@ -94,10 +101,7 @@ def scored_try(run: pathlib.Path, frames: int) -> dict:
 
     scores = score_variant(run, frames, False, (), split="validation")
     tracked = scores["protocols"]["self_reenactment"]["tracked"]
-    refined = scores["cameras"].get("refined", {})
-    return {"psnr_db": round(tracked["psnr"], 4), "ssim": round(tracked["ssim"], 4),
-            "rotation_deg": round(refined["rotation_deg"], 4) if refined else None,
-            "position_mm": round(refined["position_mm"], 3) if refined else None,
+    return {"psnr_db": round(tracked["psnr"], 4), "ssim": round(tracked["ssim"], 4), **_camera_error(scores),
             "calibrated_rotation_deg": round(scores["cameras"]["calibrated_refined_cameras"]["rotation_deg"], 4),
             "run": str(run)}
 
@@ -108,12 +112,10 @@ def tested_try(run: pathlib.Path, frames: int | None) -> dict:
     from mogaface.core.workflows.ablation import score_variant
 
     scores = score_variant(run, frames, False, (), split="test")
-    refined = scores["cameras"].get("refined", {})
     protocols = scores["protocols"]
     return {"novel_view_psnr_db": round(protocols["novel_view"]["tracked"]["psnr"], 4),
             "self_reenactment_psnr_db": round(protocols["self_reenactment"]["tracked"]["psnr"], 4),
-            "rotation_deg": round(refined["rotation_deg"], 4) if refined else None,
-            "position_mm": round(refined["position_mm"], 3) if refined else None,
+            **_camera_error(scores),
             "scored_frames": {name: len(views["frames"]) for name, views in scores["scored"].items()},
             "run": str(run)}
 
