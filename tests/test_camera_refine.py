@@ -274,7 +274,7 @@ def test_camera_settings_are_checked():
     with pytest.raises(Exception, match="cameras.settle_at"):
         C.resolve(overrides={"cameras": {"settle_at": -1}})
     with pytest.raises(Exception, match="cameras.settle_at.*step 450"):  # the cameras would not move yet
-        C.resolve(overrides={"train": {"steps": 1000}, "cameras": {"refine": True, "settle_at": 300,
+        C.resolve(overrides={"train": {"steps": 1000}, "cameras": {"refine": True, "begin": 0.45, "settle_at": 300,
                                                                    "settle_steps": 100}})
     with pytest.raises(Exception, match="cameras.begin"):
         C.resolve(overrides={"cameras": {"begin": 1.0}})

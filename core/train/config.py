@@ -108,8 +108,10 @@ class CamerasSection:
                                           "move only with the rig's rigid motion that the gauge takes out (the "
                                           "images pin a sideways centre shift too weakly: "
                                           "docs/notebook/2026-11-26-camera-refinement.md)")
-    begin: float = _setting(0.45, "fraction of the last round's steps after which its camera offsets move (they "
-                                  "hold still while its avatar forms; earlier rounds move them from the first step)")
+    begin: float = _setting(0.3, "fraction of the last round's steps after which its camera offsets move (they "
+                                 "hold still while its avatar forms; earlier rounds move them from the first step; "
+                                 "chosen on validation frames: docs/notebook/2026-11-27-validation-and-unseen-"
+                                 "subjects.md)")
     final_ratio: float = _setting(1.0, "the camera rates at the last step, as a fraction of the first (exponential "
                                        "decay; 1: constant)")
     gauge: str = _setting("rigid", "'rigid': the offsets hold no rigid motion of the whole rig (the rig as a whole "
