@@ -44,6 +44,7 @@ class Progress:
     eta_s: float | None = None
     val_psnr: float | None = None
     message: str = ""
+    warnings: list[str] = dataclasses.field(default_factory=list)  # what the run said it could not do
 
     @property
     def fraction(self) -> float:
@@ -54,14 +55,26 @@ class Progress:
         return self.state in ("done", "cancelled", "failed")
 
     def text(self) -> str:
-        """One line: step, loss, PSNR, ETA."""
-        parts = [f"{self.stage or 'step'} {self.step}/{self.steps}" if self.steps else self.state]
+        """One line: step, loss, PSNR, ETA (the status bar and the logs)."""
+        return ", ".join(part for part in (self.bar_text().replace(" · ", ", "), self.detail_text()) if part)
+
+    def bar_text(self) -> str:
+        """Short enough for a progress bar in the sidebar at its default width: where the run is and
+        how long it has left ("compiling" until the first steps are timed)."""
+        where = f"{self.stage or 'step'} {self.step}/{self.steps}" if self.steps else self.state
+        if self.state != "running":
+            return where
+        if self.eta_s is not None:
+            return f"{where} · ETA {format_seconds(self.eta_s)}"
+        return f"{where} · {'compiling' if self.loss is None else 'timing'}"
+
+    def detail_text(self) -> str:
+        """The numbers the bar leaves out: the loss and the training PSNR."""
+        parts = []
         if self.loss is not None:
             parts.append(f"loss {self.loss:.4f}")
         if self.psnr is not None:
             parts.append(f"PSNR {self.psnr:.2f} dB")
-        if self.eta_s is not None and self.state == "running":
-            parts.append(f"ETA {format_seconds(self.eta_s)}")
         return ", ".join(parts)
 
 
@@ -271,6 +284,8 @@ class TrainWorker:
             p.loss, p.psnr, p.eta_s = event.get("loss"), event.get("psnr"), event.get("eta_s")
         elif kind == "val":
             p.val_psnr = event.get("psnr")
+        elif kind == "warning" and event.get("message"):
+            p.warnings.append(str(event["message"]))
         elif kind == "done":
             p.eta_s = 0.0
             metrics = event.get("metrics") or {}
@@ -280,7 +295,7 @@ class TrainWorker:
         p = self.progress
         kinds = {e.get("event") for e in self.events}
         if code == 0 and "done" in kinds:
-            p.state, p.message = "done", self.DONE.format(step=p.step)
+            p.state, p.message = "done", "; ".join([self.DONE.format(step=p.step), *p.warnings])
         elif self._cancelled and ("stopped" in kinds or code in (128 + signal.SIGINT, 128 + signal.SIGTERM)):
             p.state, p.message = "cancelled", f"cancelled at {p.stage or 'step'} {p.step} ({self.CANCELLED})"
         else:

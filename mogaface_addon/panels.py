@@ -148,7 +148,7 @@ class MOGAFACE_PT_training(_SubPanel, bpy.types.Panel):
 
         progress = last_progress()
         if current_worker() is not None:
-            layout.progress(factor=progress.fraction, text=progress.text())
+            draw_worker_progress(layout, progress)
             layout.operator("mogaface.train_cancel", icon="CANCEL")
             return
         if operator_available("mogaface.train"):
@@ -158,6 +158,15 @@ class MOGAFACE_PT_training(_SubPanel, bpy.types.Panel):
             draw_stage_operators(layout, "training")
         if progress is not None:
             wrapped_label(layout, context, progress.message, icon="ERROR" if progress.state == "failed" else "INFO")
+
+
+def draw_worker_progress(layout, progress) -> None:
+    """A child job's bar (step and ETA: short enough for the sidebar at its default width), and its
+    loss and PSNR on the line below."""
+    layout.progress(factor=progress.fraction, text=progress.bar_text())
+    detail = progress.detail_text()
+    if detail:
+        layout.label(text=detail)
 
 
 class MOGAFACE_PT_avatar(_SubPanel, bpy.types.Panel):
@@ -232,7 +241,7 @@ def draw_improve_tracking(layout, context) -> None:
 
     progress = last_progress()
     if current_worker() is not None:
-        layout.progress(factor=progress.fraction, text=f"Improving: {progress.text()}")
+        draw_worker_progress(layout, progress)
         layout.operator("mogaface.improve_tracking_cancel", icon="CANCEL")
         return
     row = layout.row()

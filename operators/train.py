@@ -61,8 +61,8 @@ def finish_job(operator, progress, settings=None) -> set:
         avatar = worker.run / "avatar.pt"
         if avatar.exists():
             settings.avatar_file = str(avatar)
-    if progress.state == "done":
-        operator.report({"INFO"}, f"Training {progress.message}")
+    if progress.state == "done":  # what the run could not do (say, score LPIPS) is a warning, not a failure
+        operator.report({"WARNING"} if progress.warnings else {"INFO"}, f"Training {progress.message}")
         return {"FINISHED"}
     if progress.state == "cancelled":
         operator.report({"WARNING"}, f"Training {progress.message}")

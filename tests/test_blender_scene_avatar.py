@@ -609,7 +609,7 @@ def test_improve_tracking_asks_before_replacing_keys_and_shows_its_progress(scen
     monkeypatch.setitem(improving._job, "worker", running)
     log = []
     panels.draw_improve_tracking(Recorder(log), bpy.context)
-    assert ("progress", "Improving: offsets 3/50") in log and ("operator", "mogaface.improve_tracking_cancel") in log
+    assert ("progress", "offsets 3/50 · compiling") in log and ("operator", "mogaface.improve_tracking_cancel") in log
     assert bpy.ops.mogaface.improve_tracking_cancel.poll()
     monkeypatch.setitem(improving._job, "worker", None)
     monkeypatch.setitem(improving._job, "last", Progress(state="failed", message="improving the tracking failed"))

@@ -92,6 +92,7 @@ def test_events_file_format(trained_run):
     for key in ("loss", "l1", "ssim", "position", "scaling", "psnr", "gaussians", "it_s", "eta_s", "steps",
                 "sh_degree", "elapsed_s"):
         assert key in iters[-1]
+    assert iters[0]["eta_s"] is None and iters[1]["eta_s"] > 0  # the first window's pace includes compiling
     assert [e["step"] for e in events if e["event"] == "densify"] == [40, 60]
     assert [e["step"] for e in events if e["event"] == "checkpoint"] == [40, 80]
 
@@ -180,6 +181,30 @@ def test_a_signal_during_the_final_evaluation_leaves_a_resumable_run(tiny_captur
     monkeypatch.setattr(Trainer, "finish", finish)
     assert Trainer(tiny_capture, run, resume=True).run()["complete"]
     assert json.loads((run / "run.json").read_text())["complete"]
+
+
+def test_a_metric_that_cannot_be_scored_at_the_end_never_loses_the_avatar(tiny_capture, tmp_path, monkeypatch):
+    """Without the LPIPS weights (a Blender whose dependencies predate them), the run completes, the
+    avatar is written, and the metrics and a warning say what was not scored and why."""
+    from mogaface.core.metrics import lpips_weights
+    from mogaface.core.worker import TrainWorker
+
+    monkeypatch.setenv(lpips_weights.ENV_VAR, str(tmp_path / "nowhere.ckpt"))
+    run = tmp_path / "run"
+    config = tiny_config(train={"steps": 3}, eval={"at_end": True, "lpips": True, "max_frames": 2})
+    assert Trainer(tiny_capture, run, config).run()["complete"]
+    assert (run / "avatar.pt").exists() and json.loads((run / "run.json").read_text())["complete"]
+    metrics = json.loads((run / "metrics_train_end.json").read_text())
+    assert metrics["psnr"] > 5 and "lpips" not in metrics
+    assert "nowhere.ckpt: LPIPS AlexNet weights not found" in metrics["not_scored"]["lpips"]
+    assert "Install Dependencies" in metrics["not_scored"]["lpips"]  # the way a Blender user gets them
+    warnings = [e["message"] for e in read_events(run) if e["event"] == "warning"]
+    assert len(warnings) == 1 and warnings[0].startswith("LPIPS not scored: ")
+    worker = TrainWorker(["true"], run)  # what Blender's panel reports from these events
+    for event in read_events(run):
+        worker._apply(event)
+    worker._finish(0)
+    assert worker.progress.state == "done" and "finished at step 3; LPIPS not scored: " in worker.progress.message
 
 
 def test_sigterm_checkpoints_and_resume_finishes(tiny_capture, tmp_path):

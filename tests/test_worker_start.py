@@ -175,3 +175,19 @@ def test_two_import_names_never_load_each_others_numba_cache(tmp_path):
     assert all(r["counts"] == first[0]["counts"] for r in again)
     for name in (blender, worker):
         assert list(numba_cache.folder_for(name, tmp_path / "cache").rglob("*.nbi")), name
+
+
+def test_the_progress_bar_text_fits_the_sidebar_and_says_compiling_until_timed():
+    """The sidebar at its default width shows about 30 characters of a progress bar before Blender
+    cuts the middle out ("loss 0.…R 16.19 dB"): the bar holds the step and the ETA, the line
+    below the loss and PSNR."""
+    from mogaface.core.worker import Progress
+
+    starting = Progress(state="running", step=0, steps=1500)
+    assert starting.bar_text() == "step 0/1500 · compiling"
+    timing = Progress(state="running", step=10, steps=1500, loss=0.0512, psnr=16.19)
+    assert timing.bar_text() == "step 10/1500 · timing"
+    running = Progress(state="running", stage="round 2", step=14999, steps=15000, loss=0.0234, psnr=32.19, eta_s=828)
+    assert running.bar_text() == "round 2 14999/15000 · ETA 13:48" and len(running.bar_text()) <= 32
+    assert running.detail_text() == "loss 0.0234, PSNR 32.19 dB"
+    assert running.text() == "round 2 14999/15000, ETA 13:48, loss 0.0234, PSNR 32.19 dB"

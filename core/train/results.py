@@ -8,6 +8,7 @@ checking only: the trainer imports this module).
 
 from __future__ import annotations
 
+import dataclasses
 import pathlib
 import time
 from typing import TYPE_CHECKING
@@ -44,16 +45,42 @@ def write_results(trainer: Trainer) -> None:
         save_npz(run_folder.root / layout.flame_param_path(t), layout.batched_flame_params(table.numpy(t)))
     metrics = None
     if config.eval.at_end and "val" in trainer.data.capture.splits:
-        from .quick_eval import evaluate_val
-
-        start = time.monotonic()
-        metrics = evaluate_val(avatar, trainer.data, table, config.eval)
-        metrics["step"] = trainer.step
-        metrics["seconds"] = round(time.monotonic() - start, 3)
+        metrics = score_at_end(trainer, avatar, table)
         write_json(run_folder.metrics_path, metrics)
     write_run_json(trainer, complete=True)
     trainer.events.emit("done", step=trainer.step, gaussians=len(trainer.avatar.gaussians),
                         elapsed_s=trainer.elapsed, metrics=metrics)
+
+
+def score_at_end(trainer: Trainer, avatar, table) -> dict:
+    """The val metrics of the finished run. A metric that cannot be computed here (LPIPS without its
+    weights, a val image that cannot be read) is left out and named, with why, under ``not_scored``,
+    and said in a ``warning`` event: the trained avatar is never lost to its scoring."""
+    from ..errors import MogafaceError
+    from ..metrics import lpips_weights
+    from .quick_eval import evaluate_val
+
+    settings, not_scored = trainer.config.eval, {}
+    if settings.lpips and (reason := lpips_weights.unavailable_reason()):
+        not_scored["lpips"] = reason
+        settings = dataclasses.replace(settings, lpips=False)
+    start = time.monotonic()
+    try:
+        metrics = evaluate_val(avatar, trainer.data, table, settings)
+    except MogafaceError as error:
+        metrics = {"split": "val", "frames": 0}
+        not_scored["val"] = str(error)
+    metrics["step"] = trainer.step
+    metrics["seconds"] = round(time.monotonic() - start, 3)
+    if not_scored:
+        metrics["not_scored"] = not_scored
+        for name, reason in not_scored.items():
+            trainer.events.emit("warning", message=f"{NOT_SCORED_LABELS[name]} not scored: {reason}")
+    return metrics
+
+
+#: What a ``not_scored`` key of :func:`score_at_end` names, for its warning.
+NOT_SCORED_LABELS = {"lpips": "LPIPS", "val": "the val split"}
 
 
 def write_run_json(trainer: Trainer, complete: bool) -> None:

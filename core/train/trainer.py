@@ -411,6 +411,7 @@ class Trainer:
                          gaussians=len(self.avatar.gaussians), extent=self.extent,
                          frames=len(self.data.frames), timesteps=len(self.data.timesteps))
         window_start, window_steps = time.monotonic(), 0
+        first_window = True  # its pace includes numba's compilation and the first loads: no ETA from it
         last = time.monotonic()
         budget = cfg.max_minutes * 60 if cfg.max_minutes > 0 else math.inf
         out_of_time = False
@@ -452,9 +453,9 @@ class Trainer:
                                      gaussians=len(self.avatar.gaussians),
                                      sh_degree=self.avatar.gaussians.active_sh_degree,
                                      lr_position=position_lr(self.config, self.extent, self.schedule_step()),
-                                     it_s=rate, eta_s=eta,
+                                     it_s=rate, eta_s=None if first_window else eta,
                                      elapsed_s=self.elapsed)
-                    window_start, window_steps = now, 0
+                    window_start, window_steps, first_window = now, 0, False
                 if self.config.eval.every and self.step % self.config.eval.every == 0 and self.comm.is_writer:
                     try:
                         self._quick_check()
