@@ -5,11 +5,14 @@ extension, and the panel then offers *Install Dependencies*.
 
 Besides the classes: the ``Scene.mogaface`` settings, the handlers that re-pose heads
 (``frame_change_post``, ``depsgraph_update_post``) and the extension's user site-packages folder
-on ``sys.path``. :func:`unregister` removes every one of them.
+on ``sys.path``. :func:`unregister` removes every one of them, ends the extension's threads, and
+leaves each scene as it would be without the extension (:mod:`..operators.handlers.suspend`);
+:func:`register` brings the avatars back.
 """
 
 import bpy
 
+from ..operators.common import stop_background_threads
 from ..operators.compositor import MOGAFACE_OT_setup_render_layer
 from ..operators.dependencies import add_site_packages, remove_site_packages
 from ..operators.export import MOGAFACE_OT_export_ply
@@ -17,6 +20,7 @@ from ..operators.gaussian_points import MOGAFACE_OT_gaussians_to_mesh
 from ..operators.handlers import viewport
 from ..operators.handlers.head_rig import update_heads_on_edit, update_heads_on_frame_change
 from ..operators.handlers.render_layers import render_avatar_layers
+from ..operators.handlers.suspend import resume_after_load, resume_when_data_is_ready, suspend_scenes
 from ..operators.import_capture import MOGAFACE_OT_import_capture, MOGAFACE_OT_use_capture_camera
 from ..operators.import_head import MOGAFACE_OT_import_head
 from ..operators.import_tracking import MOGAFACE_OT_import_tracking
@@ -71,6 +75,7 @@ HANDLERS = (
     (bpy.app.handlers.frame_change_post, update_heads_on_frame_change),
     (bpy.app.handlers.depsgraph_update_post, update_heads_on_edit),
     (bpy.app.handlers.render_pre, render_avatar_layers),
+    (bpy.app.handlers.load_post, resume_after_load),
 )
 
 
@@ -83,6 +88,7 @@ def register():
     for handlers, function in HANDLERS:
         if function not in handlers:
             handlers.append(function)
+    resume_when_data_is_ready()
 
 
 def _same_function(a, b) -> bool:
@@ -95,6 +101,10 @@ def unregister():
     cancel_child_jobs()  # a training or tracking child never outlives the extension
     cancel_render_job()
     cancel_running_install()
+    try:
+        suspend_scenes()
+    except Exception as error:  # noqa: BLE001 - unregistering must go on whatever a scene holds
+        print(f"MoGaFace: the scenes could not be left without the avatars: {error}")
     viewport.unregister()
     for handlers, function in HANDLERS:
         for registered in [h for h in handlers if _same_function(h, function)]:
@@ -104,4 +114,5 @@ def unregister():
     for cls in reversed(CLASSES):
         if getattr(cls, "is_registered", False):
             bpy.utils.unregister_class(cls)
+    stop_background_threads()
     remove_site_packages()

@@ -1,4 +1,4 @@
-"""What every MoGaFace operator shares: the dependency gate and error reporting."""
+"""What every MoGaFace operator shares: the dependency gate, error reporting, background threads."""
 
 from __future__ import annotations
 
@@ -46,6 +46,27 @@ def clear_status_text() -> None:
         window.workspace.status_text_set(None)
         for area in window.screen.areas:  # the status bar redraws with the next redraw of the window
             area.tag_redraw()
+
+
+_threads: dict = {}
+
+
+def background_thread(kind: str):
+    """The one worker thread of a kind of work (``render``: renders and avatar loads; ``viewport``: the
+    CPU image; ``posing``: the GPU draw's splats), started when first needed; an executor."""
+    if kind not in _threads:
+        import concurrent.futures
+
+        _threads[kind] = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix=f"mogaface-{kind}")
+    return _threads[kind]
+
+
+def stop_background_threads() -> None:
+    """End every :func:`background_thread` (the extension is disabled): queued work is dropped and
+    running work ends on its own; nothing of the extension stays in Blender's process."""
+    for pool in _threads.values():
+        pool.shutdown(wait=False, cancel_futures=True)
+    _threads.clear()
 
 
 class OpensFileBrowser:

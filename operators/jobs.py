@@ -17,12 +17,11 @@ timer in the UI, in a blocking loop in background mode. The same ``step`` serves
 
 from __future__ import annotations
 
-import concurrent.futures
 import time
 
 import bpy
 
-from .common import clear_status_text, redraw_areas
+from .common import background_thread, clear_status_text, redraw_areas
 
 #: Every kind's job, by the label that names it in messages.
 _jobs: dict[str, dict] = {}
@@ -134,17 +133,6 @@ def cancel_operator(idname: str, label: str, description: str, running, message:
     })
 
 
-_executor: concurrent.futures.ThreadPoolExecutor | None = None
-
-
-def executor() -> concurrent.futures.ThreadPoolExecutor:
-    """The one thread that renders for jobs (created when first needed)."""
-    global _executor
-    if _executor is None:
-        _executor = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="mogaface-render")
-    return _executor
-
-
 class RenderJob:
     """Render ``frames`` one after another.
 
@@ -199,7 +187,7 @@ class RenderJob:
             except (MogafaceError, OSError) as error:
                 self.error = str(error)
             else:
-                self._future = executor().submit(self._render, request)
+                self._future = background_thread("render").submit(self._render, request)
         return not self.finished
 
     def run(self, interval: float = 0.005, on_progress=None) -> "RenderJob":

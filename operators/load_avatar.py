@@ -51,10 +51,10 @@ class MOGAFACE_OT_load_avatar(OpensFileBrowser, bpy.types.Operator):
         path = bpy.path.abspath(self.filepath)
         if bpy.app.background or context.window is None:  # timers never run headless: load here
             return self._link(context, run_core(self, _located_avatar, path))
-        from .jobs import executor
+        from .common import background_thread
 
         # Reading the file and importing torch take seconds: a thread does it, a timer collects it.
-        self._future = executor().submit(_located_avatar, path)
+        self._future = background_thread("render").submit(_located_avatar, path)
         wm = context.window_manager
         self._timer = wm.event_timer_add(0.05, window=context.window)
         wm.modal_handler_add(self)

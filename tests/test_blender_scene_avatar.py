@@ -660,3 +660,35 @@ def test_file_operators_run_at_once_with_a_path_and_browse_without(scene):
         assert operator.invoke(fake, context, None) == {"RUNNING_MODAL"} and not executed, name
         assert browsed == [operator.suggested_name], name
     assert ops("export").MOGAFACE_OT_export_ply.suggested_name == "avatar.ply"
+
+
+def test_disabling_leaves_the_scene_as_without_the_extension_and_enabling_brings_the_avatar_back(scene):
+    """Disabled: the avatar layers are muted (F12 renders the scene alone, never a stale layer), the
+    head is its textured mesh again, and no thread of the extension stays; enabled: all as before."""
+    import threading
+
+    scn, head = bpy.context.scene, scene["head"]
+    bpy.context.view_layer.objects.active = head
+    assert bpy.ops.mogaface.setup_render_layer() == {"FINISHED"}
+    head.mogaface_show_avatar = True
+    ops("common").background_thread("render").submit(time.sleep, 0.01).result()
+    before = {"display_type": head.display_type, "show_in_front": head.show_in_front, "hide_render": head.hide_render}
+    assert before == {"display_type": "BOUNDS", "show_in_front": True, "hide_render": True}
+    layers = ops("handlers.render_layers")
+    tree = layers.compositor_tree(scn, create=False)
+    tagged = [node.name for node in tree.nodes if layers.NODE_TAG in node]
+    assert bpy.ops.preferences.addon_disable(module=MODULE) == {"FINISHED"}
+    try:
+        assert all(tree.nodes[name].mute for name in tagged)
+        combine = next(tree.nodes[name] for name in tagged if tree.nodes[name].bl_idname == "CompositorNodeZcombine")
+        assert combine.inputs[0].links[0].from_node.bl_idname == "CompositorNodeRLayers"  # what a muted one passes
+        assert (head.display_type, head.show_in_front, head.hide_render) == ("TEXTURED", False, False)
+        deadline = time.monotonic() + 5
+        while any(t.name.startswith("mogaface-") for t in threading.enumerate()) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert not [t.name for t in threading.enumerate() if t.name.startswith("mogaface-")]
+    finally:
+        assert bpy.ops.preferences.addon_enable(module=MODULE) == {"FINISHED"}
+    assert not any(tree.nodes[name].mute for name in tagged)
+    assert {name: getattr(head, name) for name in before} == before
+    assert "mogaface_suspended" not in head and not any("mogaface_suspended" in tree.nodes[n] for n in tagged)

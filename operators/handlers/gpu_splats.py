@@ -16,6 +16,7 @@ worker thread so a frame not yet posed never blocks a redraw.
 
 from __future__ import annotations
 
+from ..common import background_thread
 from ..dependencies import LazyModule
 
 np = LazyModule("numpy")
@@ -199,7 +200,7 @@ class Posing:
                 self.error = str(error)
         if self.future is None and key != self.wanted:
             self.wanted = key
-            self.future = _executor().submit(_pose, avatar_path, values, frame)
+            self.future = background_thread("posing").submit(_pose, avatar_path, values, frame)
         return self.splats
 
     @property
@@ -211,17 +212,6 @@ def _pose(avatar_path, values, frame):
     from ...core.scene.gpu_splats import posed_splats
 
     return posed_splats(avatar_path, values), frame
-
-
-_pool = {}
-
-
-def _executor():
-    import concurrent.futures
-
-    if "pool" not in _pool:
-        _pool["pool"] = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="mogaface-posing")
-    return _pool["pool"]
 
 
 def clear() -> None:

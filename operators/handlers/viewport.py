@@ -27,6 +27,7 @@ import time
 import bpy
 from bpy.props import BoolProperty, EnumProperty
 
+from ..common import background_thread
 from ..dependencies import LazyModule
 from . import gpu_splats
 from .head_rig import AVATAR_PATH_PROPERTY, is_head
@@ -137,7 +138,7 @@ class ViewState:
             return viewport_image(render(request), view, projection)
 
         self.pending_key = request.key()
-        self.future = _viewport_executor().submit(work)
+        self.future = background_thread("viewport").submit(work)
 
     def collect(self) -> bool:
         """Take a finished render; True if a new image arrived."""
@@ -155,18 +156,6 @@ class ViewState:
 
 
 _views: dict = {}
-_executor = None
-
-
-def _viewport_executor():
-    import concurrent.futures
-
-    global _executor
-    if _executor is None:
-        _executor = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="mogaface-viewport")
-    return _executor
-
-
 def update_view(state: ViewState, head, region, region_3d, scene, now: float | None = None,
                 submit: bool = True) -> str:
     """Collect a finished image and, if the view, frame or head changed, ask for a new one
