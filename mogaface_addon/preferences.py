@@ -65,6 +65,12 @@ def draw_dependencies(layout) -> bool:
     if progress is not None and progress.state != "done":
         wrapped_label(layout, bpy.context, progress.message, icon="ERROR" if progress.state == "failed" else "INFO")
     if not missing:
+        from ..core.metrics.lpips_weights import installed
+
+        if not installed():  # packages from an older install: training works, its LPIPS is not scored
+            box = layout.box()
+            wrapped_label(box, bpy.context, "LPIPS weights missing: runs are scored without LPIPS", icon="INFO")
+            box.operator("mogaface.install_dependencies", icon="IMPORT")
         return True
     box = layout.box()
     box.alert = True

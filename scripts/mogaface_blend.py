@@ -7,7 +7,8 @@ Runs the same with the Blender binary and with the ``bpy`` module:
     blender -b SCENE.blend --python scripts/mogaface_blend.py -- …         (built into SCENE's content)
     python scripts/mogaface_blend.py CAPTURE --run RUN --blend OUT.blend [options]
 
-Steps: import the capture's cameras; train into RUN (``--train``; otherwise RUN must hold a
+Steps: install what this Blender lacks (``--install-dependencies``); import the capture's cameras;
+train into RUN (``--train``; otherwise RUN must hold a
 trained avatar); import the avatar's head with the run's identity; key its expressions and pose
 from the run's corrected tracking (``RUN/flame_param_corrected`` of a MoGaFace run, else
 ``RUN/flame_param``; or ``--tracking``); link the avatar; render
@@ -52,6 +53,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--run", type=pathlib.Path, required=True, help="run folder (trained, or written by --train)")
     parser.add_argument("--blend", type=pathlib.Path, required=True, help="the .blend file to write")
     parser.add_argument("--train", action="store_true", help="train into --run first (a separate process)")
+    parser.add_argument("--install-dependencies", action="store_true",
+                        help="first install what this Blender lacks, as the panel's button does: the Python packages "
+                        "and the LPIPS weights a run's end-of-run scoring needs (needs online access: "
+                        "blender --online-mode, or the preference)")
     parser.add_argument("--preset", default="demo", choices=[name for name, _ in PRESETS],
                         help="training preset: " + "; ".join(f"{name}: {text}" for name, text in PRESETS))
     parser.add_argument("--steps", type=int, default=0, help="training steps (0: the preset's)")
@@ -136,6 +141,9 @@ def build_scene(args, log=print) -> dict:
     mogaface = _mogaface_module()
     ops = bpy.ops.mogaface
     _check_output(args.blend)
+    if args.install_dependencies:
+        _call(ops.install_dependencies)
+        log("[blend] installed the dependencies")
     run = args.run.resolve()
     _call(ops.import_capture, filepath=str(args.capture.resolve()))
     log(f"[blend] imported the capture's cameras from {args.capture}")
@@ -143,6 +151,9 @@ def build_scene(args, log=print) -> dict:
         addon = bpy.context.preferences.addons.get(mogaface.__name__)
         if addon is not None and args.launcher:
             addon.preferences.launcher = args.launcher
+        weights = importlib.import_module(f"{mogaface.__name__}.core.metrics.lpips_weights")
+        if not weights.installed():
+            log("[blend] the LPIPS weights are missing: the run is scored without LPIPS (--install-dependencies)")
         _call(ops.train, capture=str(args.capture.resolve()), run=str(run), preset=args.preset, steps=args.steps,
               resume="NEW", python=args.python or "", camera_rounds=args.camera_rounds)
         log(f"[blend] trained into {run}")

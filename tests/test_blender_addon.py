@@ -415,6 +415,11 @@ def test_panels_draw_every_section_and_name_missing_packages(scenario, monkeypat
     run_set = bool(bpy.context.scene.mogaface.run_folder)  # improving needs a head and a trained run
     assert ("operator", "mogaface.improve_tracking", run_set) in log
     preferences = importlib.import_module(MODULE + ".mogaface_addon.preferences")
+    monkeypatch.setenv(lpips_weights.ENV_VAR, "/nowhere/alexnet.ckpt")  # packages from before the weights
+    log = draw_panels(["MOGAFACE_PT_main"])
+    assert ("label", "Python packages: ready", True) in log and ("operator", "mogaface.install_dependencies", True) in log
+    assert "LPIPS weights missing: runs are scored without LPIPS" in " ".join(e[1] for e in log if e[0] == "label")
+    monkeypatch.delenv(lpips_weights.ENV_VAR)
     monkeypatch.setattr(preferences, "missing_modules", lambda: ["numba", "torch"])
     labels = [entry[1] for entry in draw_panels(["MOGAFACE_PT_main"]) if entry[0] == "label"]
     text = " ".join(labels)  # long lines wrap to the panel's width: the words are all there
