@@ -89,10 +89,30 @@ def build_camera(settings, collection, existing=None):
     return obj
 
 
+def subject_points(centre) -> list[tuple]:
+    """A box the size of a head around ``centre``: what a view framing the subject shows (the
+    cameras, metres away, stay reachable with View All)."""
+    from ..core.scene.cameras import HEAD_RADIUS
+
+    return [tuple(c + HEAD_RADIUS * sign * (axis == i) for i, c in enumerate(centre))
+            for axis in range(3) for sign in (-1, 1)]
+
+
+def default_cube_around(scene, point):
+    """The startup file's 2 m cube, untouched, if it encloses ``point`` (it would hide the head), else None."""
+    cube = scene.objects.get("Cube")
+    if cube is None or cube.type != "MESH" or len(cube.data.vertices) != 8 or not cube.visible_get():
+        return None
+    if any(abs(d - 2.0) > 1e-4 for d in cube.dimensions):
+        return None
+    inside = all(abs(p - c) <= 1.0 for p, c in zip(point, cube.matrix_world.translation))
+    return cube if inside else None
+
+
 def frame_views(context, points) -> None:
-    """Point every perspective 3D view of the open windows at ``points`` (the capture's cameras and
-    the head at the origin), as View Selected would, without changing the selection. Nothing
-    happens without a window (background mode)."""
+    """Point every perspective 3D view of the open windows at ``points`` (a head-sized box around
+    where the capture's cameras look), as View Selected would, without changing the selection.
+    Nothing happens without a window (background mode)."""
     from ..core.scene.render import view_framing
 
     for window in getattr(context.window_manager, "windows", ()):
@@ -128,6 +148,10 @@ class MOGAFACE_OT_import_capture(OpensFileBrowser, bpy.types.Operator):
         name="Standard View Transform", default=True,
         description="Set the scene's view transform to Standard: captures and the avatar are display-referred "
                     "sRGB, and Standard shows their colours as captured (AgX or Filmic would tone-map them)")
+    hide_default_cube: BoolProperty(
+        name="Hide the Default Cube", default=True,
+        description="Hide the startup file's 2 m cube when the head is inside it (it would hide the head); "
+                    "Alt H shows it again")
 
     def execute(self, context):
         if not dependencies_ready(self, context, needs=FILE_MODULES):
@@ -156,7 +180,12 @@ class MOGAFACE_OT_import_capture(OpensFileBrowser, bpy.types.Operator):
             message += f"; view transform {scene.view_settings.view_transform} -> Standard (the captured colours)"
             scene.view_settings.view_transform = "Standard"
             scene.view_settings.look = "None"
-        frame_views(context, [obj.matrix_world.translation for obj in cameras] + [(0.0, 0.0, 0.0)])
+        cube = default_cube_around(scene, description.subject_centre) if self.hide_default_cube else None
+        if cube is not None:
+            cube.hide_set(True)
+            cube.hide_render = True
+            message += "; the default cube hidden (the head is inside it: Alt H shows it)"
+        frame_views(context, subject_points(description.subject_centre))
         if refined:
             message += " (refined poses from the run)"
         if description.moving_cameras:

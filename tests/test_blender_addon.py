@@ -223,6 +223,27 @@ def test_importing_a_capture_again_updates_its_cameras(scenario):
     bpy.context.scene.frame_start, bpy.context.scene.frame_end = 1, 4
 
 
+def test_importing_a_capture_hides_the_default_cube_around_the_head(scenario):
+    """The startup file's 2 m cube encloses the head: hidden (undoably, Alt H), unless asked not to."""
+    bpy.ops.mesh.primitive_cube_add(size=2.0, location=(0.0, 0.0, 0.0))
+    cube = bpy.context.active_object
+    cube.name = "Cube"
+    try:
+        assert bpy.ops.mogaface.import_capture(filepath=str(scenario["capture"]), hide_default_cube=False) \
+            == {"FINISHED"}
+        assert cube.visible_get() and not cube.hide_render
+        assert bpy.ops.mogaface.import_capture(filepath=str(scenario["capture"])) == {"FINISHED"}
+        assert not cube.visible_get() and cube.hide_render
+        cube.hide_set(False)
+        cube.location = (5.0, 0.0, 0.0)  # elsewhere in the scene: the user's, left alone
+        bpy.context.view_layer.update()
+        cube.hide_render = False
+        assert bpy.ops.mogaface.import_capture(filepath=str(scenario["capture"])) == {"FINISHED"}
+        assert cube.visible_get() and not cube.hide_render
+    finally:
+        bpy.data.objects.remove(cube)
+
+
 def _project_with_file_fields(fields: dict, points: np.ndarray) -> np.ndarray:
     """Pixels of world points under a camera entry read as VHAP/GaussianAvatars readers do: an OpenGL
     camera-to-world ``transform_matrix`` (camera looks down −z, y up) and ``fl_x, fl_y, cx, cy``."""

@@ -57,6 +57,42 @@ def test_the_round_trip_covers_every_8_bit_value():
     assert np.abs(np.round(srgb_from_blender(out) * 255) - np.arange(256)[None, :, None]).max() == 0
 
 
+def test_the_point_the_cameras_look_at_is_their_subject():
+    from mogaface.core.scene.cameras import where_cameras_look
+
+    rng = np.random.default_rng(0)
+    subject = np.array([0.1, -0.2, 1.6])
+    matrices = []
+    for direction in rng.normal(size=(16, 3)):
+        eye = subject + 1.2 * direction / np.linalg.norm(direction)
+        back = (eye - subject) / np.linalg.norm(eye - subject)  # a camera looks down its -Z
+        right = np.cross([0.0, 0.0, 1.0], back)
+        right /= np.linalg.norm(right)
+        matrix = np.eye(4)
+        matrix[:3, :3] = np.stack([right, np.cross(back, right), back], axis=1)
+        matrix[:3, 3] = eye
+        matrices.append(matrix)
+    assert np.abs(where_cameras_look(matrices) - subject).max() < 1e-9
+    assert np.allclose(where_cameras_look(matrices[:1]), matrices[0][:3, 3])  # one camera: its position
+    parallel = [np.eye(4) for _ in range(3)]
+    for index, matrix in enumerate(parallel):
+        matrix[0, 3] = index
+    assert np.allclose(where_cameras_look(parallel), [1.0, 0.0, 0.0])  # no point where parallel axes meet
+
+
+def test_an_import_frames_the_head_of_a_synthetic_capture(procedural_head):
+    """The synthetic rig's cameras look at the head: the point an import frames is its centre."""
+    from mogaface.core.data.generator import camera_dome
+    from mogaface.core.scene.axes import flame_to_blender
+    from mogaface.core.scene.cameras import blender_camera, where_cameras_look
+
+    vertices = procedural_head["v_template"]
+    cameras, _ = camera_dome(16, 64, vertices, np.random.default_rng(0))
+    centre = where_cameras_look([blender_camera(camera).matrix_world for camera in cameras])
+    head = flame_to_blender(0.5 * (vertices.min(0) + vertices.max(0)))
+    assert np.linalg.norm(centre - head) < 0.01  # within 1 cm of the head's centre
+
+
 def test_view_framing_sees_every_point():
     points = np.array([[0.0, 0.0, 0.0], [1.0, -1.0, 0.2], [-1.0, -0.8, 0.1], [0.0, 1.2, 0.3]])
     centre, distance = view_framing(points, 50.0, 1200, 800)

@@ -82,6 +82,26 @@ class CaptureScene:
     # Camera ids whose pose differs between frames (a union of sequences: VHAP moves each
     # sequence's cameras); they are imported at the pose of their first frame.
     moving_cameras: list[str] = dataclasses.field(default_factory=list)
+    # Where the cameras look (Blender's world): the subject's head, framed after an import.
+    subject_centre: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+
+#: Half the size of what a view framing the subject shows: a FLAME head with its neck, in metres.
+HEAD_RADIUS = 0.16
+
+
+def where_cameras_look(matrices) -> np.ndarray:
+    """The point nearest to every camera's optical axis, in the least-squares sense: the subject of
+    a rig whose cameras aim at it. ``matrices``: Blender camera-to-world 4×4 (looking down -Z).
+    The cameras' mean position when their axes are (nearly) parallel or there is one camera."""
+    matrices = np.asarray(matrices, np.float64).reshape(-1, 4, 4)
+    origins = matrices[:, :3, 3]
+    axes = -matrices[:, :3, 2] / np.linalg.norm(matrices[:, :3, 2], axis=1, keepdims=True)
+    projectors = np.eye(3) - axes[:, :, None] * axes[:, None, :]  # onto each axis' normal plane
+    system, target = projectors.sum(axis=0), np.einsum("nij,nj->i", projectors, origins)
+    if len(matrices) < 2 or np.linalg.cond(system) > 1e6:
+        return origins.mean(axis=0)
+    return np.linalg.solve(system, target)
 
 
 def capture_scene(folder, refined_cameras=None) -> CaptureScene:
@@ -112,6 +132,7 @@ def capture_scene(folder, refined_cameras=None) -> CaptureScene:
         frame_end=timestep_to_frame(max(capture.timesteps)),
         n_timesteps=len(capture.timesteps),
         moving_cameras=moving,
+        subject_centre=tuple(float(v) for v in where_cameras_look([c.matrix_world for c in cameras])),
     )
 
 
