@@ -195,11 +195,14 @@ class MOGAFACE_PT_avatar(_SubPanel, bpy.types.Panel):
 
 def draw_gpu_unavailable(layout, context) -> None:
     """The line saying the viewport's GPU draw cannot run here (the CPU image is drawn instead)."""
-    from ..operators.handlers.gpu_splats import unavailable
+    from ..operators.handlers.gpu_splats import software_renderer, unavailable
 
     reason = unavailable()
     if reason is not None:
         wrapped_label(layout, context, f"GPU draw unavailable, the CPU image is shown: {reason}", icon="INFO")
+    elif software_renderer():
+        wrapped_label(layout, context, "Software OpenGL: Both shows the CPU image, drawn off the interface thread",
+                      icon="INFO")
 
 
 def draw_render_buttons(layout, context) -> None:

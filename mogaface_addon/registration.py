@@ -20,7 +20,12 @@ from ..operators.gaussian_points import MOGAFACE_OT_gaussians_to_mesh
 from ..operators.handlers import viewport
 from ..operators.handlers.head_rig import update_heads_on_edit, update_heads_on_frame_change
 from ..operators.handlers.render_layers import render_avatar_layers
-from ..operators.handlers.suspend import resume_after_load, resume_when_data_is_ready, suspend_scenes
+from ..operators.handlers.suspend import (
+    resume_after_load,
+    resume_pending,
+    resume_when_data_is_ready,
+    suspend_scenes,
+)
 from ..operators.import_capture import MOGAFACE_OT_import_capture, MOGAFACE_OT_use_capture_camera
 from ..operators.import_head import MOGAFACE_OT_import_head
 from ..operators.import_tracking import MOGAFACE_OT_import_tracking
@@ -71,7 +76,10 @@ CLASSES: list = [
     panels.MOGAFACE_PT_reenactment,
 ]
 
-HANDLERS = (
+HANDLERS = (  # resume_pending first: a scene is resumed before it is posed, drawn or rendered
+    (bpy.app.handlers.frame_change_post, resume_pending),
+    (bpy.app.handlers.depsgraph_update_post, resume_pending),
+    (bpy.app.handlers.render_pre, resume_pending),
     (bpy.app.handlers.frame_change_post, update_heads_on_frame_change),
     (bpy.app.handlers.depsgraph_update_post, update_heads_on_edit),
     (bpy.app.handlers.render_pre, render_avatar_layers),

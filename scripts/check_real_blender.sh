@@ -7,13 +7,17 @@
 #
 # Steps: the pins resolve to wheels for Python 3.11 and 3.13; `blender --command extension build`;
 # `extension install-file` into a clean user folder; in a window under Xvfb (tests/real_blender/
-# ui_check.py): Install Dependencies (cancel, then the whole install), import a capture and a head,
-# train through the modal operator (cancel, resume), load the avatar (its longest interface block
-# timed), render a frame and a keyed animation, export a PLY, the avatar in the viewport and in
-# F12; the pixels of each place read back against the core render, one line each
+# ui_check.py): Install Dependencies (cancel, then the whole install, the LPIPS weights included),
+# import a capture and a head into the startup file (the head framed, the default cube hidden),
+# train through the modal operator with the panel's default preset (cancel, resume; the avatar
+# linked and scored with LPIPS; the progress text fits the sidebar), load the avatar (its longest
+# interface block timed), render a frame and a keyed animation, export a PLY, the avatar in the
+# viewport and in F12; the pixels of each place read back against the core render, one line each
 # ("pixels PLACE: X dB against the core render"; below 35 dB under Standard fails), with
-# screenshots under AgX and Standard; headless: scripts/mogaface_blend.py with --factory-startup and with a
-# .blend; then disable and remove the extension (its user folder must be gone).
+# screenshots under AgX and Standard; disable the extension (F12 without the avatar, the head a
+# mesh again, no threads left) and enable it again; headless: scripts/mogaface_blend.py with
+# --factory-startup, with a .blend, and training with the demo preset (scored with LPIPS); then
+# disable and remove the extension (its user folder must be gone).
 #
 # Environment: MOGAFACE_CHECK_TORCH_INDEX: the torch index the add-on installs from ("" = PyPI's
 # torch, the CUDA build: ≈ 8 GB of disk). By default, the CPU build's index when it can be reached;
@@ -85,7 +89,7 @@ say "the extension in a window: dependencies, import, train, render, export"
 xvfb-run -a -s "-screen 0 1600x1000x24" blender --enable-event-simulate --python /src/tests/real_blender/ui_check.py -- \
     '{"work": "/work", "images": "/work/images", "capture": "/work/capture", "head": "/work/head.npz",
       "torch_index": "$torch_index", "system_torch": $([ "$system_torch" = yes ] && echo true || echo false),
-      "steps": 600}'
+      "steps": 150}'
 python3 -c "import json, sys; r = json.load(open('/work/results.json')); print(json.dumps(r, indent=1)); sys.exit(0 if r.get('ok') else 1)"
 say "headless: --factory-startup, then a .blend"
 blender -b --factory-startup --python /src/scripts/mogaface_blend.py -- /work/capture --run /work/run \
@@ -94,6 +98,12 @@ test -f /work/scene.blend
 blender -b /work/scene.blend --python /src/scripts/mogaface_blend.py -- /work/capture --run /work/run \
     --blend /work/scene2.blend --frames 1 1
 test -f /work/scene2.blend
+say "headless training with the demo preset: a linked, scored avatar"
+blender -b --factory-startup --python /src/scripts/mogaface_blend.py -- /work/capture --run /work/run-demo \
+    --blend /work/scene-demo.blend --train --preset demo --steps 60 --frames 1 2
+test -f /work/scene-demo.blend
+python3 -c "import json, sys; m = json.load(open('/work/run-demo/metrics_train_end.json')); print('headless demo run:', m)
+sys.exit(0 if 'lpips' in m and 'not_scored' not in m else 1)"
 say "disable and remove the extension"
 blender -b --command extension remove user_default.mogaface
 test ! -e /work/user/extensions/user_default/mogaface

@@ -40,3 +40,25 @@ def test_where_the_gpu_cannot_draw_the_reason_is_kept_for_the_panel(handlers):
     reason = gpu_splats.unavailable()
     assert reason and "background" in reason
     gpu_splats.clear()
+
+
+@pytest.mark.parametrize("mode, software, expected", [
+    ("BOTH", False, True),
+    ("BOTH", True, False),  # software OpenGL: the CPU image, off the interface thread
+    ("GPU", True, True),  # asked for by name: drawn all the same
+    ("CPU", False, False),
+])
+def test_a_software_opengl_draws_the_cpu_image_in_both(handlers, monkeypatch, mode, software, expected):
+    viewport, gpu_splats = handlers
+    gpu_splats.clear()
+    monkeypatch.setattr(gpu_splats, "software_renderer", lambda: software)
+    assert viewport.gpu_allowed(mode) is expected
+
+
+def test_the_software_renderer_is_asked_once_and_background_mode_is_not_one(handlers):
+    _, gpu_splats = handlers
+    gpu_splats.clear()
+    assert gpu_splats.software_renderer() is False  # background mode: gpu.platform refuses, no draw at all
+    gpu_splats._program["software"] = True
+    assert gpu_splats.software_renderer() is True  # cached: never asked again per draw
+    gpu_splats.clear()

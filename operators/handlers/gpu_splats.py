@@ -129,6 +129,23 @@ def program():
     return _program["shader"]
 
 
+def software_renderer() -> bool:
+    """Whether OpenGL is drawn by the CPU (Mesa's llvmpipe: a virtual screen, or a machine without a
+    GPU driver). There the GPU draw rasterises every Gaussian on the interface thread, which holds
+    the interface a frame change or an orbit step at a time (docs/blender.md, "In the 3D viewport"),
+    while the CPU image is rendered on a worker thread; asked once, in a GPU context."""
+    if "software" not in _program:
+        try:
+            import gpu
+
+            renderer = gpu.platform.renderer_get().lower()
+            _program["software"] = gpu.platform.device_type_get() == "SOFTWARE" or any(
+                name in renderer for name in ("llvmpipe", "softpipe", "swrast"))
+        except Exception:  # noqa: BLE001 - background mode, or a Blender without gpu.platform
+            _program["software"] = False
+    return _program["software"]
+
+
 def unavailable() -> str | None:
     """Why the GPU draw cannot run, once it was tried; None when it runs or was not tried yet."""
     return _program.get("error")

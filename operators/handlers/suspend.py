@@ -43,8 +43,13 @@ def suspend_scenes() -> None:
                 setattr(obj, name, value)
 
 
+#: Whether this registration has resumed the scenes yet (registering may not read ``bpy.data``).
+_state = {"resumed": False}
+
+
 def resume_scenes() -> None:
     """Undo :func:`suspend_scenes` where it left its mark."""
+    _state["resumed"] = True
     for scene in bpy.data.scenes:
         for node in _layer_nodes(scene):
             if node.get(SUSPENDED):
@@ -66,9 +71,19 @@ def resume_after_load(_file=None) -> None:
     resume_scenes()
 
 
+@bpy.app.handlers.persistent
+def resume_pending(_scene=None, _depsgraph=None) -> None:
+    """``render_pre``, ``frame_change_post``, ``depsgraph_update_post``, first in line: the scenes
+    are resumed before anything draws or renders them, whenever registering could not."""
+    if not _state["resumed"]:
+        resume_scenes()
+
+
 def resume_when_data_is_ready() -> None:
-    """At register: now if ``bpy.data`` can be read, else once Blender has started (a timer)."""
+    """At register: now if ``bpy.data`` can be read; else (Blender reads no data while it enables an
+    extension) from a timer, or the first handler above, whichever runs first."""
+    _state["resumed"] = False
     try:
         resume_scenes()
-    except AttributeError:  # registering at start-up: bpy.data is not readable yet
-        bpy.app.timers.register(lambda: resume_scenes() and None, first_interval=0.0)
+    except AttributeError:  # bpy.data is not readable while registering
+        bpy.app.timers.register(lambda: resume_pending() and None, first_interval=0.0)

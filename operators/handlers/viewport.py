@@ -41,7 +41,8 @@ SHOW_PROPERTY = "mogaface_show_avatar"
 #: Per-object choice of the draw (registered on ``bpy.types.Object``): GPU, CPU or BOTH.
 DRAW_PROPERTY = "mogaface_viewport_draw"
 DRAW_MODES = (
-    ("BOTH", "Both", "The GPU draw while the view moves or plays, the exact CPU image once it rests"),
+    ("BOTH", "Both", "The GPU draw while the view moves or plays, the exact CPU image once it rests "
+                     "(the CPU image alone on a software OpenGL, where the GPU draw would hold the interface)"),
     ("GPU", "GPU", "Always the GPU draw of the Gaussians (interactive; per-Gaussian colour decoding)"),
     ("CPU", "CPU Exact", "Always the CPU render of the splat engine (exact; slower to follow the view)"),
 )
@@ -202,6 +203,15 @@ def draw_gpu(state: ViewState, head, region, region_3d, scene) -> bool:
     return state.gpu.draw(splats, view, projection, region.width, region.height, state.posing.frame)
 
 
+def gpu_allowed(mode: str) -> bool:
+    """Whether a head's draw may use the GPU: not in "CPU" mode, not where the GPU draw cannot run,
+    and not in "BOTH" on a software OpenGL, where the CPU image off the interface thread keeps the
+    interface responsive ("GPU" still forces it)."""
+    if mode == "CPU" or gpu_splats.unavailable() is not None:
+        return False
+    return mode == "GPU" or not gpu_splats.software_renderer()
+
+
 def gpu_first(mode: str, gpu_ok: bool, moving: bool, playing: bool) -> bool:
     """Whether the GPU draw is the one shown now and no CPU render is asked: always in "GPU"
     mode, while the view moves or plays in "BOTH"; never in "CPU" or where the GPU cannot."""
@@ -212,7 +222,7 @@ def draw_head(state: ViewState, head, region, region_3d, scene, playing: bool) -
     """Draw one head by its switch (:func:`gpu_first`); in "BOTH" the resting view shows the GPU
     draw until the CPU image of that view arrives, then that image."""
     mode = getattr(head, DRAW_PROPERTY, "BOTH")
-    gpu_ok = mode != "CPU" and gpu_splats.unavailable() is None
+    gpu_ok = gpu_allowed(mode)
     moving = track_view(state, np.array(region_3d.view_matrix), np.array(region_3d.window_matrix), region,
                         time.monotonic())
     interactive = gpu_first(mode, gpu_ok, moving, playing)

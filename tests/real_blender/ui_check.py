@@ -244,42 +244,56 @@ def install_stages(deps, install, prefs, missing):
 
 def scene_stages():
 
-    # Import the capture and a head: plain operators (the default cube would hide the head).
-    if "Cube" in bpy.data.objects:
-        bpy.data.objects.remove(bpy.data.objects["Cube"])
+    # Import the capture and a head into the startup file, default cube and all, as a new user does.
+    cube = bpy.data.objects.get("Cube")
     with override():
         check(bpy.ops.mogaface.import_capture(filepath=ARGS["capture"]) == {"FINISHED"}, "import capture")
         check(bpy.ops.mogaface.import_head(filepath=ARGS["head"]) == {"FINISHED"}, "import head")
     head = bpy.context.active_object
     check(len([o for o in bpy.data.objects if o.type == "CAMERA"]) >= 3, "the capture's cameras are missing")
-    stage("import capture and head")
+    check(cube is None or not cube.visible_get(), "the default cube around the head is still shown")
+    yield from head_framing(head)
+    stage("import capture and head: the head framed, the default cube hidden")
 
-    # Train through the modal operator: progress, Cancel (checkpoint), Resume to the end.
+    # Train through the modal operator with the panel's default preset, as a user does: progress
+    # (the bar's text fits the sidebar), Cancel (checkpoint), Resume to the end, a linked, scored avatar.
     train = module("operators.train")
     run = str(WORK / "run")
     settings = bpy.context.scene.mogaface
     settings.capture_folder, settings.run_folder = ARGS["capture"], run
+    preset = type(settings).bl_rna.properties["preset"].default
+    check(settings.preset == preset, f"the scene's preset {settings.preset!r} is not the default {preset!r}")
+    RESULTS["training"] = {"preset": preset, "steps": ARGS["steps"], "bar_texts": []}
     with override():
-        result = bpy.ops.mogaface.train("INVOKE_DEFAULT", capture=ARGS["capture"], run=run, preset="quick",
+        result = bpy.ops.mogaface.train("INVOKE_DEFAULT", capture=ARGS["capture"], run=run, preset=settings.preset,
                                         steps=ARGS["steps"], resume="NEW")
         check(result == {"RUNNING_MODAL"}, f"train gave {result}: {train.last_progress()}")
-    yield from wait_until(lambda: train.current_worker() is None or train.current_worker().progress.step >= 5,
-                          1800, "training progress")
+    yield from wait_until(lambda: note_bar(train) or train.current_worker() is None
+                          or train.current_worker().progress.step >= 5, 1800, "training progress")
     check(train.current_worker() is not None, f"training ended early: {train.last_progress()}")
     yield from show_panel()
+    yield from wait_until(lambda: note_bar(train) or train.current_worker() is None
+                          or train.current_worker().progress.eta_s is not None, 600, "training's first ETA")
+    yield 1.0
     shot("4-training")
+    progress_fits_sidebar(train.last_progress())
     with override():
         bpy.ops.mogaface.train_cancel()
     yield from wait_until(lambda: train.current_worker() is None, 300, "training cancel")
     check(train.last_progress().state == "cancelled", f"cancel gave {train.last_progress()}")
     check(os.path.exists(os.path.join(run, "checkpoints", "latest")), "no checkpoint after cancel")
-    stage("train, cancel")
+    stage(f"train with the default preset ({preset}), cancel")
     with override():
         bpy.ops.mogaface.train("INVOKE_DEFAULT", capture=ARGS["capture"], run=run, resume="RESUME")
-    yield from wait_until(lambda: train.current_worker() is None, 1800, "resumed training")
+    yield from wait_until(lambda: note_bar(train) or train.current_worker() is None, 1800, "resumed training")
     check(train.last_progress().state == "done", f"resume gave {train.last_progress()}")
-    check(os.path.exists(os.path.join(run, "avatar.pt")), "no avatar after training")
-    stage("resume to the end")
+    check(settings.avatar_file == os.path.join(run, "avatar.pt"), f"the Avatar field holds {settings.avatar_file!r}")
+    metrics = json.loads((WORK / "run" / "metrics_train_end.json").read_text())
+    RESULTS["training"].update(metrics={k: metrics.get(k) for k in ("frames", "psnr", "ssim", "lpips", "not_scored")},
+                               message=train.last_progress().message)
+    check("lpips" in metrics and "not_scored" not in metrics, f"the run was not fully scored: {metrics}")
+    log(f"training: {RESULTS['training']}")
+    stage("resume to the end: the avatar linked and scored (PSNR, SSIM, LPIPS)")
 
     # The avatar: load, render a frame and a keyed animation, export.
     with override():
@@ -362,8 +376,120 @@ def scene_stages():
     shot("5-avatar")
     stage("load avatar, render frame and animation, export")
     yield from avatar_in_scene_stages(head)
+    yield from disable_stages(head)
     yield from improve_tracking_stages(head, run)
     bpy.ops.wm.save_userpref()
+
+
+def head_framing(head):
+    """A generator step: the head's share of the 3D view after Import Capture, from the screen's
+    pixels (the view with the head, without it); at least a quarter of the view's height."""
+    import numpy as np
+
+    _, area, region = window_and_view()
+    area.tag_redraw()
+    yield 1.0
+    shot("3b-imported")
+    shown = screen_pixels(region)
+    head.hide_set(True)
+    area.tag_redraw()
+    yield 1.0
+    hidden = screen_pixels(region)
+    head.hide_set(False)
+    area.tag_redraw()
+    rows, columns = np.nonzero(np.abs(shown - hidden).max(axis=2) > 0.05)
+    check(len(rows) > 0, "the head is not in the view after Import Capture")
+    height, width = rows.max() - rows.min() + 1, columns.max() - columns.min() + 1
+    RESULTS["head_in_view_px"] = {"head": [int(width), int(height)], "view": [region.width, region.height]}
+    log(f"the head after Import Capture: {RESULTS['head_in_view_px']}")
+    check_at_end(height >= 0.25 * region.height, f"the head is small in the view: {RESULTS['head_in_view_px']}")
+    yield 0.5
+
+
+def note_bar(train) -> bool:
+    """Record each new text of the training's progress bar (False: a wait goes on)."""
+    worker = train.current_worker()
+    if worker is not None:
+        texts = RESULTS["training"]["bar_texts"]
+        text = worker.progress.bar_text()
+        if not texts or texts[-1] != text:
+            texts.append(text)
+    return False
+
+
+def progress_fits_sidebar(progress):
+    """The progress bar's text and the line below it, measured with Blender's own UI font, fit the
+    sidebar at its width (Blender cuts the middle out of a text that does not)."""
+    import blf
+
+    _, area, _ = window_and_view()
+    sidebar = next(r for r in area.regions if r.type == "UI")
+    scale = bpy.context.preferences.system.ui_scale
+    style = bpy.context.preferences.ui_styles[0].widget
+    blf.size(0, style.points * scale)
+    room = sidebar.width - 40 * scale  # the panel's margins and the tab strip
+    widths = {text: round(blf.dimensions(0, text)[0]) for text in (progress.bar_text(), progress.detail_text())}
+    RESULTS["training"]["sidebar"] = {"width": sidebar.width, "room": round(room), "texts": widths}
+    log(f"progress texts in the sidebar: {RESULTS['training']['sidebar']}")
+    check_at_end(all(width <= room for width in widths.values()), f"a progress text is cut: {widths}, room {room}")
+    check(any("compiling" in text for text in RESULTS["training"]["bar_texts"]) or
+          RESULTS["training"]["bar_texts"][0].startswith("step 0"), "no 'compiling' before the first steps")
+
+
+def disable_stages(head):
+    """Disable the extension: F12 renders the scene without the avatar (compositing on or off,
+    the same picture), the head is its textured mesh, no thread of the extension is left; then
+    enable it: the avatar is back in F12."""
+    import threading
+
+    import numpy as np
+
+    scene = bpy.context.scene
+    scene.frame_set(2)
+    with_avatar = render_still("f12-before-disable", compositing=True)
+    bpy.ops.preferences.addon_disable(module=MODULE)
+    yield 1.0
+    deadline = time.monotonic() + 10
+    while [t for t in threading.enumerate() if t.name.startswith("mogaface-")] and time.monotonic() < deadline:
+        yield 0.2
+    threads = [t.name for t in threading.enumerate() if t.name.startswith("mogaface-")]
+    check(not threads, f"threads of the extension left after disabling it: {threads}")
+    check((head.display_type, head.show_in_front, head.hide_render) == ("TEXTURED", False, False),
+          f"the head after disabling: {head.display_type}, in front {head.show_in_front}, "
+          f"hidden from renders {head.hide_render}")
+    scene.frame_set(1)
+    composited = render_still("f12-disabled", compositing=True)
+    plain = render_still("f12-disabled-plain", compositing=False)
+    difference = float(np.abs(composited - plain).max())
+    RESULTS["disabled_f12_max_difference"] = round(difference, 4)
+    check(difference <= 2 / 255, f"F12 with the extension disabled is not the scene alone (max {difference:.3f})")
+    shot("10-disabled")
+    bpy.ops.preferences.addon_enable(module=MODULE)
+    yield 1.0
+    scene.frame_set(2)
+    again = render_still("f12-enabled-again", compositing=True)
+    check(head.display_type == "BOUNDS", f"the head after enabling again: {head.display_type} "
+          f"(still marked suspended: {'mogaface_suspended' in head})")
+    back = float(np.abs(again - with_avatar).max())
+    RESULTS["enabled_again_f12_max_difference"] = round(back, 4)
+    check(back <= 2 / 255, f"F12 after enabling again differs from before disabling (max {back:.3f})")
+    stage("disable: F12 without the avatar, the head as a mesh, no threads; enable: the avatar back")
+
+
+def render_still(name, compositing):
+    """F12 to ``WORK/NAME.png`` and read back: ``(H, W, 3)``, bottom row first."""
+    import numpy as np
+
+    scene = bpy.context.scene
+    scene.render.use_compositing = compositing
+    scene.render.filepath = str(WORK / name)
+    scene.render.image_settings.file_format = "PNG"
+    with override():
+        bpy.ops.render.render(write_still=True)
+    image = bpy.data.images.load(str(WORK / f"{name}.png"))
+    pixels = np.array(image.pixels[:], np.float32).reshape(image.size[1], image.size[0], -1)[..., :3]
+    bpy.data.images.remove(image)
+    return pixels
 
 
 def core_render(head, camera, frame, transparent):
@@ -582,14 +708,57 @@ def live_gpu_pixels(head, viewport):
     yield 0.5
 
 
-def scrub_blocks(head, viewport):
-    """Scrub the timeline with the GPU draw: the longest block of Blender's event loop (a 20 ms
-    timer) while frames change, each change followed by a redraw; fails over max(0.5 s, the idle
-    window's longest redraw + 0.3 s), as Load Avatar does."""
+class Profile:
+    """Seconds spent in named functions of the extension while it is active: where a block of the
+    interface goes (the sort and colours, the texture upload, the draw calls, the CPU image's
+    upload); what is left of a block is Blender's own redraw and the GL work it waits for."""
+
+    def __init__(self):
+        gpu_splats = module("operators.handlers.gpu_splats")
+        viewport = module("operators.handlers.viewport")
+        core_gpu = module("core.scene.gpu_splats")
+        self.targets = [(viewport, "draw_head", "draw handler, in all"),
+                        (viewport, "update_view", "CPU image: request"),
+                        (viewport, "textures", "CPU image: upload"),
+                        (viewport, "draw_image", "CPU image: upload and draw"),
+                        (gpu_splats.GpuSplats, "draw", "GPU draw: sort, upload, draw"),
+                        (core_gpu.SplatOrder, "update", "GPU draw: sort and colours"),
+                        (gpu_splats.Posing, "latest", "GPU draw: posing hand-over"),
+                        (module("operators.handlers.head_rig"), "_update_heads", "head meshes re-posed")]
+        self.seconds, self.calls, self.saved = {}, {}, []
+
+    def __enter__(self):
+        for owner, name, label in self.targets:
+            original = getattr(owner, name)
+            self.saved.append((owner, name, original))
+            setattr(owner, name, self._timed(original, label))
+        return self
+
+    def _timed(self, function, label):
+        def timed(*args, **kwargs):
+            start = time.perf_counter()
+            try:
+                return function(*args, **kwargs)
+            finally:
+                self.seconds[label] = self.seconds.get(label, 0.0) + time.perf_counter() - start
+                self.calls[label] = self.calls.get(label, 0) + 1
+
+        return timed
+
+    def __exit__(self, *exc):
+        for owner, name, original in reversed(self.saved):
+            setattr(owner, name, original)
+
+    def report(self, events: int) -> dict:
+        """Milliseconds per event (a frame change, an orbit step) in each function, and its calls."""
+        return {label: {"ms_per_event": round(1000 * seconds / max(events, 1), 1), "calls": self.calls[label]}
+                for label, seconds in sorted(self.seconds.items(), key=lambda item: -item[1])}
+
+
+def timed_loop(changes, settle=0.1):
+    """A generator step: apply each change, redraw, and time Blender's event loop (a 20 ms timer);
+    returns the gaps between ticks."""
     _, area, _ = window_and_view()
-    scene = bpy.context.scene
-    setattr(head, viewport.DRAW_PROPERTY, "GPU")
-    frames = list(range(scene.frame_start, min(scene.frame_end, scene.frame_start + 11) + 1))
     ticks, done = [time.monotonic()], []
 
     def tick():
@@ -597,21 +766,69 @@ def scrub_blocks(head, viewport):
         return None if done else 0.02
 
     bpy.app.timers.register(tick, first_interval=0.02)
-    for frame in frames + frames[::-1]:  # new frames (posed on the worker thread), then cached ones
-        scene.frame_set(frame)
+    for change in changes:
+        change()
         area.tag_redraw()
-        yield 0.1
+        yield settle
     done.append(True)
     yield 0.2
-    gaps = [b - a for a, b in zip(ticks, ticks[1:])]
-    idle = RESULTS.get("load_avatar", {}).get("idle_longest_block_s", 0.0)
-    RESULTS["scrub"] = {"frame_changes": 2 * len(frames), "seconds": round(ticks[-1] - ticks[0], 2),
-                        "longest_ui_block_s": round(max(gaps), 3), "idle_longest_block_s": idle,
-                        "blocks_over_0.1_s": sum(g > 0.1 for g in gaps)}
-    log(f"scrubbing with the GPU draw: {RESULTS['scrub']}")
-    check_at_end(max(gaps) < max(0.5, idle + 0.3), f"scrubbing froze the UI: {RESULTS['scrub']}")
+    return [b - a for a, b in zip(ticks, ticks[1:])]
+
+
+def orbit_blocks(head, viewport):
+    """Orbit the view around the avatar with Draw: Both, step by step: the longest block of the
+    interface and where it goes (:class:`Profile`), as scrubbing below."""
+    from mathutils import Quaternion
+
+    _, area, _ = window_and_view()
+    region_3d = area.spaces.active.region_3d
     setattr(head, viewport.DRAW_PROPERTY, "BOTH")
-    scene.frame_set(frames[0])
+    start = region_3d.view_rotation.copy()
+    steps = 12
+
+    def turn(index):
+        return lambda: setattr(region_3d, "view_rotation", Quaternion((0.0, 0.0, 1.0), 0.05 * index) @ start)
+
+    with Profile() as profile:
+        gaps = yield from timed_loop([turn(i + 1) for i in range(steps)])
+    region_3d.view_rotation = start
+    idle = RESULTS.get("load_avatar", {}).get("idle_longest_block_s", 0.0)
+    RESULTS["orbit"] = {"steps": steps, "longest_ui_block_s": round(max(gaps), 3), "idle_longest_block_s": idle,
+                        "mean_block_s": round(sum(g for g in gaps if g > 0.05) / max(1, sum(g > 0.05 for g in gaps)), 3),
+                        "profile": profile.report(steps), "load_average_1min": round(os.getloadavg()[0], 2)}
+    log(f"orbit with Draw: Both: {RESULTS['orbit']}")
+    check_at_end(max(gaps) < max(0.5, idle + 0.3), f"orbiting froze the UI: {RESULTS['orbit']}")
+    area.tag_redraw()
+    yield 1.0
+
+
+def scrub_blocks(head, viewport):
+    """Scrub the timeline: the longest block of Blender's event loop (a 20 ms timer) while frames
+    change, each change followed by a redraw, with the draw a user has (Both: on a software OpenGL,
+    the CPU image rendered off the interface thread), then with the GPU draw forced (for the
+    record: under software OpenGL it rasterises every Gaussian on the interface thread). Both fails
+    over max(0.5 s, the idle window's longest redraw + 0.3 s), as Load Avatar does."""
+    _, area, _ = window_and_view()
+    scene = bpy.context.scene
+    frames = list(range(scene.frame_start, min(scene.frame_end, scene.frame_start + 11) + 1))
+    idle = RESULTS.get("load_avatar", {}).get("idle_longest_block_s", 0.0)
+    RESULTS["software_opengl"] = module("operators.handlers.gpu_splats").software_renderer()
+    for mode in ("BOTH", "GPU"):
+        setattr(head, viewport.DRAW_PROPERTY, mode)
+        changes = [lambda frame=frame: scene.frame_set(frame) for frame in frames + frames[::-1]]
+        with Profile() as profile:  # new frames (posed on the worker thread), then cached ones
+            gaps = yield from timed_loop(changes)
+        result = {"frame_changes": len(changes), "seconds": round(sum(gaps), 2),
+                  "longest_ui_block_s": round(max(gaps), 3), "idle_longest_block_s": idle,
+                  "blocks_over_0.1_s": sum(g > 0.1 for g in gaps), "profile": profile.report(len(changes)),
+                  "load_average_1min": round(os.getloadavg()[0], 2)}
+        RESULTS[f"scrub_{mode.lower()}"] = result
+        log(f"scrubbing with Draw: {mode}: {result}")
+        if mode == "BOTH":
+            check_at_end(max(gaps) < max(0.5, idle + 0.3), f"scrubbing froze the UI: {result}")
+        scene.frame_set(frames[0])
+        yield 1.0
+    setattr(head, viewport.DRAW_PROPERTY, "BOTH")
     area.tag_redraw()
     yield 0.5
 
@@ -654,7 +871,9 @@ def avatar_in_scene_stages(head):
     yield from live_gpu_pixels(head, viewport)
     stage("the GPU draw of the Gaussians against the core render, and its speed")
     yield from scrub_blocks(head, viewport)
-    stage("scrubbing the timeline with the GPU draw never blocks the interface")
+    stage("scrubbing the timeline never blocks the interface")
+    yield from orbit_blocks(head, viewport)
+    stage("orbiting the avatar with Draw: Both, timed stage by stage")
 
     scene = bpy.context.scene
     capture_camera = next(o for o in scene.objects if o.get("mogaface_resolution") is not None)
@@ -662,17 +881,6 @@ def avatar_in_scene_stages(head):
     scene.render.resolution_percentage = 400  # the capture's 48 px, four times larger
     with override():
         check(bpy.ops.mogaface.setup_render_layer() == {"FINISHED"}, "avatar in renders")
-
-    def render_still(name, compositing):
-        scene.render.use_compositing = compositing
-        scene.render.filepath = str(WORK / name)
-        scene.render.image_settings.file_format = "PNG"
-        with override():
-            bpy.ops.render.render(write_still=True)
-        image = bpy.data.images.load(str(WORK / f"{name}.png"))
-        pixels = np.array(image.pixels[:], np.float32).reshape(image.size[1], image.size[0], -1)[..., :3]
-        bpy.data.images.remove(image)
-        return pixels
 
     plain = render_still("f12-without-avatar", compositing=False)  # the head mesh is hidden from renders
     with_avatar = render_still("f12", compositing=True)
