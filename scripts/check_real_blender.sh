@@ -68,7 +68,7 @@ for version in 3.11 3.13; do
 from mogaface.core import dependencies as d
 print(*d.requirements(tuple(map(int, '$version'.split('.'))), has_numpy=False), sep='\n')")
     "$python" -m pip install --quiet --dry-run --no-deps --ignore-installed --target "$work/resolve" \
-        --python-version "$version" --only-binary=:all: --platform manylinux_2_28_x86_64 \
+        --python-version "$version" --only-binary=:all: --platform manylinux_2_28_x86_64 --platform manylinux_2_27_x86_64 \
         --platform manylinux2014_x86_64 "${pins[@]}"
 done
 
