@@ -1,0 +1,232 @@
+"""FLAME and a camera from 2D landmarks: the monocular fit that turns footage into a tracked capture.
+
+Input: per frame, landmarks in pixels with a confidence (0 where a point was not seen), and where
+each lies on the head mesh (a :class:`~mogaface.core.flame.landmarks.LandmarkEmbedding`). Output:
+the shared shape, and per frame the expression, jaw, head rotation and translation; and one pinhole
+camera with its focal length (given, or estimated about a phone's).
+
+One fixed camera per clip. The subject turning in front of a still phone and a phone orbiting a
+still subject give the same pictures: either is the head's rotation and translation per frame in
+front of a fixed camera, which is what ``solve-cameras``, training and Blender's import take.
+
+The fit (torch, float64, every frame at once): a rigid start (the mean head turned and moved to
+its landmarks, frame by frame), then every parameter together with Adam on a robust (Huber)
+reprojection loss weighted by confidence, Gaussian priors on shape, expression and jaw, and a
+smoothness term on second differences over time (a clip's motion is smooth; a detector's noise is
+not). Only the vertices the landmarks sit on are posed (:class:`LandmarkHead`): the same linear
+blend skinning as :class:`~mogaface.core.flame.model.FlameModel`, on a few hundred vertices.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import torch
+
+from ..camera import Camera
+from ..errors import InputError
+from ..flame.landmarks import LandmarkEmbedding
+from ..flame.lbs import axis_angle_to_matrix, linear_blend_skinning
+from ..flame.model import FlameModel
+
+#: A phone's main camera: about 26 mm in 35 mm terms (its diagonal field of view, 79°).
+PHONE_FOCAL_35MM = 26.0
+#: Where the fixed camera stands in front of the head (metres along the face's +z), before the fit.
+START_DISTANCE = 0.6
+
+
+def focal_from_35mm(focal_35mm: float, width: int, height: int) -> float:
+    """Focal length in pixels of a 35 mm-equivalent focal length (defined on the diagonal)."""
+    return focal_35mm * math.hypot(width, height) / math.hypot(36.0, 24.0)
+
+
+@dataclasses.dataclass
+class Observations:
+    """Landmarks of a clip: ``points (T,L,2)`` pixels, ``confidence (T,L)`` in [0, 1] (0: not seen),
+    the frame size, and where the L landmarks lie on the mesh."""
+
+    points: np.ndarray
+    confidence: np.ndarray
+    width: int
+    height: int
+    embedding: LandmarkEmbedding
+
+    def check(self, source=None) -> "Observations":
+        frames, count = self.confidence.shape
+        if self.points.shape != (frames, count, 2):
+            raise InputError(source, "points", f"expected ({frames}, {count}, 2), found {self.points.shape}")
+        if len(self.embedding.faces) != count:
+            raise InputError(source, "embedding", f"{len(self.embedding.faces)} landmarks on the mesh for {count} observed")
+        if frames == 0 or not (self.confidence > 0).any():
+            raise InputError(source, "landmarks", "no landmark was seen in any frame")
+        if not np.isfinite(self.points[self.confidence > 0]).all():
+            raise InputError(source, "points", "seen landmarks must be finite")
+        return self
+
+
+@dataclasses.dataclass
+class FitSettings:
+    steps: int = 200  # L-BFGS iterations of the joint fit (a quarter more for the rigid start)
+    focal: float | None = None  # pixels; None: estimated, starting from a phone's
+    huber_px: float = 2.0  # the robust loss's knee
+    # weights beside the reprojection loss (pixels²: half the square of a pixel's error)
+    shape_prior: float = 0.1  # of ||shape||² (unit-variance coefficients)
+    expr_prior: float = 0.02  # of the mean squared expression coefficient
+    jaw_prior: float = 0.5  # per radian²
+    focal_prior: float = 4.0  # of log(f / f_phone)²
+    smooth: float = 3.0  # of the second differences (per frame²) of pose and expression
+    seed: int = 0
+
+
+@dataclasses.dataclass
+class Fit:
+    """The fitted parameters (per frame arrays ``(T, n)``, ``shape`` once) and the clip's camera."""
+
+    params: dict[str, np.ndarray]
+    camera: Camera
+    reprojection_px: np.ndarray  # (T,) confidence-weighted RMS per frame
+    seen: np.ndarray  # (T,) whether the frame had landmarks
+
+    def frame(self, t: int) -> dict[str, np.ndarray]:
+        """Frame ``t``'s parameters in the capture's ``flame_param`` layout (batch of one)."""
+        return {name: (value if name == "shape" else value[t])[None].astype(np.float32)
+                for name, value in self.params.items()}
+
+
+class LandmarkHead(torch.nn.Module):
+    """The head model posed at the vertices its landmarks sit on only: exact (the joints come from
+    the regressor applied to the blend shapes once), and fast enough to pose every frame of a clip
+    each step."""
+
+    def __init__(self, model: FlameModel, embedding: LandmarkEmbedding):
+        super().__init__()
+        faces = model.faces.cpu().numpy()[embedding.faces]  # (L,3) vertex ids
+        vertices, corner = np.unique(faces, return_inverse=True)
+        self.corner = torch.as_tensor(corner.reshape(faces.shape), dtype=torch.long)
+        self.barycentric = torch.as_tensor(embedding.barycentric, dtype=torch.float64)
+        ids = torch.as_tensor(vertices, dtype=torch.long)
+        d = torch.float64
+        self.v_template = model.v_template.to(d)[ids]
+        self.shapedirs = model.shapedirs.to(d)[ids]
+        self.exprdirs = model.exprdirs.to(d)[ids]
+        posedirs = model.posedirs.to(d).reshape(model.posedirs.shape[0], -1, 3)[:, ids]
+        self.posedirs = posedirs.reshape(model.posedirs.shape[0], -1)
+        self.weights = model.lbs_weights.to(d)[ids]
+        regressor = model.J_regressor.to(d)
+        self.joints_template = regressor @ model.v_template.to(d)
+        self.joints_shape = torch.einsum("jv,vck->jck", regressor, model.shapedirs.to(d))
+        self.joints_expr = torch.einsum("jv,vck->jck", regressor, model.exprdirs.to(d))
+        self.parents = model.parents
+
+    def forward(self, shape, expr, rotation, jaw, translation) -> torch.Tensor:
+        """Landmarks ``(T,L,3)`` in the world for shape ``(1,S)`` and per-frame ``(T,·)`` parameters."""
+        frames = expr.shape[0]
+        shaped = (self.v_template + torch.einsum("vck,bk->bvc", self.shapedirs, shape)
+                  + torch.einsum("vck,bk->bvc", self.exprdirs, expr))
+        joints = (self.joints_template + torch.einsum("jck,bk->bjc", self.joints_shape, shape)
+                  + torch.einsum("jck,bk->bjc", self.joints_expr, expr))
+        zero = torch.zeros(frames, 3, dtype=expr.dtype)
+        pose = torch.cat([rotation, zero, jaw, zero, zero], dim=1).reshape(frames, 5, 3)
+        posed = linear_blend_skinning(shaped, axis_angle_to_matrix(pose), joints.expand(frames, -1, -1),
+                                      self.parents, self.weights, self.posedirs)
+        corners = posed[:, self.corner]  # (T,L,3,3)
+        return (corners * self.barycentric[..., None]).sum(-2) + translation[:, None, :]
+
+
+def start_camera(width: int, height: int, focal: float) -> Camera:
+    """The clip's fixed camera: in front of the face (FLAME's +z), looking at the origin."""
+    return Camera.look_at((0.0, 0.0, START_DISTANCE), (0.0, 0.0, 0.0), width=width, height=height,
+                          fx=focal, fy=focal, cx=width / 2, cy=height / 2, camera_id="cam00")
+
+
+def fit_landmarks(model: FlameModel, observations: Observations, settings: FitSettings = FitSettings(),
+                  progress=None) -> Fit:
+    """Fit shape, per-frame expression, jaw and head pose, and the focal length, to a clip's landmarks.
+    ``progress(step, steps, rms_px)`` is called now and then."""
+    obs = observations.check()
+    torch.manual_seed(settings.seed)
+    d = torch.float64
+    head = LandmarkHead(model, obs.embedding)
+    frames = obs.points.shape[0]
+    points = torch.as_tensor(np.nan_to_num(obs.points), dtype=d)
+    weight = torch.as_tensor(obs.confidence, dtype=d).clamp(0, 1)
+    seen = (weight > 0).any(1)
+    phone = focal_from_35mm(PHONE_FOCAL_35MM, obs.width, obs.height)
+    camera = start_camera(obs.width, obs.height, settings.focal or phone)
+    w2c = torch.as_tensor(camera.w2c, dtype=d)
+    centre = torch.tensor([obs.width / 2, obs.height / 2], dtype=d)
+
+    log_focal = torch.tensor(math.log(settings.focal or phone), dtype=d, requires_grad=settings.focal is None)
+    shape = torch.zeros(1, model.n_shape, dtype=d, requires_grad=True)
+    expr = torch.zeros(frames, model.n_expr, dtype=d, requires_grad=True)
+    jaw = torch.zeros(frames, 3, dtype=d, requires_grad=True)
+    rotation = torch.zeros(frames, 3, dtype=d, requires_grad=True)
+    translation_cm = torch.zeros(frames, 3, dtype=d, requires_grad=True)  # centimetres: a step's scale like the rest
+
+    def project(world):
+        cam = world @ w2c[:3, :3].T + w2c[:3, 3]
+        z = cam[..., 2:].clamp_min(1e-3)
+        return torch.exp(log_focal) * cam[..., :2] / z + centre
+
+    def reprojection(world):
+        residual = (project(world) - points).norm(dim=-1)  # (T,L) pixels
+        knee = settings.huber_px
+        robust = torch.where(residual < knee, 0.5 * residual ** 2, knee * (residual - 0.5 * knee))
+        return (weight * robust).sum() / weight.sum().clamp_min(1e-9), residual
+
+    def second_differences(x):
+        return (x[2:] - 2 * x[1:-1] + x[:-2]).pow(2).sum() if len(x) > 2 else x.sum() * 0
+
+    def objective(rigid_only: bool):
+        loss, residual = reprojection(head(shape, expr, rotation, jaw, translation_cm / 100))
+        smooth = second_differences(rotation) + second_differences(translation_cm / 100)
+        if rigid_only:
+            return loss + settings.smooth * scale * smooth, residual
+        prior = (settings.shape_prior * shape.pow(2).sum() * scale + settings.expr_prior * expr.pow(2).mean()
+                 + settings.jaw_prior * jaw.pow(2).mean())
+        if settings.focal is None:
+            prior = prior + settings.focal_prior * (log_focal - math.log(phone)) ** 2
+        smooth = smooth + 0.01 * second_differences(expr) + second_differences(jaw)
+        return loss + prior + settings.smooth * scale * smooth, residual
+
+    # 1. Rigid start: the mean head turned and moved onto each frame's landmarks; 2. everything.
+    scale = 1.0 / frames
+    stages = (([rotation, translation_cm], True, max(settings.steps // 4, 1)),
+              ([shape, expr, jaw, rotation, translation_cm] + ([log_focal] if settings.focal is None else []), False,
+               settings.steps))
+    done = 0
+    for unknowns, rigid_only, steps in stages:
+        optimiser = torch.optim.LBFGS(unknowns, lr=1.0, max_iter=steps, history_size=30,
+                                      line_search_fn="strong_wolfe", tolerance_grad=1e-10, tolerance_change=1e-12)
+
+        def closure():
+            optimiser.zero_grad()
+            loss, residual = objective(rigid_only)
+            loss.backward()
+            return loss
+
+        optimiser.step(closure)
+        done += steps
+        if progress is not None:
+            with torch.no_grad():
+                _, residual = objective(rigid_only)
+            progress(done, sum(stage[2] for stage in stages), float(_rms(residual, weight).mean()))
+
+    with torch.no_grad():
+        _, residual = reprojection(head(shape, expr, rotation, jaw, translation_cm / 100))
+        focal = float(torch.exp(log_focal))
+    camera = start_camera(obs.width, obs.height, focal)
+    zeros = np.zeros((frames, 3))
+    params = {"shape": shape.detach().numpy()[0], "expr": expr.detach().numpy(),
+              "rotation": rotation.detach().numpy(), "neck_pose": zeros, "jaw_pose": jaw.detach().numpy(),
+              "eyes_pose": np.zeros((frames, 6)), "translation": translation_cm.detach().numpy() / 100}
+    return Fit(params, camera, _rms(residual, weight).numpy(), seen.numpy())
+
+
+def _rms(residual: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
+    """Confidence-weighted RMS per frame (0 for a frame without landmarks)."""
+    with torch.no_grad():
+        total = weight.sum(1)
+        return torch.sqrt((weight * residual ** 2).sum(1) / total.clamp_min(1e-9)) * (total > 0)

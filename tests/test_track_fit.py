@@ -1,0 +1,62 @@
+"""The monocular fit: FLAME and the camera back from a clip's 2D landmarks (synthetic, known answers)."""
+
+import numpy as np
+import pytest
+import torch
+
+from mogaface.core.flame.landmarks import STATIC_IBUG, procedural_embedding
+from mogaface.core.flame.model import FlameModel
+from mogaface.core.track.fit import FitSettings, LandmarkHead, Observations, fit_landmarks, start_camera
+
+FRAMES, WIDTH, HEIGHT, FOCAL = 12, 360, 640, 480.0
+
+
+@pytest.fixture(scope="module")
+def clip(procedural_head_pkl):
+    """A turning, talking head's landmarks seen by a fixed camera, with half a pixel of noise."""
+    model = FlameModel.load(procedural_head_pkl, dtype=torch.float64)
+    embedding = procedural_embedding().subset(STATIC_IBUG)
+    rng = np.random.default_rng(0)
+    time = np.linspace(0, 1, FRAMES)[:, None]
+    truth = {"shape": rng.normal(0, 0.8, (1, model.n_shape)),
+             "expr": 0.8 * np.sin(2 * np.pi * time * rng.uniform(0.5, 1.5, model.n_expr)) * (np.arange(model.n_expr) < 6),
+             "rotation": np.concatenate([0.15 * np.sin(3 * time), 0.5 * np.sin(2 * np.pi * time), 0 * time], 1),
+             "jaw_pose": np.concatenate([0.15 * (1 + np.sin(7 * time)), 0 * time, 0 * time], 1),
+             "translation": np.concatenate([0.01 * time, -0.01 * time, 0.02 * np.sin(4 * time)], 1)}
+    with torch.no_grad():
+        vertices = model(**{k: torch.as_tensor(v) for k, v in truth.items()}).numpy()
+    camera = start_camera(WIDTH, HEIGHT, FOCAL)
+    points = np.stack([camera.project(embedding.positions(v, model.faces.numpy()))[0] for v in vertices])
+    points += rng.normal(0, 0.5, points.shape)
+    confidence = np.ones(points.shape[:2])
+    confidence[5, :] = 0  # a frame where the face was lost
+    return model, Observations(points, confidence, WIDTH, HEIGHT, embedding), truth, vertices
+
+
+def test_the_landmark_head_poses_as_the_whole_model(clip):
+    model, obs, truth, vertices = clip
+    head = LandmarkHead(model, obs.embedding)
+    t = {k: torch.as_tensor(v) for k, v in truth.items()}
+    landmarks = head(t["shape"], t["expr"], t["rotation"], t["jaw_pose"], t["translation"])
+    expected = np.stack([obs.embedding.positions(v, model.faces.numpy()) for v in vertices])
+    assert np.abs(landmarks.detach().numpy() - expected).max() < 1e-9
+
+
+def test_a_clip_is_fitted_to_its_landmarks_and_the_mesh_follows(clip):
+    model, obs, truth, vertices = clip
+    fit = fit_landmarks(model, obs, FitSettings(steps=80))
+    seen = fit.seen
+    assert not seen[5] and seen.sum() == FRAMES - 1
+    assert fit.reprojection_px[seen].mean() < 1.2  # the noise: 0.5 px per axis, 0.7 px at the truth
+    assert abs(fit.camera.fx / FOCAL - 1) < 0.1  # estimated, from a phone's (441 px here)
+    params = {k: torch.as_tensor(v if k != "shape" else v[None]) for k, v in fit.params.items()}
+    with torch.no_grad():
+        fitted = model(**params).numpy()
+    # the head's rigid motion is recovered: the face's centre within a few mm of the truth, every frame
+    face = np.unique(model.faces.numpy()[obs.embedding.faces])
+    error_mm = 1000 * np.linalg.norm(fitted[:, face].mean(1) - vertices[:, face].mean(1), axis=1)
+    assert np.median(error_mm[seen]) < 15, error_mm
+    yaw = fit.params["rotation"][:, 1]
+    assert np.corrcoef(yaw[seen], truth["rotation"][seen, 1])[0, 1] > 0.98
+    jaw = fit.params["jaw_pose"][:, 0]
+    assert np.corrcoef(jaw[seen], truth["jaw_pose"][seen, 0])[0, 1] > 0.8
