@@ -86,7 +86,10 @@ def shot(name):
 
 
 def module(name):
-    return sys.modules[f"{MODULE}.{name}"]
+    """One of the extension's modules (imported if nothing imported it yet)."""
+    import importlib
+
+    return importlib.import_module(f"{MODULE}.{name}")
 
 
 def screen_pixels(region):
