@@ -18,6 +18,7 @@ import numpy as np
 
 from ..errors import ModelFileError, UnsafePickleError
 from ..io.atomic import atomic_open
+from ..io.pickle_budget import short_repr
 from ..io.restricted_pickle import NUMPY_ARRAY_GLOBALS, restricted_load
 from ..limits import MAX_ARRAY_ELEMENTS
 
@@ -99,14 +100,16 @@ def _empty_bytes(*args):
     """Python 3 pickles (protocol 2) store an empty array's data as ``bytes()``; only that is allowed
     (``bytes(n)`` would allocate what the file asks)."""
     if args:
-        raise UnsafePickleError(None, None, "refused bytes() with arguments")
+        raise UnsafePickleError(None, None, f"refused bytes() with the arguments {short_repr(args)}: expected none (an "
+                                            f"empty array's data)")
     return b""
 
 
 def latin1_encode(text, encoding="latin1"):
     """Python 3 pickles of ``bytes`` call ``_codecs.encode(str, 'latin1')``; only that is allowed."""
     if not isinstance(text, str) or encoding not in ("latin1", "latin-1"):
-        raise UnsafePickleError(None, None, "refused _codecs.encode with unexpected arguments")
+        raise UnsafePickleError(None, None, f"refused _codecs.encode{short_repr((text, encoding))}: expected a text "
+                                            f"and 'latin1' (how Python 3 pickles bytes)")
     return text.encode("latin1")
 
 

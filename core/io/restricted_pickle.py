@@ -76,7 +76,12 @@ class RestrictedUnpickler(pickle.Unpickler):
         self._objects = ObjectBudget(path, budget, _plain_array)
 
     def load(self):
-        return self._objects.settle(super().load(), "the pickle")
+        try:
+            return self._objects.settle(super().load(), "the pickle")
+        except UnsafePickleError as error:  # a refusal by a callable the allow-list gave (it has no file)
+            if error.path is not None:
+                raise
+            raise UnsafePickleError(self._path, error.field, error.problem) from None
 
     def find_class(self, module, name):
         resolver = self._allowed.get(module)

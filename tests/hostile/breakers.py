@@ -90,6 +90,16 @@ def raw_pickle(path, obj):
         pickle.dump(obj, handle, protocol=2)
 
 
+def codecs_encode_pickle(path, key="v_template", encoding=b"utf-8"):
+    """A pickle whose value is ``_codecs.encode('x', encoding)`` (Python 3 pickles bytes with 'latin1')."""
+    name = key.encode()
+    path.write_bytes(pickle.PROTO + b"\x02" + pickle.EMPTY_DICT + pickle.SHORT_BINUNICODE + bytes([len(name)]) + name
+                     + pickle.GLOBAL + b"_codecs\nencode\n" + pickle.SHORT_BINUNICODE + b"\x01x"
+                     + pickle.SHORT_BINUNICODE + bytes([len(encoding)]) + encoding + pickle.TUPLE2 + pickle.REDUCE
+                     + pickle.SETITEM + pickle.STOP)
+    return path
+
+
 def ply_with_header(path, lines, data=b""):
     path.write_bytes(("\n".join(["ply", "format binary_little_endian 1.0", *lines, "end_header"]) + "\n").encode()
                      + data)
