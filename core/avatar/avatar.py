@@ -34,18 +34,23 @@ class Avatar(torch.nn.Module):
     """A FLAME-format head model with bound Gaussians.
 
     ``head_file`` is the model file the avatar was trained on (kept beside a saved avatar so
-    the avatar is self-contained).
+    the avatar is self-contained). ``source`` and ``field``: the file the Gaussians were read from and
+    its name for their triangle ids (``avatar.pt``'s ``gaussians.binding``, a PLY's ``binding_0``),
+    named by errors; the head model file when the Gaussians were made here.
     """
 
-    def __init__(self, flame: FlameModel, gaussians: BoundGaussians, head_file: str | os.PathLike):
+    def __init__(self, flame: FlameModel, gaussians: BoundGaussians, head_file: str | os.PathLike,
+                 source: str | os.PathLike | None = None, field: str = "binding"):
         super().__init__()
         binding = gaussians.binding
+        source = head_file if source is None else source
         if len(binding) == 0:
-            raise InputError(head_file, "binding", "the avatar holds no Gaussians")
+            raise InputError(source, field, "no Gaussians: expected at least one")
         if int(binding.min()) < 0 or int(binding.max()) >= len(flame.faces):
-            raise InputError(head_file, "binding", f"Gaussians are bound to triangles the head model does not have "
-                                                   f"(ids {int(binding.min())}..{int(binding.max())}, the model has "
-                                                   f"{len(flame.faces)} faces)")
+            raise InputError(source, field, f"Gaussians are bound to triangles the head model does not have: ids "
+                                            f"{int(binding.min())}..{int(binding.max())}, expected ids in [0, "
+                                            f"{len(flame.faces)}) ({pathlib.Path(head_file).name} has "
+                                            f"{len(flame.faces)} faces)")
         self.flame = flame
         self.gaussians = gaussians
         self.head_file = pathlib.Path(head_file)
@@ -147,7 +152,7 @@ class Avatar(torch.nn.Module):
         if n_vertices is not None:
             n_vertices = _small_int(state, "n_vertices", 1, 10 ** 7, source)
         return cls(FlameModel.load(head_file, n_vertices=None if n_vertices is None else int(n_vertices)),
-                   gaussians, head_file)
+                   gaussians, head_file, source, "gaussians.binding")
 
 
 def _small_int(state: dict, key: str, low: int, high: int, source) -> int:

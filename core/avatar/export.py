@@ -209,7 +209,7 @@ def import_binding_ply(path: str | os.PathLike, head_file: str | os.PathLike) ->
         sh_rest=sh[:, 1:],
     )
     gaussians.active_sh_degree = data["sh_degree"]
-    return Avatar(flame, gaussians, head_file)
+    return Avatar(flame, gaussians, head_file, path, "binding_0")
 
 
 def load_flame_param_npz(path: str | os.PathLike) -> dict[str, np.ndarray]:

@@ -183,7 +183,7 @@ def read_gaussian_ply(path: str | os.PathLike) -> dict:
 
     Returns ``means, scales_log, quats, opacity_logit, sh (N, K, 3), binding, sh_degree``,
     the same names as ``write_gaussian_ply`` takes. Properties are found by name, so
-    extra ones are ignored; a missing one is an error that names it.
+    extra ones are ignored; a missing one is an error that names it, and so is a file of no Gaussians.
     """
     table = _vertex_table(path)
     present = set(table.dtype.names)
@@ -195,6 +195,8 @@ def read_gaussian_ply(path: str | os.PathLike) -> dict:
     for name in gaussian_property_names(degree):
         if name not in present:
             raise InputError(path, name, "missing property of the 3DGS Gaussian layout")
+    if len(table) == 0:
+        raise InputError(path, "vertex", "no Gaussians (0 vertices): expected at least one")
 
     def stack(names):
         return np.stack([table[n].astype(np.float32) for n in names], axis=1)

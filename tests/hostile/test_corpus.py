@@ -155,7 +155,8 @@ CASES = [
      ["x.ply", "vertex", "limit"]),
     ("ply-zero-vertices", lambda c, t: (b.ply_with_header(t / "x.ply", ["element vertex 0"] + [
         f"property float {n}" for n in gaussian_property_names(0)] + ["property int binding_0"]),
-        ["import-ply", t / "x.ply", "--head", c["head"], "--out", t / "a.pt"])[1], ["binding", "no Gaussians"]),
+        ["import-ply", t / "x.ply", "--head", c["head"], "--out", t / "a.pt"])[1],
+     ["x.ply", "'vertex'", "no Gaussians"]),
     ("ply-duplicate-property", lambda c, t: (b.ply_with_header(t / "x.ply", ["element vertex 1", "property float x",
                                                                              "property float x"], bytes(8)),
                                              ["import-ply", t / "x.ply", "--head", c["head"], "--out", t / "a.pt"])[1],
@@ -177,7 +178,14 @@ CASES = [
                                               ["render", c["run"], "--timesteps", "0", "--out", t / "r"])[1],
      ["avatar.pt", "head_file", "plain name"]),
     ("avatar-negative-binding", lambda c, t: (_avatar_edit(c["run"], lambda s: s["gaussians"]["binding"].__setitem__(
-        0, -1)), ["render", c["run"], "--timesteps", "0", "--out", t / "r"])[1], ["binding", "-1"]),
+        0, -1)), ["render", c["run"], "--timesteps", "0", "--out", t / "r"])[1],
+     ["avatar.pt", "'gaussians.binding'", "ids -1..", "expected ids in [0, "]),
+    ("avatar-binding-past-the-faces", lambda c, t: (_avatar_edit(c["run"], lambda s: s["gaussians"]["binding"]
+                                                                 .__setitem__(0, 10 ** 6)), _render(c, t))[1],
+     ["avatar.pt", "'gaussians.binding'", "..1000000", "head.pkl has"]),
+    ("avatar-no-gaussians", lambda c, t: (_avatar_edit(c["run"], lambda s: s.update(gaussians={
+        k: v[:0] for k, v in s["gaussians"].items()})), _render(c, t))[1],
+     ["avatar.pt", "'gaussians.binding'", "no Gaussians"]),
     ("render-huge-range", lambda c, t: ["render", c["run"], "--timesteps", "0-999999999999", "--out", t / "r"],
      ["timestep"]),
     ("demo-non-empty-out", lambda c, t: ((t / "d").mkdir(), (t / "d" / "keep.txt").write_text("mine"),
