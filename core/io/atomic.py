@@ -11,6 +11,7 @@ would replace a device node as root, and writing into it is not what an output p
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import pathlib
 import stat
@@ -20,6 +21,8 @@ import threading
 from ..errors import InputError
 
 _umask_lock = threading.Lock()
+# what writing to a file may fail with, naming no file (a write to an open handle)
+_WRITE_ERRORS = {errno.ENOSPC, errno.EROFS, errno.EFBIG, getattr(errno, "EDQUOT", errno.ENOSPC)}
 
 
 def current_umask() -> int:
@@ -77,7 +80,9 @@ def atomic_path(path: str | os.PathLike):
 
     The temporary name keeps the final suffix, so writers that pick a format by
     extension (PIL, OpenEXR, numpy) behave as they would for ``path`` itself. The target is
-    checked before anything is written and again just before the rename.
+    checked before anything is written and again just before the rename. An error that names
+    the temporary file, or a full disk's that names none, is raised naming ``path``: the temporary
+    is gone by then.
     """
     path = pathlib.Path(path)
     check_output_target(path)
@@ -91,9 +96,14 @@ def atomic_path(path: str | os.PathLike):
         yield pathlib.Path(tmp)
         check_output_target(path)
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as error:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
+        if isinstance(error, InputError) and error.path == tmp:
+            raise type(error)(path, error.field, error.problem.replace(tmp, str(path))) from None
+        if isinstance(error, OSError) and error.errno is not None and (
+                error.filename == tmp or (error.filename is None and error.errno in _WRITE_ERRORS)):
+            raise OSError(error.errno, error.strerror, str(path)) from None
         raise
 
 

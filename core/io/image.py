@@ -159,4 +159,7 @@ def write_exr(path: str | os.PathLike, rgb, alpha=None, *, half: bool = False) -
         channels["A"] = np.ascontiguousarray(alpha.reshape(rgb.shape[:2]), dtype=dtype)
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     with atomic_path(path) as tmp:
-        OpenEXR.File(header, channels).write(os.fspath(tmp))
+        try:
+            OpenEXR.File(header, channels).write(os.fspath(tmp))
+        except RuntimeError as error:  # OpenEXR's form of a full or read-only disk
+            raise InputError(tmp, None, f"cannot write (disk full or not writable? {error})") from None

@@ -4,6 +4,7 @@ checkpoints, full or read-only disks, interrupts at any moment."""
 import errno
 import json
 import os
+import pathlib
 import signal
 import stat
 import subprocess
@@ -11,6 +12,7 @@ import sys
 import tempfile
 import time
 
+import numpy as np
 import pytest
 import torch
 
@@ -103,8 +105,10 @@ def test_disk_full_during_a_checkpoint(copies, monkeypatch):
         raise RuntimeError("PytorchStreamWriter failed writing file data/0: file write failed")
 
     monkeypatch.setattr(torch, "save", full_disk)
-    with pytest.raises(InputError, match="cannot write .disk full or not writable"):
+    with pytest.raises(InputError, match="cannot write .disk full or not writable") as raised:
         trainer.checkpoint()
+    assert raised.value.path == str(copies["run"] / "checkpoints" / f"step_{trainer.step:06d}.pt")  # not the temporary
+    assert ".partial" not in str(raised.value)
     assert not [p for p in (copies["run"] / "checkpoints").iterdir() if ".partial" in p.name]
     assert load_checkpoint(latest_checkpoint(copies["run"] / "checkpoints"))["step"] == 3
 
@@ -117,6 +121,22 @@ def test_read_only_output_is_a_clear_error(copies, tmp_path, monkeypatch, capsys
     code = main(["render", str(copies["run"]), "--timesteps", "0", "--out", str(tmp_path / "ro")])
     err = capsys.readouterr().err
     assert code == 2 and "Permission denied" in err and "Traceback" not in err
+
+
+def test_disk_full_while_writing_an_image_names_the_image(tmp_path, monkeypatch):
+    """A write into the temporary that fails naming no file (PIL's) is said of the output's own name."""
+    from PIL import Image
+
+    from mogaface.core.io.image import write_png
+
+    def full_disk(self, path, *args, **kwargs):
+        pathlib.Path(path).write_bytes(b"partial")
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(Image.Image, "save", full_disk)
+    with pytest.raises(OSError, match="No space left on device") as raised:
+        write_png(tmp_path / "a.png", np.zeros((4, 4, 3), np.float32))
+    assert raised.value.filename == str(tmp_path / "a.png") and list(tmp_path.iterdir()) == []
 
 
 def test_run_folder_that_cannot_be_created(copies, tmp_path):
