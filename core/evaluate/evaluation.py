@@ -67,13 +67,17 @@ def evaluate_run(
     test frames (default) or the validation sequence's (``--split validation``: settings are chosen
     there, the test frames scored once with them).
     """
-    from ..io.atomic import write_json, write_text
+    from ..io.atomic import check_output_target, write_json, write_text
     from ..progress import ProgressBar
 
     run = RunFolder(run_dir, capture)
     protocols = [check_protocol(name) for name in protocols]
     check_split(split)
     out = pathlib.Path(out_dir) if out_dir is not None else run.root
+    for place in (out, out / report.EVAL_DIR):  # before any scoring: a FIFO or device there is refused now
+        check_output_target(place, folder=True)
+    for name in ("metrics.json", "metrics.md"):
+        check_output_target(out / name)
     cap = run.open_capture()
     if avatar is None and source is None:
         from .sources.mogaface import run_inference

@@ -13,6 +13,7 @@ import numpy as np
 
 from ..data.capture_info import capture_info
 from ..errors import InputError
+from ..io.atomic import check_output_target
 from ..io.image import srgb_to_linear, write_exr, write_png
 from ..run.folder import RunFolder, load_flame_file
 from .protocols import TrackedParams, render_frame
@@ -50,6 +51,8 @@ def render_run(
 ) -> list[pathlib.Path]:
     """Write ``{t:05d}_{camera}.png`` (and ``.exr``) per timestep and camera; returns the files."""
     run = RunFolder(run_dir, capture)
+    out = pathlib.Path(out_dir) if out_dir is not None else run.root / RENDER_DIR
+    check_output_target(out, folder=True)  # before any rendering: a FIFO or device there is refused now
     cap = run.open_capture()
     cameras = cameras or [default_camera(cap)]
     for camera_id in cameras:
@@ -58,7 +61,6 @@ def render_run(
     modulated, modules_source = run_inference(run, cap, image_assisted=False)
     avatar = (modulated or run.load_avatar()) if avatar is None else avatar
     source = modules_source or TrackedParams(cap, run)
-    out = pathlib.Path(out_dir) if out_dir is not None else run.root / RENDER_DIR
     background = np.asarray(run.background, dtype=np.float32)
     written = []
     for timestep in timesteps:

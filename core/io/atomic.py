@@ -48,30 +48,50 @@ def kind_of(mode: int) -> str:
     return "not a regular file"
 
 
-def check_output_target(path: str | os.PathLike) -> None:
-    """Refuse an output path where something other than a regular file (or a link to one) exists.
+def check_output_target(path: str | os.PathLike, folder: bool = False) -> None:
+    """Refuse an output path where something other than a regular file (or a link to one) exists;
+    with ``folder``, an output folder (``--out DIR``, a run folder): a folder or a link to one.
 
-    Absent targets and dangling links are fine (a dangling link is replaced, never followed).
+    Absent targets are fine, and so are dangling links to a file (replaced, never followed).
     """
     try:
         mode = os.lstat(path).st_mode
     except FileNotFoundError:
         return
     except OSError as problem:
+        if problem.errno == errno.ENOTDIR:
+            _refuse_what_is_not_a_folder_above(path)
         raise InputError(path, None, f"cannot be written ({problem.strerror})") from None
-    if stat.S_ISREG(mode):
+    wanted = stat.S_ISDIR if folder else stat.S_ISREG
+    expected = ("expected a folder for the outputs (or a path that does not exist yet): choose another output "
+                "folder") if folder else "an output replaces a regular file only: choose another output path"
+    if wanted(mode):
         return
     if stat.S_ISLNK(mode):
         try:
             target = os.stat(path).st_mode
         except OSError:  # dangling or looping: the link alone is replaced
+            if not folder:
+                return
+            raise InputError(path, None, f"is a symbolic link that leads nowhere ({os.readlink(path)}); "
+                                         f"{expected}") from None
+        if wanted(target):
             return
-        if stat.S_ISREG(target):
-            return
-        raise InputError(path, None, f"is a symbolic link to {kind_of(target)} ({os.readlink(path)}); an output "
-                                     f"replaces a regular file only: choose another output path")
-    raise InputError(path, None, f"is {kind_of(mode)}; an output replaces a regular file only: "
-                                 f"choose another output path")
+        raise InputError(path, None, f"is a symbolic link to {kind_of(target)} ({os.readlink(path)}); {expected}")
+    raise InputError(path, None, f"is {kind_of(mode)}; {expected}")
+
+
+def _refuse_what_is_not_a_folder_above(path) -> None:
+    """Name the file (FIFO, device) on the way to ``path`` that stands where a folder is needed."""
+    for parent in pathlib.Path(path).parents:
+        try:
+            mode = os.stat(parent).st_mode
+        except OSError:
+            continue
+        if not stat.S_ISDIR(mode):
+            raise InputError(parent, None, f"is {kind_of(mode)}, where a folder is needed to hold {path}: choose "
+                                           f"another output path")
+        return
 
 
 @contextlib.contextmanager
@@ -85,9 +105,7 @@ def atomic_path(path: str | os.PathLike):
     is gone by then.
     """
     path = pathlib.Path(path)
-    check_output_target(path)
-    if path.parent.exists() and not path.parent.is_dir():
-        raise InputError(path.parent, None, "expected a folder for the output, found a file")
+    check_output_target(path)  # also names a file on the way that stands where a folder is needed
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f".partial{path.suffix}", dir=path.parent)
     os.close(fd)

@@ -93,8 +93,10 @@ def _read_pid(fd: int) -> int | None:
 
 def take_run_folder(root: pathlib.Path) -> RunLock:
     """Create ``root`` if needed and hold its lock; then clear what killed writers left there."""
+    from ..io.atomic import check_output_target
     from .checkpoint import remove_partials
 
+    check_output_target(root, folder=True)  # a FIFO, device or file there: say what it is
     try:
         root.mkdir(parents=True, exist_ok=True)
     except OSError as error:

@@ -204,6 +204,20 @@ CASES = [
     ("out-png-is-a-fifo", lambda c, t: ((t / "r").mkdir(), os.mkfifo(t / "r" / "00000_cam00.png"),
                                         ["render", c["run"], "--timesteps", "0", "--camera", "cam00",
                                          "--out", t / "r"])[2], ["00000_cam00.png", "is a FIFO"]),
+    ("train-out-is-a-fifo", lambda c, t: (os.mkfifo(t / "newrun"), train(c, t))[1],
+     ["newrun", "is a FIFO", "expected a folder"]),
+    ("train-out-is-a-file", lambda c, t: ((t / "newrun").write_text("mine"), train(c, t))[1],
+     ["newrun", "is a regular file", "expected a folder"]),
+    ("train-out-under-a-file", lambda c, t: ((t / "f").write_text("mine"), ["train", c["capture"], "--out",
+                                                                             t / "f" / "run", "--quiet"])[1],
+     ["f: is a regular file, where a folder is needed"]),
+    ("render-out-is-a-fifo", lambda c, t: (os.mkfifo(t / "r"), _render(c, t))[1], ["r", "is a FIFO",
+                                                                                    "expected a folder"]),
+    ("eval-out-is-a-device", lambda c, t: ["eval", c["run"], "--no-lpips", "--quiet", "--out", "/dev/null"],
+     ["/dev/null", "is a character device", "expected a folder"]),
+    ("eval-metrics-is-a-fifo", lambda c, t: ((t / "e").mkdir(), os.mkfifo(t / "e" / "metrics.json"),
+                                             ["eval", c["run"], "--no-lpips", "--quiet", "--out", t / "e"])[2],
+     ["metrics.json", "is a FIFO"]),
     ("events-log-links-out", lambda c, t: ((t / "mine.txt").write_text("mine"), (c["run"] / "events.jsonl").unlink(),
                                            (c["run"] / "events.jsonl").symlink_to(t / "mine.txt"),
                                            ["train", c["capture"], "--out", c["run"], "--resume", "--steps", "4",
@@ -509,3 +523,17 @@ def test_a_landmark_embedding_npz_is_read_by_the_one_npz_reader(tmp_path):
     b.npz_declaring(path, "lmk_faces_idx", (10 ** 12,))
     with pytest.raises(InputError, match=r"embedding.npz: field 'lmk_faces_idx': declares shape \(1000000000000,\)"):
         read_embedding(path)
+
+
+@pytest.mark.parametrize("command", ["render", "eval"])
+def test_an_output_folder_that_is_not_one_is_refused_before_any_work(copies, tmp_path, capsys, monkeypatch, command):
+    from mogaface.core.run.folder import RunFolder
+
+    def no_work(self):
+        raise AssertionError("the avatar was loaded before the output was checked")
+
+    monkeypatch.setattr(RunFolder, "load_avatar", no_work)
+    os.mkfifo(tmp_path / "out")
+    extra = ["--timesteps", "0"] if command == "render" else ["--no-lpips", "--quiet"]
+    code, err = run_cli([command, copies["run"], *extra, "--out", tmp_path / "out"], capsys)
+    assert code == 2 and f"{tmp_path / 'out'}: is a FIFO; expected a folder" in err, err

@@ -142,7 +142,7 @@ def test_disk_full_while_writing_an_image_names_the_image(tmp_path, monkeypatch)
 def test_run_folder_that_cannot_be_created(copies, tmp_path):
     blocker = tmp_path / "a_file"
     blocker.write_text("not a folder")
-    with pytest.raises(InputError, match="cannot create the run folder"):
+    with pytest.raises(InputError, match="a_file: is a regular file, where a folder is needed to hold"):
         Trainer(copies["capture"], blocker / "run")
 
 
