@@ -28,7 +28,7 @@ def run(args) -> int:
     run_folder = RunFolder(args.run, args.capture)
     avatar = run_folder.load_avatar()
     capture = run_folder.open_capture()
-    source = TrackedParams(capture, run_folder)
+    source = TrackedParams(capture, run_folder, avatar.flame)
     params = source.params_for(args.timestep)
     if args.binding_space:
         motion = {t: source.params_for(t) for t in capture.timesteps}

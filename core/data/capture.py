@@ -275,7 +275,11 @@ class Capture:
         """The tracked FLAME parameters of one timestep: float32 ``(n,)`` vectors (``static_offset (V,3)``)."""
         frame = self.timestep_frame(timestep)
         field = f"{frame.source} {frame.field('flame_param_path')}"
-        return self._load_flame(self.path(frame, "flame_param_path"), field)
+        return self._load_flame(self.flame_param_file(timestep), field)
+
+    def flame_param_file(self, timestep: int) -> pathlib.Path:
+        """The file :meth:`flame_params` reads for one timestep."""
+        return self.path(self.timestep_frame(timestep), "flame_param_path")
 
     def flame_params_stacked(self, timesteps: list[int] | None = None) -> dict[str, np.ndarray]:
         """Parameters of many timesteps stacked to ``(T, n)`` (``static_offset`` from the first;

@@ -85,7 +85,7 @@ def evaluate_run(
         avatar, source = run_inference(run, cap)  # MoGaFace runs: modules + image-assisted inference
         avatar, source = _with_refiner(run, cap, avatar, source)
     avatar = run.load_avatar() if avatar is None else avatar
-    source = TrackedParams(cap, run) if source is None else source
+    source = TrackedParams(cap, run, avatar.flame) if source is None else source
     shift = delayed_views(cap, avatar, run.delays_path)  # a run that learned its cameras' delays
     skipped = {name: reason for name in protocols if (reason := protocol_unavailable(cap, name, split)) is not None}
     if skipped and len(skipped) == len(protocols):

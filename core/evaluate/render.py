@@ -60,7 +60,7 @@ def render_run(
             raise InputError(cap.root, "camera", f"no camera {camera_id!r} (have {', '.join(cap.cameras)})")
     modulated, modules_source = run_inference(run, cap, image_assisted=False)
     avatar = (modulated or run.load_avatar()) if avatar is None else avatar
-    source = modules_source or TrackedParams(cap, run)
+    source = modules_source or TrackedParams(cap, run, avatar.flame)
     background = np.asarray(run.background, dtype=np.float32)
     written = []
     for timestep in timesteps:
@@ -69,6 +69,7 @@ def render_run(
             if not path.exists():
                 raise InputError(path, None, f"file not found (no FLAME parameters for timestep {timestep})")
             params = load_flame_file(path)
+            avatar.flame.check_counts(params, path)
         else:
             params = source.params_for(timestep)
         for camera_id in cameras:

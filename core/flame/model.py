@@ -78,6 +78,16 @@ class FlameModel(torch.nn.Module):
     def n_expr(self) -> int:
         return self.exprdirs.shape[2]
 
+    def check_counts(self, params: dict, source) -> None:
+        """Refuse parameters read from ``source`` (a ``flame_param`` file) with more shape or expression
+        coefficients than this model has; fewer are fine (the rest are zero, as in FLAME's own code)."""
+        for name, count, kind in (("shape", self.n_shape, "shape"), ("expr", self.n_expr, "expression")):
+            value = params.get(name)
+            found = value.shape[-1] if value is not None and len(value.shape) else 0
+            if found > count:
+                raise InputError(source, name, f"expected at most {count} values (the head model's {kind} "
+                                               f"components), found {found}")
+
     @property
     def n_vertices(self) -> int:
         return self.v_template.shape[0]

@@ -186,7 +186,11 @@ class RunFolder:
         """This run's FLAME parameters of a training timestep, or None for a timestep it never saw."""
         if timestep not in self.trained_timesteps:
             return None
-        return load_flame_file(self.flame_param_dir / f"{timestep:05d}.npz")
+        return load_flame_file(self.flame_param_file(timestep))
+
+    def flame_param_file(self, timestep: int) -> pathlib.Path:
+        """The file of this run's FLAME parameters of a training timestep."""
+        return self.flame_param_dir / f"{timestep:05d}.npz"
 
     def identity_params(self) -> dict[str, np.ndarray] | None:
         """``shape`` (and ``static_offset``) as training left them, or None without trained files."""

@@ -135,6 +135,12 @@ class TrainingData:
     def flame_table(self) -> FlameTable:
         return FlameTable(self.timesteps, self.capture.flame_params_stacked(self.timesteps))
 
+    def check_counts(self, table: FlameTable, flame) -> None:
+        """The head model ``flame`` has room for the table's coefficients; else the error names the
+        first timestep's file (every timestep's has the same sizes, :meth:`Capture.flame_params_stacked`)."""
+        first = table.timesteps[0]
+        flame.check_counts(table.params(first), self.capture.flame_param_file(first))
+
     def target(self, frame: Frame) -> torch.Tensor:
         """The frame's image ``(H,W,3)``, already composited on :attr:`background`."""
         rgb, _ = self.capture.load_image(frame)

@@ -84,6 +84,7 @@ def solve_cameras(capture: Capture, head_file, embedding: LandmarkEmbedding | No
     timesteps = sorted({f.timestep_index for f in capture.frames(split)})
     table = FlameTable(timesteps, capture.flame_params_stacked(timesteps))
     model = FlameModel.load(head_file, n_vertices=table.n_vertices)
+    model.check_counts(table.params(timesteps[0]), capture.flame_param_file(timesteps[0]))
     if embedding is None:
         embedding = head_landmarks(head_file, model.faces.numpy())
         if embedding is None:

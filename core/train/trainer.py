@@ -156,6 +156,7 @@ class Trainer:
         self.comm.barrier()  # the other ranks read the head model rank 0 copied
         self.table = self.data.flame_table()
         self.avatar = Avatar.initial(head, self.config.densify.max_sh_degree, n_vertices=self.table.n_vertices)
+        self.data.check_counts(self.table, self.avatar.flame)
         landmarks_file = self.run_folder.root / LANDMARK_CAMERAS_FILE if self.comm.is_writer else None
         self.camera_offsets = build_camera_offsets(self.config, self.data, source, landmarks_file)
         self.camera_delays = build_camera_delays(self.config, self.data, self.table.timesteps, fresh=True)
@@ -170,6 +171,7 @@ class Trainer:
     def _restore(self, state: dict) -> None:
         self.avatar = Avatar.from_state(state["avatar"], self.run_folder.root, source=self.run_folder.checkpoint_dir)
         self.table = self.data.flame_table()
+        self.data.check_counts(self.table, self.avatar.flame)
         if state["table"]["timesteps"] != self.table.timesteps:
             raise InputError(self.run_folder.checkpoint_dir, "table.timesteps",
                              "the capture's training timesteps differ from the checkpoint's")

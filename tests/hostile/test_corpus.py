@@ -7,6 +7,7 @@ reader or writer adds its rows here.
 
 import os
 import pathlib
+import shutil
 import subprocess
 import sys
 
@@ -300,6 +301,16 @@ CASES = [
     ("npz-expression-empty", lambda c, t: (_param_edit(c["capture"] / "flame_param" / "00000.npz",
                                                        expr=np.zeros(0, np.float32)), cap(c))[1],
      ["00000.npz", "'expr'", "(no values)"]),
+    ("npz-expression-over-the-model", lambda c, t: (_expression_of(c["capture"] / "flame_param", 25),
+                                                    train(c, t))[1],
+     ["flame_param/00000.npz", "'expr'", "at most 20 values", "found 25"]),
+    ("npz-expression-over-the-model-render", lambda c, t: (shutil.copytree(c["capture"] / "flame_param", t / "p"),
+                                                           _expression_of(t / "p", 25),
+                                                           _render(c, t) + ["--params", t / "p"])[2],
+     ["p/00000.npz", "'expr'", "at most 20 values", "found 25"]),
+    ("npz-expression-over-the-model-in-the-run", lambda c, t: (_expression_of(c["run"] / "flame_param", 25),
+                                                               _export(c, t / "o.ply"))[1],
+     ["run/flame_param/00000.npz", "'expr'", "found 25"]),
     ("npz-60000-members", lambda c, t: (b.write_zip(c["capture"] / "flame_param" / "00000.npz", [
         (f"{i}.npy", b"", 0, 0, 0) for i in range(60_000)]), cap(c))[1],
      ["00000.npz", "declares 60000 zip members", "limit is 1024"]),
@@ -355,6 +366,12 @@ def _param_edit(path, **arrays):
     params = load_npz(path)
     params.update(arrays)
     save_npz(path, params)
+
+
+def _expression_of(folder, count):
+    """Every FLAME parameter file in ``folder`` with ``count`` expression values (the head has 20)."""
+    for path in sorted(folder.glob("*.npz")):
+        _param_edit(path, expr=np.zeros((1, count), np.float32))
 
 
 def _zip_member(path, data):

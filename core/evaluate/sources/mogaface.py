@@ -30,10 +30,10 @@ class MoGaFaceParams:
     """FLAME parameters of one frame for a MoGaFace run."""
 
     def __init__(self, capture: Capture, run: RunFolder, model: MoGaFace, image_assisted: bool = True,
-                 max_views: int = 16):
+                 max_views: int = 16, flame=None):
         self.capture = capture
         self.model = model
-        self.tracked = TrackedParams(capture, run)
+        self.tracked = TrackedParams(capture, run, flame)
         self.image_assisted = image_assisted and model.mode != "off"
         self.uses_images = self.image_assisted
         self.max_views = max_views
@@ -67,4 +67,4 @@ def run_inference(run: RunFolder, capture: Capture, image_assisted: bool = True)
     if not run.has_modules():
         return None, None
     avatar = run.load_avatar()
-    return avatar, MoGaFaceParams(capture, run, avatar.model, image_assisted=image_assisted)
+    return avatar, MoGaFaceParams(capture, run, avatar.model, image_assisted=image_assisted, flame=avatar.flame)

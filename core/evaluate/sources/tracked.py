@@ -14,23 +14,31 @@ class TrackedParams:
     """The run's own parameters for training timesteps, the capture's tracked ones (with the
     run's identity: shape, static offset) for the rest.
 
-    Looks at no image, so ``exclude_view`` is satisfied trivially.
+    Looks at no image, so ``exclude_view`` is satisfied trivially. ``flame``: the head model the
+    parameters pose, when known; a file with more coefficients than it has is refused, named.
     """
 
     uses_images = False
     description = "parameter-driven (tracked FLAME parameters; no image input)"
 
-    def __init__(self, capture: Capture, run: RunFolder | None = None):
+    def __init__(self, capture: Capture, run: RunFolder | None = None, flame=None):
         self.capture = capture
         self.run = run
+        self.flame = flame
         self._identity = run.identity_params() if run is not None else None
+        if self._identity and flame is not None:
+            flame.check_counts(self._identity, run.flame_param_file(run.trained_timesteps[0]))
 
     def params_for(self, frame: Frame | int, exclude_view: str | None = None) -> dict[str, np.ndarray]:
         timestep = timestep_of(frame)
         trained = self.run.flame_params(timestep) if self.run is not None else None
         if trained is not None:
+            if self.flame is not None:
+                self.flame.check_counts(trained, self.run.flame_param_file(timestep))
             return trained
         params = dict(self.capture.flame_params(timestep))
+        if self.flame is not None:
+            self.flame.check_counts(params, self.capture.flame_param_file(timestep))
         if self._identity:
             params.update(self._identity)
         return params
