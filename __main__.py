@@ -27,16 +27,12 @@ if sys.path and sys.path[0] in ("", os.getcwd()) and not (sys.flags.isolated or 
 
 try:
     from .core.cli import main
+    from .core.cli.exits import leave
 except KeyboardInterrupt:  # Ctrl-C while the interpreter is still starting up
     sys.exit(130)
 
-code = main()
-if code == 130:
-    # Interrupted. A Ctrl-C that landed in Python code an extension ran during start-up leaves the
-    # interpreter marked as killed by SIGINT however it was handled, and it would leave by the
-    # signal (status -2) instead of this status. Everything is written (files are atomic), so exit
-    # directly.
-    sys.stdout.flush()
-    sys.stderr.flush()
-    os._exit(code)
-sys.exit(code)
+# Leave with the signal handlers in place: the interpreter's own exit drops them before its
+# tear-down (a SIGTERM then died silently with -15), and a Ctrl-C that landed in Python code an
+# extension ran during start-up leaves it marked as killed by SIGINT (status -2 instead of 130).
+# (--help and usage errors leave by argparse's SystemExit, before torch or numba is imported.)
+leave(main())

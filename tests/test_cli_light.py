@@ -9,16 +9,21 @@ from mogaface.core.cli import COMMANDS
 HEAVY = ("torch", "numba")
 
 # Runs each ``--help`` in this one interpreter (argparse leaves by SystemExit) and prints, per
-# call, the heavy modules imported so far.
+# call, the heavy modules imported so far. A command that ran ends the process (``exits.leave``),
+# running the atexit work first: its line is printed there.
 PROBE = """
-import runpy, sys
+import atexit, runpy, sys
+def row(argv):
+    print(" ".join(argv), "|", ",".join(m for m in {heavy!r} if m in sys.modules), file=sys.stderr)
 for argv in {calls!r}:
     sys.argv = ["mogaface", *argv]
+    atexit.register(row, argv)
     try:
         runpy.run_module("mogaface", run_name="__main__", alter_sys=True)
     except SystemExit as leaving:
         assert leaving.code in (0, None), (argv, leaving.code)
-    print(" ".join(argv), "|", ",".join(m for m in {heavy!r} if m in sys.modules), file=sys.stderr)
+    atexit.unregister(row)
+    row(argv)
 """
 
 
