@@ -66,6 +66,15 @@ def focal_from_fov(fov: float, size: int) -> float:
     return 0.5 * size / math.tan(0.5 * fov)
 
 
+FILM_DIAGONAL_MM = math.hypot(36.0, 24.0)  # the 35 mm film frame a "35 mm equivalent" focal length refers to
+
+
+def focal_from_35mm(focal_35mm: float, width: int, height: int) -> float:
+    """A 35 mm equivalent focal length (EXIF ``FocalLengthIn35mmFilm``) in pixels of a ``width`` ×
+    ``height`` image: the same diagonal field of view (CIPA DC-008's definition)."""
+    return float(focal_35mm) * math.hypot(width, height) / FILM_DIAGONAL_MM
+
+
 @dataclasses.dataclass
 class Camera:
     """A pinhole camera: intrinsics ``K`` (pixels), ``w2c`` (OpenCV axes), image size, id.

@@ -28,3 +28,5 @@ MAX_JSON_VALUES = 10_000_000  # values in one JSON file (~40 a frame: 250 000 fr
 MIN_IMAGE_SIDE = 11  # px, width or height of an image or camera: the SSIM window of the image loss and metric (2 x 5 + 1 taps)
 MAX_SETTINGS_BYTES = 1024 ** 2  # one settings file (a run's config.toml, every key written: ~8 kB)
 MAX_NPZ_MEMBERS = 1024  # arrays in one .npz (a FLAME model: ~15, a parameter file: ~8); each costs ~500 bytes before it is read
+MAX_VIDEO_SIDE = 8192  # px, width or height a video stream declares (8K: DCI 8192x4320, UHD 7680x4320), checked before decoding
+MAX_VIDEO_PIXELS = 8192 * 4320  # px, width x height of one video frame (8K)
