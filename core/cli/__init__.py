@@ -27,6 +27,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "make-head": ("make_head", "write the procedural default head model (FLAME file layout)"),
     "preview-head": ("preview_head", "render preview images of a head model"),
     "make-capture": ("make_capture", "render a synthetic multi-view capture of the procedural head"),
+    "make-footage": ("make_footage", "render synthetic phone footage (a clip or photos) of the procedural head, "
+                                     "its truth aside"),
     "check-capture": ("check_capture", "validate a capture folder and print a summary"),
     "eval": ("eval", "score a trained run on the evaluation protocols (metrics.json, metrics.md)"),
     "render": ("render", "render a trained run's avatar at chosen timesteps and cameras (PNG, EXR)"),

@@ -159,6 +159,11 @@ def _write_gt_params(root: pathlib.Path, timestep: int, params: dict[str, np.nda
 
 def _model_for(settings: CaptureSettings, out: pathlib.Path, model_path) -> pathlib.Path:
     """Copy the given model, or write the procedural head, into the capture (self-contained)."""
+    return write_head_model(out, settings.subject, settings.seed, model_path)
+
+
+def write_head_model(out: pathlib.Path, subject: int, seed: int, model_path=None) -> pathlib.Path:
+    """Copy the given model, or write the procedural head of ``subject``, into ``out``; its path."""
     if model_path is not None:
         model_path = pathlib.Path(model_path)
         target = out / f"head{model_path.suffix}"
@@ -168,7 +173,7 @@ def _model_for(settings: CaptureSettings, out: pathlib.Path, model_path) -> path
     from ..flame.procedural import build_head
 
     target = out / "head.pkl"
-    write_model_file(target, build_head(subject=settings.subject, seed=settings.seed))
+    write_model_file(target, build_head(subject=subject, seed=seed))
     return target
 
 
