@@ -50,9 +50,13 @@ def principal_point_notes(capture, head) -> list[str]:
 
 
 def camera_extent(cameras) -> float:
-    """3DGS's scene extent: 1.1 × the largest distance of a camera centre from their mean."""
+    """3DGS's scene extent: 1.1 × the largest distance of a camera centre from their mean. One
+    camera (a tracked phone clip: the head moves, the camera stands) has no spread: then 1.1 × its
+    distance from the world's origin, where the head is."""
     centres = np.stack([np.linalg.inv(c.w2c)[:3, 3] for c in cameras])
     radius = float(np.linalg.norm(centres - centres.mean(0), axis=1).max())
+    if radius < 1e-6:
+        radius = float(np.linalg.norm(centres.mean(0)))
     return 1.1 * max(radius, 1e-6)
 
 

@@ -1,0 +1,66 @@
+"""``track INPUT --out CAPTURE``: a phone video or a folder of photos becomes a tracked capture
+(images, masks, one camera, FLAME parameters per frame, 2D landmarks) on the CPU, offline
+(:mod:`..track.pipeline`). Ctrl-C leaves a folder no reader takes; the same command resumes it."""
+
+from __future__ import annotations
+
+import pathlib
+
+
+def add_arguments(parser) -> None:
+    from ..track.decode import add_footage_arguments
+
+    parser.add_argument("input", type=pathlib.Path, help="a video file (mp4, mov, …) or a folder of photos")
+    parser.add_argument("--out", type=pathlib.Path, required=True,
+                        help="capture folder to write (new or empty; an interrupted track of the same input resumes)")
+    add_footage_arguments(parser)
+    parser.set_defaults(size=512)
+    parser.add_argument("--focal", type=float, help="focal length in pixels of the input's frames (default: from "
+                        "the file's metadata, else estimated from a phone's 26 mm)")
+    parser.add_argument("--focal-35mm", type=float, help="the same as a 35 mm equivalent focal length (mm)")
+    parser.add_argument("--head", type=pathlib.Path, help="head model file (default: the procedural head)")
+    parser.add_argument("--fit-steps", type=int, default=200, help="iterations of the fit (default %(default)s)")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def run(args) -> int:
+    from ..errors import InputError
+    from ..progress import ProgressBar
+    from ..track.decode import focal_in_pixels, open_footage, selection_from_arguments
+    from ..track.pipeline import TrackSettings, track_footage
+
+    if args.input.resolve() in (args.out.resolve(), *args.out.resolve().parents):
+        raise InputError(args.out, None, "the capture folder must not hold the input")
+    info = open_footage(args.input).info
+    for line in info.lines():
+        print(line)
+    focal = args.focal
+    if focal is None and args.focal_35mm is not None:
+        focal = focal_in_pixels(args.focal_35mm, info.width, info.height)
+    if focal is not None and args.size:  # given at the input's size; the capture's frames are shrunk
+        focal *= min(1.0, args.size / max(info.width, info.height))
+    settings = TrackSettings(size=args.size, focal_px=focal, threads=args.threads or 2, fit_steps=args.fit_steps,
+                             head_file=args.head)
+    bars: dict[str, ProgressBar] = {}
+
+    def progress(stage, done, total):
+        if args.quiet:
+            return
+        bar = bars.get(stage) or bars.setdefault(stage, ProgressBar(max(total, 1), stage))
+        bar.total = max(total, done, 1)
+        bar.update(done - bar.done)
+
+    report = track_footage(args.input, args.out, settings, selection_from_arguments(args), progress)
+    lost = report["lost_frames"]
+    print(f"tracked {report['frames']} frames ({report['seconds']['detect']:.1f} s finding the face, "
+          f"{report['detect_ms_per_frame']:.0f} ms a frame; {report['seconds']['fit']:.1f} s fitting): "
+          f"landmarks reproject to {report['reprojection_px']['mean']:.2f} px (worst frame "
+          f"{report['reprojection_px']['max']:.2f} px), focal {report['focal_px']:.1f} px")
+    if lost:
+        print(f"warning: no face in {len(lost)} frames (first: {lost[:5]}): their parameters are interpolated and "
+              "they are left out of the splits (tracking.json)")
+    if report["two_faces_frames"]:
+        print(f"warning: two or more faces in {len(report['two_faces_frames'])} frames: the largest was followed")
+    print(f"wrote {args.out} (train {report['splits']['train']} frames, test {report['splits']['test']}); "
+          f"next: python -m mogaface check-capture {args.out} --full, then train")
+    return 0

@@ -1,0 +1,234 @@
+"""Footage in, capture out: read the frames, find the face in each, fit the head model, write the capture.
+
+The capture is an ordinary one in the GaussianAvatars/VHAP layout (:mod:`..data.writer`), so
+``check-capture``, ``train``, ``eval``, ``solve-cameras`` and Blender's Import Capture take it as
+they take any other: the frames as images, the person's mask as each frame's foreground mask, one
+fixed camera (``cam00``, the fitted focal length), FLAME parameters per frame (the head's rotation
+and translation carry the motion between camera and head), the 68 iBUG points in ``landmark2d/``,
+and the head model file. ``tracking.json`` beside them says how each frame went.
+
+Frames where no face was found keep their timestep: their parameters are interpolated by the fit
+(its smoothness term; they have no landmarks) and they are left out of every split, so nothing
+trains or is scored on a guess; ``tracking.json`` lists them. The last tenth of the frames is the
+``test`` split (frames the avatar never trains on, for self-reenactment), the rest ``train``.
+
+Interrupted (Ctrl-C), the folder has no split files and no reader takes it; the detections done
+so far are kept in ``track_detections.npz``, and the same command resumes from there.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import pathlib
+import time
+
+import numpy as np
+
+from ..errors import InputError
+from ..io.atomic import write_json
+from ..io.image import write_png
+from ..io.npz import load_npz, save_npz
+
+DETECTIONS_FILE = "track_detections.npz"
+REPORT_FILE = "tracking.json"
+CAMERA_ID = "cam00"
+TEST_FRACTION = 0.1
+#: Detections are saved for a resume every this many frames.
+SAVE_EVERY = 25
+
+
+@dataclasses.dataclass
+class TrackSettings:
+    size: int | None = 512  # the capture's longer side (frames are shrunk to it; None: as stored)
+    focal_px: float | None = None  # at the input's size; None: from the file's metadata, else estimated
+    threads: int = 2
+    fit_steps: int = 200
+    head_file: str | os.PathLike | None = None  # None: the procedural head of subject 0
+    static_only: bool = True  # fit the 51 points fixed on the face (iBUG 17–67), not the jaw's contour
+
+
+@dataclasses.dataclass
+class Detections:
+    """What the detector found, frame by frame (``T`` frames): 478 landmarks, presence (0: no face)."""
+
+    landmarks: np.ndarray  # (T, 478, 3) pixels of the capture's images
+    presence: np.ndarray  # (T,)
+    faces: np.ndarray  # (T,) faces the detector found
+    times: np.ndarray  # (T,) seconds (NaN for photos)
+    indices: np.ndarray  # (T,) the input's frame numbers
+
+    @classmethod
+    def empty(cls) -> "Detections":
+        return cls(np.zeros((0, 478, 3), np.float32), np.zeros(0, np.float32), np.zeros(0, np.int32),
+                   np.zeros(0), np.zeros(0, np.int64))
+
+    def append(self, landmarks, presence, faces, time_s, index) -> None:
+        self.landmarks = np.concatenate([self.landmarks, np.asarray(landmarks, np.float32)[None]])
+        self.presence = np.append(self.presence, np.float32(presence))
+        self.faces = np.append(self.faces, np.int32(faces))
+        self.times = np.append(self.times, np.nan if time_s is None else time_s)
+        self.indices = np.append(self.indices, index)
+
+    def save(self, path: pathlib.Path, source: str) -> None:
+        save_npz(path, {**dataclasses.asdict(self), "source": np.array(source)})
+
+    @classmethod
+    def load(cls, path: pathlib.Path, source: str) -> "Detections | None":
+        """The saved detections of the same input, or None (another input's are not resumed)."""
+        if not path.is_file():
+            return None
+        data = load_npz(path)
+        if str(data.get("source", "")) != source:
+            return None
+        return cls(**{field.name: data[field.name] for field in dataclasses.fields(cls)})
+
+
+def check_output_folder(out: pathlib.Path, source: str) -> bool:
+    """The output is new, empty, or an interrupted track of the same input (True: resume)."""
+    if out.exists() and not out.is_dir():
+        raise InputError(out, None, "exists and is not a folder; expected a new or empty folder for the capture")
+    if not out.exists() or not any(out.iterdir()):
+        return False
+    if Detections.load(out / DETECTIONS_FILE, source) is not None and not (out / "transforms_train.json").exists():
+        return True
+    raise InputError(out, None, "is not empty; expected a new or empty folder (or an interrupted track of the "
+                                "same input, to resume)")
+
+
+def track_footage(source, out, settings: TrackSettings = TrackSettings(), selection=None, progress=None) -> dict:
+    """Track ``source`` (a video, a photo folder or a list of photos) into the capture folder ``out``.
+
+    ``progress(stage, done, total)`` is called as it goes (stages: "detect", "fit", "write").
+    Returns the report written to ``tracking.json``.
+    """
+    from ..flame.model import FlameModel
+    from .decode import FrameSelection, open_footage
+
+    out = pathlib.Path(out)
+    footage = open_footage(source)
+    info = footage.info
+    key = f"{pathlib.Path(info.path).resolve()}|{selection or FrameSelection()}|{settings.size}"
+    resume = check_output_folder(out, key)
+    out.mkdir(parents=True, exist_ok=True)
+    head_file = _head_model(out, settings.head_file)
+    model = FlameModel.load(head_file)
+
+    started = time.monotonic()
+    detections, size = _detect(footage, out, key, settings, selection or FrameSelection(), resume, progress)
+    detect_s = time.monotonic() - started
+    if not (detections.presence > 0).any():
+        raise InputError(info.path, None, "no face was found in any frame")
+    width, height = size
+
+    started = time.monotonic()
+    fit = _fit(model, detections, width, height, settings, info, progress)
+    fit_s = time.monotonic() - started
+
+    report = _write_capture(out, fit, detections, width, height, head_file, model, progress)
+    report.update(source=str(info.path), kind=info.kind, input_size=[info.width, info.height], fps=info.fps,
+                  seconds={"detect": round(detect_s, 2), "fit": round(fit_s, 2)},
+                  detect_ms_per_frame=round(1000 * detect_s / max(len(detections.presence), 1), 1))
+    write_json(out / REPORT_FILE, report)
+    (out / DETECTIONS_FILE).unlink(missing_ok=True)
+    return report
+
+
+def _head_model(out: pathlib.Path, head_file) -> pathlib.Path:
+    from ..data.generator import write_head_model
+
+    existing = [out / name for name in ("head.pkl", "head.npz") if (out / name).is_file()]
+    return existing[0] if existing else write_head_model(out, 0, 0, head_file)
+
+
+def _detect(footage, out, key, settings, selection, resume, progress):
+    """Detect every selected frame, writing its image and mask as it goes; resumable."""
+    from ..data import layout
+    from .detect import FaceTracker
+
+    detections = Detections.load(out / DETECTIONS_FILE, key) if resume else None
+    detections = detections or Detections.empty()
+    done = len(detections.presence)
+    tracker = FaceTracker(threads=settings.threads, track=footage.info.kind == "video")
+    total = footage.info.frame_count
+    size = None
+    for position, frame in enumerate(footage.frames(selection, size=settings.size)):
+        height, width = frame.rgb.shape[:2]
+        if size is None:
+            size = (width, height)
+        elif (width, height) != size:
+            raise InputError(footage.info.path, "size", f"frame {frame.index} is {width}x{height}, the first "
+                                                         f"{size[0]}x{size[1]}: one camera needs one size")
+        if position < done:
+            continue  # a resumed track: already detected and written
+        result = tracker(frame.rgb)
+        face = result.face
+        landmarks = face.landmarks if face is not None else np.full((478, 3), np.nan, np.float32)
+        detections.append(landmarks, face.presence if face is not None else 0.0, result.faces, frame.time,
+                          frame.index)
+        mask = result.mask if result.mask is not None else np.ones((height, width), np.float32)
+        write_png(out / layout.image_path(position, 0), frame.rgb)
+        write_png(out / layout.mask_path(position, 0), mask)
+        if len(detections.presence) % SAVE_EVERY == 0:
+            detections.save(out / DETECTIONS_FILE, key)
+        if progress is not None:
+            progress("detect", position + 1, total)
+    detections.save(out / DETECTIONS_FILE, key)
+    if size is None:
+        raise InputError(footage.info.path, None, "no frame in the selected range")
+    return detections, size
+
+
+def _fit(model, detections: Detections, width, height, settings: TrackSettings, info, progress):
+    from .detect import ibug68
+    from .fit import FitSettings, Observations, fit_landmarks
+
+    embedding = _embedding(model)
+    points = ibug68(detections.landmarks)[:, embedding.ibug].astype(np.float64)  # (T,L,2)
+    confidence = np.repeat(detections.presence[:, None], len(embedding.ibug), 1).astype(np.float64)
+    confidence[~np.isfinite(points).all(-1)] = 0
+    focal = settings.focal_px
+    if focal is None and info.focal_px is not None:  # the file's lens, at the capture's size
+        focal = info.focal_px * max(width, height) / max(info.width, info.height)
+    observations = Observations(np.nan_to_num(points), confidence, width, height, embedding)
+    return fit_landmarks(model, observations, FitSettings(steps=settings.fit_steps, focal=focal),
+                         progress=None if progress is None else lambda done, total, _rms: progress("fit", done, total))
+
+
+def _embedding(model):
+    """Where the 51 iBUG points fixed on the face lie on the model's mesh."""
+    from ..flame.landmarks import STATIC_IBUG, model_landmarks
+
+    embedding = model_landmarks(model.faces.numpy())
+    if embedding is None:
+        raise InputError(None, "landmarks", "no landmark embedding for this head model (see docs/flame.md)")
+    return embedding.subset(STATIC_IBUG)
+
+
+def _write_capture(out, fit, detections: Detections, width, height, head_file, model, progress) -> dict:
+    from ..data.landmarks import write_landmark_file
+    from ..data.writer import CaptureWriter
+    from .detect import ibug68
+
+    frames = len(detections.presence)
+    seen = detections.presence > 0
+    test_from = frames - max(1, round(TEST_FRACTION * frames)) if frames > 1 else frames
+    with CaptureWriter(out, n_vertices=model.n_vertices) as writer:
+        for t in range(frames):
+            writer.write_flame_params(t, fit.frame(t))
+            if seen[t]:
+                writer.record_frame(t, fit.camera, split="test" if t >= test_from else "train", camera_index=0)
+            if progress is not None:
+                progress("write", t + 1, frames)
+    rows = np.concatenate([ibug68(detections.landmarks), np.repeat(detections.presence[:, None, None], 68, 1)], -1)
+    rows[~seen] = np.array([-width, -height, -1.0])  # VHAP's row of -1 (once divided by the size): no face
+    write_landmark_file(out, CAMERA_ID, rows, width, height)
+    lost = [int(t) for t in np.nonzero(~seen)[0]]
+    rms = fit.reprojection_px
+    return {"frames": frames, "size": [width, height], "focal_px": round(float(fit.camera.fx), 2),
+            "lost_frames": lost, "two_faces_frames": [int(t) for t in np.nonzero(detections.faces > 1)[0]],
+            "reprojection_px": {"mean": round(float(rms[seen].mean()), 3), "max": round(float(rms[seen].max()), 3),
+                                "per_frame": [round(float(r), 3) for r in rms]},
+            "splits": {"train": int(seen[:test_from].sum()), "test": int(seen[test_from:].sum())},
+            "head_model": pathlib.Path(head_file).name,
+            "input_frames": [int(i) for i in detections.indices]}
