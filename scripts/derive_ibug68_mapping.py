@@ -21,6 +21,8 @@ ELEVATIONS = (-10.0, 0.0, 10.0)
 JAWS = (0.0, 0.25)  # closed and open (radians): an open mouth parts the inner lips
 SUBJECTS = (0, 1, 2)
 SIZE = 512
+REGIONS = {"jaw": slice(0, 17), "brows": slice(17, 27), "nose": slice(27, 36), "eyes": slice(36, 48),
+           "outer lips": slice(48, 60), "inner lips": slice(60, 68)}
 
 
 def render_views(subjects=SUBJECTS, azimuths=AZIMUTHS, elevations=ELEVATIONS, jaws=JAWS, size: int = SIZE):
@@ -95,8 +97,13 @@ def main(argv=None) -> int:
     for k, (index, agreement, error, pixels) in enumerate(zip(found["mapping"], found["agreement"], found["error"],
                                                                found["error_px"])):
         print(f"{k:4d} {index:4d} {agreement:9.2f} {error:9.3f} {pixels:9.2f}")
-    print(f"mean agreement {found['agreement'].mean():.3f}, mean error {found['error'].mean():.3f} "
-          f"({found['error_px'].mean():.2f} px)")
+    for name, part in REGIONS.items():
+        print(f"{name:11s} agreement {found['agreement'][part].mean():.2f}, excess {found['excess'][part].mean():.3f}, "
+              f"error {found['error'][part].mean():.3f} ({found['error_px'][part].mean():.1f} px)")
+    print(f"mean agreement {found['agreement'].mean():.3f}, excess {found['excess'].mean():.3f}, "
+          f"mean error {found['error'].mean():.3f} "
+          f"({found['error_px'].mean():.2f} px; the outer eye corners are "
+          f"{np.mean([np.linalg.norm(ibug[36] - ibug[45]) for ibug, _ in views]):.0f} px apart)")
     print("IBUG68_FROM_MESH = (" + ", ".join(str(int(i)) for i in found["mapping"]) + ")")
     stored = np.array(mediapipe_ibug68.IBUG68_FROM_MESH)
     differs = np.where(stored != found["mapping"])[0]

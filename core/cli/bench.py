@@ -24,6 +24,8 @@ BENCHMARKS = {
     "splat": "the CPU Gaussian splat engine against its torch reference",
     "splat_fuzz": "the splat engine on degenerate Gaussians and intrinsics (hangs, non-finite values)",
     "step": "one training step stage by stage (FLAME, binding, render, loss, optimiser, MoGaFace modules)",
+    "track_detect": "face tracking's detection step at 720x1280: ms per frame for the detector, mesh, irises and "
+                    "person mask (MediaPipe's models on ai-edge-litert)",
     "train": "the full training step (render, loss, backward, Adam) in steps per second",
     "viewport": "the avatar in the 3D viewport: frames per second of its render request at 256 and 512 px",
 }

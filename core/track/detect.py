@@ -246,8 +246,14 @@ def draw_overlay(frame: np.ndarray, result: FrameResult, crop=None, zoom: int = 
     if mask is not None:
         mask = np.repeat(np.repeat(mask, zoom, 0), zoom, 1) > 0.5
         image = np.where(mask[..., None], image, (image * 0.45).astype(np.uint8))
-        edge = mask & ~(np.roll(mask, 1, 0) & np.roll(mask, -1, 0) & np.roll(mask, 1, 1) & np.roll(mask, -1, 1))
-        edge = edge | np.roll(edge, 1, 0) | np.roll(edge, 1, 1)
+        inside = mask.copy()  # the mask's pixels whose four neighbours are all in it (the frame's edge counts as in)
+        inside[1:] &= mask[:-1]
+        inside[:-1] &= mask[1:]
+        inside[:, 1:] &= mask[:, :-1]
+        inside[:, :-1] &= mask[:, 1:]
+        edge = mask & ~inside
+        edge[1:] |= edge[:-1].copy()  # two pixels wide
+        edge[:, 1:] |= edge[:, :-1].copy()
         image = np.where(edge[..., None], np.array(COLOURS["mask"], np.uint8), image)
     canvas = Image.fromarray(np.ascontiguousarray(image))
     draw = ImageDraw.Draw(canvas)

@@ -57,8 +57,10 @@ def derive(views, mesh_mirror=None, ibug_mirror=None) -> dict:
     together (a point on the midline takes one whose mirror is near it).
 
     Returns ``mapping`` (68,) mesh indices; ``agreement`` (68,), the fraction of views whose own nearest
-    mesh point is the one chosen; ``error`` (68,), the mean distance from the chosen mesh point to
-    the iBUG point, in eye-corner distances; ``error_px`` the same in pixels."""
+    mesh point is the one chosen; ``excess`` (68,), how much farther from the iBUG point the chosen
+    mesh point is than each view's own nearest, on average; ``error`` (68,), the mean distance from
+    the chosen mesh point to the iBUG point (both in eye-corner distances); ``error_px`` the same in
+    pixels."""
     costs, pixels, nearest = [], [], []
     for ibug, mesh in views:
         ibug, mesh = np.asarray(ibug, np.float64)[:, :2], np.asarray(mesh, np.float64)[:468, :2]
@@ -83,5 +85,6 @@ def derive(views, mesh_mirror=None, ibug_mirror=None) -> dict:
         others = rows[ibug_mirror[rows] != rows]
         mapping[ibug_mirror[others]] = mesh_mirror[mapping[others]]
     every = np.arange(len(mapping))
-    return {"mapping": mapping, "agreement": np.mean(np.array(nearest) == mapping, 0),
+    excess = np.mean([view[every, mapping] - view.min(1) for view in costs], 0)
+    return {"mapping": mapping, "agreement": np.mean(np.array(nearest) == mapping, 0), "excess": excess,
             "error": cost[every, mapping], "error_px": np.mean(pixels, 0)[every, mapping]}

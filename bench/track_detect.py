@@ -1,0 +1,74 @@
+"""Benchmark of face tracking's detection step: milliseconds per frame, stage by stage, at 720×1280.
+
+The frame: scikit-image's astronaut photograph enlarged into a portrait 720×1280 frame (a phone
+video's size; the face about 240 px wide). Each stage's model input has a fixed size, so the times
+hardly depend on the content. Stages: the face detector (every frame), the 468-point mesh, the
+two irises, the person mask (model and resizing to the frame), and the whole tracked frame
+(:class:`~mogaface.core.track.detect.FaceTracker`, the region from the previous frame), with and
+without the mask. Medians of ``repeats`` runs after two warm-up runs; the load average is reported
+beside them, since other processes share the cores.
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+import statistics
+import time
+
+
+def test_frame():
+    """The astronaut, enlarged to 1280 px high and cut to 720 px wide around the face (uint8)."""
+    import numpy as np
+    from skimage import data
+    from skimage.transform import resize
+
+    large = resize(data.astronaut(), (1280, 1280), order=1, anti_aliasing=False)
+    return (large[:, 200:920] * 255 + 0.5).astype(np.uint8)
+
+
+def _median_ms(call, repeats: int) -> float:
+    for _ in range(2):
+        call()
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        call()
+        times.append(time.perf_counter() - start)
+    return round(1000 * statistics.median(times), 2)
+
+
+def run(threads: int = 2, quick: bool = False) -> dict:
+    from mogaface.core.track import mediapipe_face as mf
+    from mogaface.core.track.detect import FaceTracker
+
+    repeats = 10 if quick else 50
+    frame = test_frame()
+    tracker = FaceTracker(threads=threads)
+    first = tracker(frame)
+    if first.face is None:
+        raise RuntimeError("no face found in the benchmark frame")
+    roi = mf.roi_from_points(first.face.landmarks[:468], *mf.FACE_ROTATION_POINTS, mf.FACE_ROI_SCALE)
+    mesh, _ = tracker.mesh_points(frame, roi)
+    stages = {
+        "detect": _median_ms(lambda: tracker.detect(frame), repeats),
+        "mesh": _median_ms(lambda: tracker.mesh_points(frame, roi), repeats),
+        "irises": _median_ms(lambda: tracker.irises(frame, mesh), repeats),
+        "mask": _median_ms(lambda: tracker.segment(frame), repeats),
+    }
+    whole = _median_ms(lambda: tracker(frame), repeats)
+    no_mask = FaceTracker(threads=threads, mask=False)
+    no_mask(frame)
+    landmarks_only = _median_ms(lambda: no_mask(frame), repeats)
+    return {
+        "frame": f"{frame.shape[1]}x{frame.shape[0]}",
+        "threads": threads,
+        "repeats": repeats,
+        "ms_per_stage": stages,
+        "ms_per_frame": whole,
+        "ms_per_frame_without_mask": landmarks_only,
+        "frames_per_second": round(1000.0 / whole, 1),
+        "load_average": open("/proc/loadavg").read().split()[:3] if os.path.exists("/proc/loadavg") else None,
+        "cpu": platform.processor() or platform.machine(),
+        "cpu_count": os.cpu_count(),
+    }
