@@ -175,22 +175,34 @@ def test_what_is_not_a_video_is_refused(clips, tmp_path):
         open_footage(tmp_path / "missing.mp4")
 
 
-def test_frames_above_8k_are_refused_before_decoding(tmp_path, monkeypatch):
+def test_frames_above_8k_are_refused_before_decoding(clips, tmp_path, monkeypatch):
     import av
 
-    path = tmp_path / "tall.mp4"
-    with av.open(str(path), "w") as container:  # 16x8704: cheap to encode, one side above 8192
+    # an MP4 whose sample description declares 8704x8704: refused from its boxes, before FFmpeg opens it
+    data = bytearray(clips["plain"].read_bytes())
+    entry = data.index(b"stsd") + 4 + 8 + 8  # its first sample entry's payload; width and height at byte 24
+    assert struct.unpack(">HH", data[entry + 24:entry + 28]) == (WIDTH, HEIGHT)
+    data[entry + 24:entry + 28] = struct.pack(">HH", 8704, 8704)
+    declared = tmp_path / "declared.mp4"
+    declared.write_bytes(bytes(data))
+    with monkeypatch.context() as patch:
+        patch.setattr(av, "open", lambda *a, **k: pytest.fail("FFmpeg opened a refused video"))
+        with pytest.raises(InputError, match=r"field 'frame size': declares 8704x8704 frames; the limit is 8192"):
+            open_footage(declared)
+    # another container: the size the stream declares once FFmpeg has opened it, before a frame is decoded
+    tall = tmp_path / "tall.mkv"
+    with av.open(str(tall), "w") as container:  # 16x8704: cheap to encode, one side above 8192
         stream = container.add_stream("libx264", rate=30)
         stream.width, stream.height, stream.pix_fmt = 16, 8704, "yuv420p"
         for frame in [av.VideoFrame.from_ndarray(np.zeros((8704, 16, 3), np.uint8), format="rgb24")] * 2 + [None]:
             container.mux(stream.encode(frame))
     monkeypatch.setattr(decode.Video, "_decoded", lambda *a, **k: pytest.fail("decoded a refused video"))
-    with pytest.raises(InputError, match=r"field 'frame size': declares 16x8704 frames; the limit is 8192"):
-        open_footage(path)
-    decode.check_video_size(path, 7680, 4320)  # 8K UHD and DCI 8K pass
-    decode.check_video_size(path, 8192, 4320)
+    with pytest.raises(InputError, match=r"declares 16x8704 frames; the limit is 8192 a side and 35389440 pixels"):
+        open_footage(tall)
+    decode.check_video_size(tall, 7680, 4320)  # 8K UHD and DCI 8K pass
+    decode.check_video_size(tall, 8192, 4320)
     with pytest.raises(InputError, match="8K"):
-        decode.check_video_size(path, 8192, 4352)
+        decode.check_video_size(tall, 8192, 4352)
 
 
 def test_an_hevc_clip_reads(tmp_path):

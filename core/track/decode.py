@@ -285,36 +285,84 @@ def _check_threads(threads, source) -> None:
 # -- videos ------------------------------------------------------------------------------------
 
 
-def _mp4_boxes(path, limit: int = 4096) -> list[bytes] | None:
-    """The top-level box types of an ISO media file (MP4, MOV), or None if it does not start like one."""
-    size = os.path.getsize(path)
-    kinds = []
-    with open(path, "rb") as handle:
-        offset = 0
-        while offset + 8 <= size and len(kinds) < limit:
-            handle.seek(offset)
-            header = handle.read(16)
-            length, kind = struct.unpack(">I4s", header[:8])
-            if length == 1 and len(header) == 16:
-                length = struct.unpack(">Q", header[8:16])[0]
-            elif length == 0:
-                length = size - offset
-            if not kinds and kind not in (b"ftyp", b"wide", b"free", b"mdat", b"moov", b"skip"):
-                return None
-            kinds.append(kind)
-            if length < 8:
+_ISO_FIRST_BOXES = (b"ftyp", b"wide", b"free", b"mdat", b"moov", b"skip")
+
+
+def _iso_boxes(handle, start: int, end: int, limit: int = 4096) -> list[tuple[bytes, int, int]]:
+    """``(type, payload start, payload end)`` of the ISO media boxes (MP4, MOV) in ``[start, end)``,
+    read from their headers only."""
+    boxes, offset = [], start
+    while offset + 8 <= end and len(boxes) < limit:
+        handle.seek(offset)
+        header = handle.read(16)
+        if len(header) < 8:
+            break
+        length, kind = struct.unpack(">I4s", header[:8])
+        head = 8
+        if length == 1:
+            if len(header) < 16:
                 break
-            offset += length
-    return kinds
+            length, head = struct.unpack(">Q", header[8:16])[0], 16
+        elif length == 0:
+            length = end - offset
+        if length < head:
+            break
+        boxes.append((kind, offset + head, min(offset + length, end)))
+        offset += length
+    return boxes
+
+
+def _children(handle, box, kind: bytes) -> list[tuple[bytes, int, int]]:
+    return [b for b in _iso_boxes(handle, box[1], box[2], limit=1024) if b[0] == kind]
+
+
+def _top_boxes(path) -> list[tuple[bytes, int, int]] | None:
+    """The top-level boxes of an ISO media file, or None if it does not start like one."""
+    with open(path, "rb") as handle:
+        boxes = _iso_boxes(handle, 0, os.path.getsize(path))
+    return boxes if boxes and boxes[0][0] in _ISO_FIRST_BOXES else None
+
+
+def declared_sizes(path) -> list[tuple[int, int]]:
+    """The frame sizes the video tracks of an MP4/MOV declare in their sample descriptions (``stsd``),
+    read from the file's boxes before FFmpeg opens it (its probe decodes a few H.264 frames); empty
+    for other containers."""
+    try:
+        top = _top_boxes(path)
+        if not top:
+            return []
+        sizes = []
+        with open(path, "rb") as handle:
+            for moov in (b for b in top if b[0] == b"moov"):
+                for trak in _children(handle, moov, b"trak"):
+                    for mdia in _children(handle, trak, b"mdia"):
+                        handlers = _children(handle, mdia, b"hdlr")
+                        if not handlers:
+                            continue
+                        handle.seek(handlers[0][1] + 8)  # version and flags, pre_defined, then the handler type
+                        if handle.read(4) != b"vide":
+                            continue
+                        for minf in _children(handle, mdia, b"minf"):
+                            for stbl in _children(handle, minf, b"stbl"):
+                                for stsd in _children(handle, stbl, b"stsd"):
+                                    # a full box (4 bytes) and an entry count (4), then the entries:
+                                    # each a visual sample entry with width and height at byte 24
+                                    for entry in _iso_boxes(handle, stsd[1] + 8, stsd[2], limit=64):
+                                        handle.seek(entry[1] + 24)
+                                        data = handle.read(4)
+                                        if len(data) == 4:
+                                            sizes.append(struct.unpack(">HH", data))
+        return sizes
+    except (OSError, struct.error):
+        return []
 
 
 def _not_a_video(path, error) -> InputError:
-    kinds = None
     try:
-        kinds = _mp4_boxes(path)
+        top = _top_boxes(path)
     except (OSError, struct.error):
-        pass
-    if kinds and b"moov" not in kinds:
+        top = None
+    if top and b"moov" not in {b[0] for b in top}:
         return InputError(path, "moov", "an MP4/QuickTime file without its index (the 'moov' box): the recording "
                                         "was cut off before it was finished, and no frame can be located without "
                                         "the index")
@@ -337,6 +385,8 @@ class Video:
         import av
 
         check_regular_file(self.path)
+        for width, height in declared_sizes(self.path):  # before FFmpeg's probe decodes anything
+            check_video_size(self.path, width, height)
         try:
             container = av.open(os.fspath(self.path), "r")
         except av.error.EOFError:
