@@ -146,6 +146,18 @@ def test_a_damaged_clip_keeps_the_frames_before_the_damage(clips, tmp_path):
     assert 0 < len(frames) < COUNT and [f.index for f in frames] == list(range(len(frames)))
     assert min(psnr(f.rgb, clips["frames"][f.index]) for f in frames) > 30
     assert video.damage.startswith("damaged")
+    # bytes flipped inside a frame of a complete file: the frames before it
+    import av
+
+    with av.open(str(clips["plain"])) as container:
+        packets = [(p.pos, p.size) for p in container.demux(video=0) if p.size]
+    flipped = bytearray(clips["plain"].read_bytes())
+    position, size = packets[6]
+    flipped[position + size // 2: position + size // 2 + 8] = bytes(8)
+    (tmp_path / "flipped.mp4").write_bytes(bytes(flipped))
+    with pytest.warns(FootageWarning, match="damaged"):
+        kept = list(open_footage(tmp_path / "flipped.mp4").frames())
+    assert 0 < len(kept) < COUNT and min(psnr(f.rgb, clips["frames"][f.index]) for f in kept) > 30
     # cut inside the first frame: nothing to keep
     first = tmp_path / "first.mp4"
     first.write_bytes(data[: mdat + 64])
