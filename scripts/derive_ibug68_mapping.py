@@ -12,6 +12,7 @@ embedding, and keeps for each iBUG point the mesh point nearest it on average
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 
 import numpy as np
@@ -25,36 +26,67 @@ REGIONS = {"jaw": slice(0, 17), "brows": slice(17, 27), "nose": slice(27, 36), "
            "outer lips": slice(48, 60), "inner lips": slice(60, 68)}
 
 
-def render_views(subjects=SUBJECTS, azimuths=AZIMUTHS, elevations=ELEVATIONS, jaws=JAWS, size: int = SIZE):
-    """``(subject, azimuth, image uint8, ibug (68,2))`` for each subject and view of the procedural head."""
+@dataclasses.dataclass(frozen=True)
+class View:
+    """One render of the procedural head: the subject, the pose's name, the view's direction, the image,
+    the camera and the posed mesh."""
+
+    subject: int
+    pose: str
+    azimuth: float
+    elevation: float
+    image: np.ndarray  # (size, size, 3) uint8
+    camera: object  # mogaface.core.camera.Camera
+    vertices: np.ndarray  # (V, 3) the posed mesh
+    faces: np.ndarray  # (F, 3)
+
+
+def subject_head(subject: int):
+    """The procedural head's model file arrays and its evaluator, for ``subject``."""
     import tempfile
 
-    from mogaface.core.data.head_preview import view_camera
-    from mogaface.core.data.mesh_render import render_mesh
-    from mogaface.core.flame.landmarks import procedural_embedding
     from mogaface.core.flame.model_file import write_model_file
     from mogaface.core.flame.numpy_model import NumpyFlame
     from mogaface.core.flame.procedural import build_head
 
-    embedding = procedural_embedding()
-    order = np.argsort(embedding.ibug)
+    head = build_head(subject, 0)
+    with tempfile.TemporaryDirectory() as folder:
+        write_model_file(f"{folder}/head.pkl", head)
+        return head, NumpyFlame.load(f"{folder}/head.pkl")
+
+
+def render_poses(subjects, poses: dict, azimuths, elevations, size: int = SIZE):
+    """A :class:`View` for each subject, pose (name → the evaluator's parameters) and view direction
+    (the camera of :func:`~mogaface.core.data.head_preview.view_camera`, framed on the rest head), in
+    that order; the reference mesh renderer on a grey background."""
+    from mogaface.core.data.head_preview import view_camera
+    from mogaface.core.data.mesh_render import render_mesh
+
     for subject in subjects:
-        head = build_head(subject, 0)
-        with tempfile.TemporaryDirectory() as folder:
-            write_model_file(f"{folder}/head.pkl", head)
-            model = NumpyFlame.load(f"{folder}/head.pkl")
+        head, model = subject_head(subject)
         faces, texture = head["f"], head["texture"].astype(np.float32) / 255.0
         rest = model()
-        for jaw in jaws:
-            vertices = model(jaw_pose=[jaw, 0.0, 0.0])
-            points = embedding.positions(vertices, faces)[order]
+        for name, params in poses.items():
+            vertices = model(**params)
             for azimuth in azimuths:
                 for elevation in elevations:
                     camera = view_camera(rest, azimuth, elevation, size)
                     rgb, _ = render_mesh(vertices, faces, head["vt"], head["ft"], texture, camera,
                                          background=(0.5, 0.5, 0.5))
-                    ibug, _ = camera.project(points)
-                    yield subject, azimuth, (rgb * 255 + 0.5).astype(np.uint8), ibug
+                    yield View(subject, name, azimuth, elevation, (rgb * 255 + 0.5).astype(np.uint8), camera,
+                               vertices, faces)
+
+
+def render_views(subjects=SUBJECTS, azimuths=AZIMUTHS, elevations=ELEVATIONS, jaws=JAWS, size: int = SIZE):
+    """``(subject, azimuth, image uint8, ibug (68,2))`` for each subject and view of the procedural head."""
+    from mogaface.core.flame.landmarks import procedural_embedding
+
+    embedding = procedural_embedding()
+    order = np.argsort(embedding.ibug)
+    poses = {f"jaw {jaw}": {"jaw_pose": [jaw, 0.0, 0.0]} for jaw in jaws}
+    for view in render_poses(subjects, poses, azimuths, elevations, size):
+        ibug, _ = view.camera.project(embedding.positions(view.vertices, view.faces)[order])
+        yield view.subject, view.azimuth, view.image, ibug
 
 
 def ibug_mirror() -> np.ndarray:
