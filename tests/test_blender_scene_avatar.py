@@ -692,3 +692,20 @@ def test_disabling_leaves_the_scene_as_without_the_extension_and_enabling_brings
     assert not any(tree.nodes[name].mute for name in tagged)
     assert {name: getattr(head, name) for name in before} == before
     assert "mogaface_suspended" not in head and not any("mogaface_suspended" in tree.nodes[n] for n in tagged)
+
+
+def test_a_registration_that_cannot_read_the_data_resumes_at_the_first_handler(scene, monkeypatch):
+    """Blender enables an extension with ``bpy.data`` unreadable (``RestrictBlend``; the real
+    Blender does, the module here lets it through, so it is stood in for): the scenes are resumed by
+    the first handler that runs (a frame change, a render), not lost."""
+    suspend = ops("handlers.suspend")
+    head = scene["head"]
+    head.mogaface_show_avatar = True
+    suspend.suspend_scenes()
+    assert head.display_type == "TEXTURED" and "mogaface_suspended" in head
+    monkeypatch.setattr(suspend, "bpy", types.SimpleNamespace(app=bpy.app))  # no bpy.data, as in register()
+    suspend.resume_when_data_is_ready()
+    monkeypatch.setattr(suspend, "bpy", bpy)
+    assert head.display_type == "TEXTURED"
+    bpy.context.scene.frame_set(bpy.context.scene.frame_current)  # frame_change_post: resume_pending
+    assert head.display_type == "BOUNDS" and "mogaface_suspended" not in head

@@ -49,7 +49,6 @@ _state = {"resumed": False}
 
 def resume_scenes() -> None:
     """Undo :func:`suspend_scenes` where it left its mark."""
-    _state["resumed"] = True
     for scene in bpy.data.scenes:
         for node in _layer_nodes(scene):
             if node.get(SUSPENDED):
@@ -63,6 +62,7 @@ def resume_scenes() -> None:
             if name in saved:
                 setattr(obj, name, saved[name])
         del obj[SUSPENDED]
+    _state["resumed"] = True  # only once it ran: registering may stop it at the first bpy.data
 
 
 @bpy.app.handlers.persistent
