@@ -163,7 +163,11 @@ def test_outputs_that_would_mix_truth_and_footage_are_refused(tmp_path, procedur
         FootageSettings(width=63).check()
 
 
-def test_reading_the_footage_never_opens_the_truth(handheld):
+def test_reading_and_tracking_the_footage_never_open_the_truth(handheld, tmp_path):
+    """The clip is read, and tracked into a capture (face, landmarks, fit, files), without one open
+    inside the truth folder."""
+    from mogaface.core.track.pipeline import TrackSettings, track_footage
+
     record = {"on": True, "paths": []}
 
     def hook(event, args):
@@ -174,7 +178,10 @@ def test_reading_the_footage_never_opens_the_truth(handheld):
     try:
         video = open_footage(handheld / "footage" / "clip.mp4")
         list(video.frames(FrameSelection(end=2)))
+        report = track_footage(handheld / "footage" / "clip.mp4", tmp_path / "tracked",
+                               TrackSettings(size=None, fit_steps=10))
     finally:
         record["on"] = False
     assert any("clip.mp4" in path for path in record["paths"])
     assert not [path for path in record["paths"] if "truth" in path]
+    assert report["frames"] == 12 and (tmp_path / "tracked" / "transforms_train.json").is_file()

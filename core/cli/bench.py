@@ -24,6 +24,8 @@ BENCHMARKS = {
     "splat": "the CPU Gaussian splat engine against its torch reference",
     "splat_fuzz": "the splat engine on degenerate Gaussians and intrinsics (hangs, non-finite values)",
     "step": "one training step stage by stage (FLAME, binding, render, loss, optimiser, MoGaFace modules)",
+    "track": "tracking synthetic phone clips scored against their truth: landmark reprojection, mesh, expression "
+             "and camera errors, the stages' speed (--split validation to choose settings on, test to score once)",
     "track_detect": "face tracking's detection step at 720x1280: ms per frame for the detector, mesh, irises and "
                     "person mask (MediaPipe's models on ai-edge-litert)",
     "train": "the full training step (render, loss, backward, Adam) in steps per second",
@@ -34,8 +36,8 @@ BENCHMARKS = {
 OPTION_BENCHMARKS = {"scale": ("train", "step"),
                      "avatar": ("viewport", "refiner", "refiner_search", "refiner_training_search"),
                      "fit_steps": ("refiner",),
-                     "split": ("refiner", "refiner_search", "refiner_training_search", "camera_search"),
-                     "minutes": ("converge",), "work": ("converge", "batch", "camera_search"),
+                     "split": ("refiner", "refiner_search", "refiner_training_search", "camera_search", "track"),
+                     "minutes": ("converge",), "work": ("converge", "batch", "camera_search", "track"),
                      "ranks": ("converge",), "variants": ("converge",), "config": ("converge",),
                      "compare": ("converge",), "subjects": ("camera_search",),
                      "test_subjects": ("camera_search",)}
