@@ -334,3 +334,15 @@ def test_only_the_time_ends_a_run_whose_schedule_is_in_minutes(tiny_capture, tmp
         tiny_config(train={"schedule": "minutes"})
     with pytest.raises(InputError, match="train.schedule"):
         tiny_config(train={"schedule": "hours"})
+
+
+def test_one_camera_has_the_extent_of_its_distance_to_the_head():
+    """A tracked phone clip has one fixed camera: its spread is nothing, its distance to the head is
+    the scene's size (3DGS's extent scales the position learning rate)."""
+    from mogaface.core.camera import Camera
+    from mogaface.core.train.data import camera_extent
+
+    camera = Camera.look_at((0.0, 0.0, 0.6), (0.0, 0.0, 0.0), width=64, height=64, fx=60.0)
+    assert camera_extent([camera, camera]) == pytest.approx(1.1 * 0.6)
+    other = Camera.look_at((0.4, 0.0, 0.6), (0.0, 0.0, 0.0), width=64, height=64, fx=60.0)
+    assert camera_extent([camera, other]) == pytest.approx(1.1 * 0.2)  # a rig: the spread, as 3DGS
