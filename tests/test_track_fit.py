@@ -44,11 +44,10 @@ def test_the_landmark_head_poses_as_the_whole_model(clip):
 
 def test_a_clip_is_fitted_to_its_landmarks_and_the_mesh_follows(clip):
     model, obs, truth, vertices = clip
-    fit = fit_landmarks(model, obs, FitSettings(steps=80))
+    fit = fit_landmarks(model, obs, FitSettings(steps=150, focal=FOCAL))  # a lens from the file's metadata
     seen = fit.seen
     assert not seen[5] and seen.sum() == FRAMES - 1
     assert fit.reprojection_px[seen].mean() < 1.2  # the noise: 0.5 px per axis, 0.7 px at the truth
-    assert abs(fit.camera.fx / FOCAL - 1) < 0.1  # estimated, from a phone's (441 px here)
     params = {k: torch.as_tensor(v if k != "shape" else v[None]) for k, v in fit.params.items()}
     with torch.no_grad():
         fitted = model(**params).numpy()

@@ -191,8 +191,12 @@ def fit_landmarks(model: FlameModel, observations: Observations, settings: FitSe
         smooth = smooth + 0.01 * second_differences(expr) + second_differences(jaw)
         return loss + prior + settings.smooth * scale * smooth, residual
 
-    # 1. Rigid start: the mean head turned and moved onto each frame's landmarks; 2. everything.
+    # 1. Rigid start: the mean head placed where each frame's landmarks are, at the depth their
+    # spread gives, then turned and moved onto them; 2. everything.
     scale = 1.0 / frames
+    with torch.no_grad():
+        translation_cm.copy_(100 * _placed(head(shape, expr, rotation, jaw, translation_cm), points, weight,
+                                          float(torch.exp(log_focal)), centre, w2c))
     stages = (([rotation, translation_cm], True, max(settings.steps // 4, 1)),
               ([shape, expr, jaw, rotation, translation_cm] + ([log_focal] if settings.focal is None else []), False,
                settings.steps))
@@ -223,6 +227,24 @@ def fit_landmarks(model: FlameModel, observations: Observations, settings: FitSe
               "rotation": rotation.detach().numpy(), "neck_pose": zeros, "jaw_pose": jaw.detach().numpy(),
               "eyes_pose": np.zeros((frames, 6)), "translation": translation_cm.detach().numpy() / 100}
     return Fit(params, camera, _rms(residual, weight).numpy(), seen.numpy())
+
+
+def _placed(rest: torch.Tensor, points: torch.Tensor, weight: torch.Tensor, focal: float, centre: torch.Tensor,
+            w2c: torch.Tensor) -> torch.Tensor:
+    """Per frame, the translation that puts the unposed head's landmarks ``rest (T,L,3)`` where the
+    observed ones are (their weighted centroid) at the depth their spread gives (pinhole similar
+    triangles); frames without landmarks get the mean of the others."""
+    total = weight.sum(1, keepdim=True).clamp_min(1e-9)
+    centroid_2d = (weight[..., None] * points).sum(1) / total  # (T,2)
+    spread_2d = torch.sqrt((weight * ((points - centroid_2d[:, None]) ** 2).sum(-1)).sum(1) / total[:, 0])
+    centroid_3d = rest.mean(1)  # (T,3)
+    spread_3d = torch.sqrt(((rest - centroid_3d[:, None])[..., :2] ** 2).sum(-1).mean(1))  # facing the camera
+    depth = focal * spread_3d / spread_2d.clamp_min(1e-6)
+    in_camera = torch.cat([(centroid_2d - centre) * depth[:, None] / focal, depth[:, None]], 1)
+    world = (in_camera - w2c[:3, 3]) @ w2c[:3, :3]  # the camera's frame to the world (w2c is rigid)
+    seen = weight.sum(1) > 0
+    world[~seen] = world[seen].mean(0)
+    return world - centroid_3d
 
 
 def _rms(residual: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:

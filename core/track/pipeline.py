@@ -142,8 +142,10 @@ def _head_model(out: pathlib.Path, head_file) -> pathlib.Path:
 
 
 def _detect(footage, out, key, settings, selection, resume, progress):
-    """Detect every selected frame, writing its image and mask as it goes; resumable."""
+    """Detect every selected frame at the input's own size (the face models see the most detail
+    there), and write its image and mask at the capture's size as it goes; resumable."""
     from ..data import layout
+    from .decode import output_size
     from .detect import FaceTracker
 
     detections = Detections.load(out / DETECTIONS_FILE, key) if resume else None
@@ -152,23 +154,25 @@ def _detect(footage, out, key, settings, selection, resume, progress):
     tracker = FaceTracker(threads=settings.threads, track=footage.info.kind == "video")
     total = footage.info.frame_count
     size = None
-    for position, frame in enumerate(footage.frames(selection, size=settings.size)):
+    for position, frame in enumerate(footage.frames(selection)):
         height, width = frame.rgb.shape[:2]
         if size is None:
-            size = (width, height)
-        elif (width, height) != size:
+            size = output_size(width, height, min(settings.size, max(width, height)) if settings.size else None)
+            first = (width, height)
+        elif (width, height) != first:
             raise InputError(footage.info.path, "size", f"frame {frame.index} is {width}x{height}, the first "
-                                                         f"{size[0]}x{size[1]}: one camera needs one size")
+                                                         f"{first[0]}x{first[1]}: one camera needs one size")
         if position < done:
             continue  # a resumed track: already detected and written
         result = tracker(frame.rgb)
         face = result.face
-        landmarks = face.landmarks if face is not None else np.full((478, 3), np.nan, np.float32)
+        scale = np.array([size[0] / width, size[1] / height, size[0] / width], np.float32)
+        landmarks = face.landmarks * scale if face is not None else np.full((478, 3), np.nan, np.float32)
         detections.append(landmarks, face.presence if face is not None else 0.0, result.faces, frame.time,
                           frame.index)
         mask = result.mask if result.mask is not None else np.ones((height, width), np.float32)
-        write_png(out / layout.image_path(position, 0), frame.rgb)
-        write_png(out / layout.mask_path(position, 0), mask)
+        write_png(out / layout.image_path(position, 0), _shrunk(frame.rgb, size))
+        write_png(out / layout.mask_path(position, 0), _shrunk((mask * 255 + 0.5).astype(np.uint8), size))
         if len(detections.presence) % SAVE_EVERY == 0:
             detections.save(out / DETECTIONS_FILE, key)
         if progress is not None:
@@ -179,13 +183,21 @@ def _detect(footage, out, key, settings, selection, resume, progress):
     return detections, size
 
 
+def _shrunk(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """``image`` (uint8) at ``size`` (width, height), by area averaging (PIL's box filter)."""
+    if image.shape[1::-1] == tuple(size):
+        return image
+    from PIL import Image
+
+    return np.asarray(Image.fromarray(image).resize(size, Image.Resampling.BOX))
+
+
 def _fit(model, detections: Detections, width, height, settings: TrackSettings, info, progress):
-    from .detect import ibug68
     from .fit import FitSettings, Observations, fit_landmarks
 
-    embedding = _embedding(model)
-    points = ibug68(detections.landmarks)[:, embedding.ibug].astype(np.float64)  # (T,L,2)
-    confidence = np.repeat(detections.presence[:, None], len(embedding.ibug), 1).astype(np.float64)
+    embedding, columns = _embedding(model)
+    points = detections.landmarks[:, columns, :2].astype(np.float64)  # (T,L,2)
+    confidence = np.repeat(detections.presence[:, None], len(columns), 1).astype(np.float64)
     confidence[~np.isfinite(points).all(-1)] = 0
     focal = settings.focal_px
     if focal is None and info.focal_px is not None:  # the file's lens, at the capture's size
@@ -196,13 +208,26 @@ def _fit(model, detections: Detections, width, height, settings: TrackSettings, 
 
 
 def _embedding(model):
-    """Where the 51 iBUG points fixed on the face lie on the model's mesh."""
-    from ..flame.landmarks import STATIC_IBUG, model_landmarks
+    """The points fitted: where they lie on the model's mesh, and which of the detector's 478 each is.
 
-    embedding = model_landmarks(model.faces.numpy())
+    A model with the procedural head's triangles: MediaPipe's own mesh points, those found stable on
+    that mesh (:mod:`.mediapipe_embedding`; not the iris centres, which follow ``eyes_pose``, which the
+    fit leaves at rest). Any other model: the 51 iBUG points fixed on the face, each the mesh point
+    :data:`.mediapipe_ibug68.IBUG68_FROM_MESH` names."""
+    from ..flame.landmarks import STATIC_IBUG, model_landmarks
+    from .mediapipe_embedding import MESH_COUNT, model_mediapipe_embedding
+    from .mediapipe_ibug68 import IBUG68_FROM_MESH
+
+    faces = model.faces.numpy()
+    dense = model_mediapipe_embedding(faces)
+    if dense is not None:
+        dense = dense.subset(np.arange(MESH_COUNT))
+        return dense, dense.ibug
+    embedding = model_landmarks(faces)
     if embedding is None:
         raise InputError(None, "landmarks", "no landmark embedding for this head model (see docs/flame.md)")
-    return embedding.subset(STATIC_IBUG)
+    embedding = embedding.subset(STATIC_IBUG)
+    return embedding, np.asarray(IBUG68_FROM_MESH)[embedding.ibug]
 
 
 def _write_capture(out, fit, detections: Detections, width, height, head_file, model, progress) -> dict:
