@@ -127,8 +127,7 @@ def preset_description(settings) -> str:
 
 
 class MOGAFACE_PT_training(_SubPanel, bpy.types.Panel):
-    bl_label = "Training"
-    bl_options = {"DEFAULT_CLOSED"}
+    bl_label = "Training"  # open: its button is the next step after an import, its progress shows here
 
     def draw(self, context):
         layout = self.layout

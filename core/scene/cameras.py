@@ -86,8 +86,8 @@ class CaptureScene:
     subject_centre: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
 
-#: Half the size of what a view framing the subject shows: a FLAME head with its neck, in metres.
-HEAD_RADIUS = 0.16
+#: Half the size of what a view framing the subject shows: a FLAME head with its neck and some room, in metres.
+HEAD_RADIUS = 0.22
 
 
 def where_cameras_look(matrices) -> np.ndarray:
