@@ -29,6 +29,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "make-capture": ("make_capture", "render a synthetic multi-view capture of the procedural head"),
     "make-footage": ("make_footage", "render synthetic phone footage (a clip or photos) of the procedural head, "
                                      "its truth aside"),
+    "track": ("track", "turn a phone video or a folder of photos into a tracked capture (CPU, offline)"),
     "check-capture": ("check_capture", "validate a capture folder and print a summary"),
     "eval": ("eval", "score a trained run on the evaluation protocols (metrics.json, metrics.md)"),
     "render": ("render", "render a trained run's avatar at chosen timesteps and cameras (PNG, EXR)"),
