@@ -25,7 +25,7 @@ import math
 import numpy as np
 import torch
 
-from ..camera import Camera
+from ..camera import Camera, focal_from_35mm
 from ..errors import InputError
 from ..flame.landmarks import LandmarkEmbedding
 from ..flame.lbs import axis_angle_to_matrix, linear_blend_skinning
@@ -37,21 +37,25 @@ PHONE_FOCAL_35MM = 26.0
 START_DISTANCE = 0.6
 
 
-def focal_from_35mm(focal_35mm: float, width: int, height: int) -> float:
-    """Focal length in pixels of a 35 mm-equivalent focal length (defined on the diagonal)."""
-    return focal_35mm * math.hypot(width, height) / math.hypot(36.0, 24.0)
-
-
 @dataclasses.dataclass
 class Observations:
     """Landmarks of a clip: ``points (T,L,2)`` pixels, ``confidence (T,L)`` in [0, 1] (0: not seen),
-    the frame size, and where the L landmarks lie on the mesh."""
+    the frame size, and where the L landmarks lie on the mesh. Photos of several sizes give each
+    frame's ``sizes (T,2)``; one lens is fitted to all of them (a focal length in 35 mm terms:
+    each frame's in pixels by its diagonal)."""
 
     points: np.ndarray
     confidence: np.ndarray
     width: int
     height: int
     embedding: LandmarkEmbedding
+    sizes: np.ndarray | None = None
+
+    def frame_sizes(self) -> np.ndarray:
+        """``(T,2)`` width and height of every frame."""
+        if self.sizes is not None:
+            return np.asarray(self.sizes, np.float64)
+        return np.tile([float(self.width), float(self.height)], (len(self.points), 1))
 
     def check(self, source=None) -> "Observations":
         frames, count = self.confidence.shape
@@ -85,9 +89,18 @@ class Fit:
     """The fitted parameters (per frame arrays ``(T, n)``, ``shape`` once) and the clip's camera."""
 
     params: dict[str, np.ndarray]
-    camera: Camera
+    camera: Camera  # the first frame's (every frame's, for a clip)
     reprojection_px: np.ndarray  # (T,) confidence-weighted RMS per frame
     seen: np.ndarray  # (T,) whether the frame had landmarks
+    sizes: np.ndarray | None = None  # (T,2) for frames of several sizes
+
+    def camera_of(self, t: int, camera_id: str = "cam00") -> Camera:
+        """Frame ``t``'s camera: the clip's, or a photo's at its own size with the same lens."""
+        if self.sizes is None:
+            return self.camera
+        width, height = (int(v) for v in self.sizes[t])
+        focal = self.camera.fx * math.hypot(width, height) / math.hypot(self.camera.width, self.camera.height)
+        return dataclasses.replace(start_camera(width, height, focal), camera_id=camera_id)
 
     def frame(self, t: int) -> dict[str, np.ndarray]:
         """Frame ``t``'s parameters in the capture's ``flame_param`` layout (batch of one)."""
@@ -156,7 +169,9 @@ def fit_landmarks(model: FlameModel, observations: Observations, settings: FitSe
     phone = focal_from_35mm(PHONE_FOCAL_35MM, obs.width, obs.height)
     camera = start_camera(obs.width, obs.height, settings.focal or phone)
     w2c = torch.as_tensor(camera.w2c, dtype=d)
-    centre = torch.tensor([obs.width / 2, obs.height / 2], dtype=d)
+    sizes = torch.as_tensor(obs.frame_sizes(), dtype=d)
+    centre = sizes[:, None, :] / 2  # (T,1,2)
+    lens = (sizes.norm(dim=1) / math.hypot(obs.width, obs.height))[:, None, None]  # each frame's focal / the first's
 
     log_focal = torch.tensor(math.log(settings.focal or phone), dtype=d, requires_grad=settings.focal is None)
     shape = torch.zeros(1, model.n_shape, dtype=d, requires_grad=True)
@@ -168,7 +183,7 @@ def fit_landmarks(model: FlameModel, observations: Observations, settings: FitSe
     def project(world):
         cam = world @ w2c[:3, :3].T + w2c[:3, 3]
         z = cam[..., 2:].clamp_min(1e-3)
-        return torch.exp(log_focal) * cam[..., :2] / z + centre
+        return torch.exp(log_focal) * lens * cam[..., :2] / z + centre
 
     def reprojection(world):
         residual = (project(world) - points).norm(dim=-1)  # (T,L) pixels
@@ -196,7 +211,7 @@ def fit_landmarks(model: FlameModel, observations: Observations, settings: FitSe
     scale = 1.0 / frames
     with torch.no_grad():
         translation_cm.copy_(100 * _placed(head(shape, expr, rotation, jaw, translation_cm), points, weight,
-                                          float(torch.exp(log_focal)), centre, w2c))
+                                          torch.exp(log_focal) * lens[:, 0, 0], centre[:, 0], w2c))
     stages = (([rotation, translation_cm], True, max(settings.steps // 4, 1)),
               ([shape, expr, jaw, rotation, translation_cm] + ([log_focal] if settings.focal is None else []), False,
                settings.steps))
@@ -226,10 +241,10 @@ def fit_landmarks(model: FlameModel, observations: Observations, settings: FitSe
     params = {"shape": shape.detach().numpy()[0], "expr": expr.detach().numpy(),
               "rotation": rotation.detach().numpy(), "neck_pose": zeros, "jaw_pose": jaw.detach().numpy(),
               "eyes_pose": np.zeros((frames, 6)), "translation": translation_cm.detach().numpy() / 100}
-    return Fit(params, camera, _rms(residual, weight).numpy(), seen.numpy())
+    return Fit(params, camera, _rms(residual, weight).numpy(), seen.numpy(), obs.sizes)
 
 
-def _placed(rest: torch.Tensor, points: torch.Tensor, weight: torch.Tensor, focal: float, centre: torch.Tensor,
+def _placed(rest: torch.Tensor, points: torch.Tensor, weight: torch.Tensor, focal: torch.Tensor, centre: torch.Tensor,
             w2c: torch.Tensor) -> torch.Tensor:
     """Per frame, the translation that puts the unposed head's landmarks ``rest (T,L,3)`` where the
     observed ones are (their weighted centroid) at the depth their spread gives (pinhole similar
@@ -239,8 +254,8 @@ def _placed(rest: torch.Tensor, points: torch.Tensor, weight: torch.Tensor, foca
     spread_2d = torch.sqrt((weight * ((points - centroid_2d[:, None]) ** 2).sum(-1)).sum(1) / total[:, 0])
     centroid_3d = rest.mean(1)  # (T,3)
     spread_3d = torch.sqrt(((rest - centroid_3d[:, None])[..., :2] ** 2).sum(-1).mean(1))  # facing the camera
-    depth = focal * spread_3d / spread_2d.clamp_min(1e-6)
-    in_camera = torch.cat([(centroid_2d - centre) * depth[:, None] / focal, depth[:, None]], 1)
+    depth = focal * spread_3d / spread_2d.clamp_min(1e-6)  # focal, centre: (T,), (T,2)
+    in_camera = torch.cat([(centroid_2d - centre) * (depth / focal)[:, None], depth[:, None]], 1)
     world = (in_camera - w2c[:3, 3]) @ w2c[:3, :3]  # the camera's frame to the world (w2c is rigid)
     seen = weight.sum(1) > 0
     world[~seen] = world[seen].mean(0)

@@ -25,6 +25,7 @@ import time
 
 import numpy as np
 
+from ..data.writer import CaptureWriter
 from ..errors import InputError
 from ..io.atomic import write_json
 from ..io.image import write_png
@@ -57,18 +58,24 @@ class Detections:
     faces: np.ndarray  # (T,) faces the detector found
     times: np.ndarray  # (T,) seconds (NaN for photos)
     indices: np.ndarray  # (T,) the input's frame numbers
+    sizes: np.ndarray  # (T,2) width and height of each frame in the capture
 
     @classmethod
     def empty(cls) -> "Detections":
         return cls(np.zeros((0, 478, 3), np.float32), np.zeros(0, np.float32), np.zeros(0, np.int32),
-                   np.zeros(0), np.zeros(0, np.int64))
+                   np.zeros(0), np.zeros(0, np.int64), np.zeros((0, 2), np.int64))
 
-    def append(self, landmarks, presence, faces, time_s, index) -> None:
+    def append(self, landmarks, presence, faces, time_s, index, size) -> None:
         self.landmarks = np.concatenate([self.landmarks, np.asarray(landmarks, np.float32)[None]])
         self.presence = np.append(self.presence, np.float32(presence))
         self.faces = np.append(self.faces, np.int32(faces))
         self.times = np.append(self.times, np.nan if time_s is None else time_s)
         self.indices = np.append(self.indices, index)
+        self.sizes = np.concatenate([self.sizes, np.asarray(size, np.int64)[None]])
+
+    @property
+    def one_size(self) -> bool:
+        return len(self.sizes) == 0 or bool((self.sizes == self.sizes[0]).all())
 
     def save(self, path: pathlib.Path, source: str) -> None:
         save_npz(path, {**dataclasses.asdict(self), "source": np.array(source)})
@@ -115,17 +122,16 @@ def track_footage(source, out, settings: TrackSettings = TrackSettings(), select
     model = FlameModel.load(head_file)
 
     started = time.monotonic()
-    detections, size = _detect(footage, out, key, settings, selection or FrameSelection(), resume, progress)
+    detections = _detect(footage, out, key, settings, selection or FrameSelection(), resume, progress)
     detect_s = time.monotonic() - started
     if not (detections.presence > 0).any():
         raise InputError(info.path, None, "no face was found in any frame")
-    width, height = size
 
     started = time.monotonic()
-    fit = _fit(model, detections, width, height, settings, info, progress)
+    fit = _fit(model, detections, settings, info, progress)
     fit_s = time.monotonic() - started
 
-    report = _write_capture(out, fit, detections, width, height, head_file, model, progress)
+    report = _write_capture(out, fit, detections, head_file, model, info.kind == "video", progress)
     report.update(source=str(info.path), kind=info.kind, input_size=[info.width, info.height], fps=info.fps,
                   seconds={"detect": round(detect_s, 2), "fit": round(fit_s, 2)},
                   detect_ms_per_frame=round(1000 * detect_s / max(len(detections.presence), 1), 1))
@@ -151,15 +157,16 @@ def _detect(footage, out, key, settings, selection, resume, progress):
     detections = Detections.load(out / DETECTIONS_FILE, key) if resume else None
     detections = detections or Detections.empty()
     done = len(detections.presence)
-    tracker = FaceTracker(threads=settings.threads, track=footage.info.kind == "video")
+    video = footage.info.kind == "video"
+    tracker = FaceTracker(threads=settings.threads, track=video)
     total = footage.info.frame_count
-    size = None
+    first = None
     for position, frame in enumerate(footage.frames(selection)):
         height, width = frame.rgb.shape[:2]
-        if size is None:
-            size = output_size(width, height, min(settings.size, max(width, height)) if settings.size else None)
+        size = output_size(width, height, min(settings.size, max(width, height)) if settings.size else None)
+        if first is None:
             first = (width, height)
-        elif (width, height) != first:
+        elif video and (width, height) != first:
             raise InputError(footage.info.path, "size", f"frame {frame.index} is {width}x{height}, the first "
                                                          f"{first[0]}x{first[1]}: one camera needs one size")
         if position < done:
@@ -169,18 +176,19 @@ def _detect(footage, out, key, settings, selection, resume, progress):
         scale = np.array([size[0] / width, size[1] / height, size[0] / width], np.float32)
         landmarks = face.landmarks * scale if face is not None else np.full((478, 3), np.nan, np.float32)
         detections.append(landmarks, face.presence if face is not None else 0.0, result.faces, frame.time,
-                          frame.index)
+                          frame.index, size)
         mask = result.mask if result.mask is not None else np.ones((height, width), np.float32)
-        write_png(out / layout.image_path(position, 0), _shrunk(frame.rgb, size))
-        write_png(out / layout.mask_path(position, 0), _shrunk((mask * 255 + 0.5).astype(np.uint8), size))
+        camera = 0 if video else position  # photos: each its own camera
+        write_png(out / layout.image_path(position, camera), _shrunk(frame.rgb, size))
+        write_png(out / layout.mask_path(position, camera), _shrunk((mask * 255 + 0.5).astype(np.uint8), size))
         if len(detections.presence) % SAVE_EVERY == 0:
             detections.save(out / DETECTIONS_FILE, key)
         if progress is not None:
             progress("detect", position + 1, total)
     detections.save(out / DETECTIONS_FILE, key)
-    if size is None:
+    if first is None:
         raise InputError(footage.info.path, None, "no frame in the selected range")
-    return detections, size
+    return detections
 
 
 def _shrunk(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
@@ -192,17 +200,21 @@ def _shrunk(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     return np.asarray(Image.fromarray(image).resize(size, Image.Resampling.BOX))
 
 
-def _fit(model, detections: Detections, width, height, settings: TrackSettings, info, progress):
+def _fit(model, detections: Detections, settings: TrackSettings, info, progress):
+    from ..camera import focal_from_35mm
     from .fit import FitSettings, Observations, fit_landmarks
 
     embedding, columns = _embedding(model)
     points = detections.landmarks[:, columns, :2].astype(np.float64)  # (T,L,2)
     confidence = np.repeat(detections.presence[:, None], len(columns), 1).astype(np.float64)
     confidence[~np.isfinite(points).all(-1)] = 0
+    width, height = (int(v) for v in detections.sizes[0])
     focal = settings.focal_px
-    if focal is None and info.focal_px is not None:  # the file's lens, at the capture's size
-        focal = info.focal_px * max(width, height) / max(info.width, info.height)
-    observations = Observations(np.nan_to_num(points), confidence, width, height, embedding)
+    lens = info.photos[0].focal_35mm if info.kind == "photos" and info.photos else info.focal_35mm
+    if focal is None and lens:  # the file's lens, at the capture's size of the first frame
+        focal = focal_from_35mm(lens, width, height)
+    sizes = None if detections.one_size else detections.sizes
+    observations = Observations(np.nan_to_num(points), confidence, width, height, embedding, sizes)
     return fit_landmarks(model, observations, FitSettings(steps=settings.fit_steps, focal=focal),
                          progress=None if progress is None else lambda done, total, _rms: progress("fit", done, total))
 
@@ -230,27 +242,32 @@ def _embedding(model):
     return embedding, np.asarray(IBUG68_FROM_MESH)[embedding.ibug]
 
 
-def _write_capture(out, fit, detections: Detections, width, height, head_file, model, progress) -> dict:
+def _write_capture(out, fit, detections: Detections, head_file, model, video: bool, progress) -> dict:
     from ..data.landmarks import write_landmark_file
-    from ..data.writer import CaptureWriter
     from .detect import ibug68
 
     frames = len(detections.presence)
     seen = detections.presence > 0
     test_from = frames - max(1, round(TEST_FRACTION * frames)) if frames > 1 else frames
+    camera_ids = [CAMERA_ID if video else f"photo{t:03d}" for t in range(frames)]
     with CaptureWriter(out, n_vertices=model.n_vertices) as writer:
         for t in range(frames):
             writer.write_flame_params(t, fit.frame(t))
             if seen[t]:
-                writer.record_frame(t, fit.camera, split="test" if t >= test_from else "train", camera_index=0)
+                writer.record_frame(t, fit.camera_of(t, camera_ids[t]), split="test" if t >= test_from else "train",
+                                    camera_index=0 if video else t)
             if progress is not None:
                 progress("write", t + 1, frames)
     rows = np.concatenate([ibug68(detections.landmarks), np.repeat(detections.presence[:, None, None], 68, 1)], -1)
-    rows[~seen] = np.array([-width, -height, -1.0])  # VHAP's row of -1 (once divided by the size): no face
-    write_landmark_file(out, CAMERA_ID, rows, width, height)
+    for camera_id in sorted(set(camera_ids)):
+        mine = np.array([cid == camera_id for cid in camera_ids]) & seen
+        width, height = (int(v) for v in detections.sizes[np.argmax(mine) if mine.any() else 0])
+        table = np.where(mine[:, None, None], rows, np.array([-width, -height, -1.0]))  # -1 rows once divided
+        write_landmark_file(out, camera_id, table, width, height)  # VHAP's row of -1: no face (or another camera's)
     lost = [int(t) for t in np.nonzero(~seen)[0]]
     rms = fit.reprojection_px
-    return {"frames": frames, "size": [width, height], "focal_px": round(float(fit.camera.fx), 2),
+    return {"frames": frames, "size": [int(v) for v in detections.sizes[0]], "one_size": detections.one_size,
+            "focal_px": round(float(fit.camera.fx), 2),
             "lost_frames": lost, "two_faces_frames": [int(t) for t in np.nonzero(detections.faces > 1)[0]],
             "reprojection_px": {"mean": round(float(rms[seen].mean()), 3), "max": round(float(rms[seen].max()), 3),
                                 "per_frame": [round(float(r), 3) for r in rms]},
