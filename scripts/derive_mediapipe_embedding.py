@@ -21,7 +21,7 @@ eyeballs' front poles (moved by ``eyes_pose``), checked against their triangulat
 
 Then the embedding is measured on renders it was not derived from (subjects 3 and 4, other views, other
 poses, the eyes turned): each kept point posed with the render's true parameters and projected, against
-the detector's point. Needs the face models (scripts/ensure_venv.sh); about three minutes.
+the detector's point. Needs the face models (scripts/ensure_venv.sh); about two minutes on two cores.
 """
 
 from __future__ import annotations
