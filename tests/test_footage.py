@@ -166,7 +166,8 @@ def test_outputs_that_would_mix_truth_and_footage_are_refused(tmp_path, procedur
 def test_reading_and_tracking_the_footage_never_open_the_truth(handheld, tmp_path):
     """The clip is read, and tracked into a capture (face, landmarks, fit, files), without one open
     inside the truth folder."""
-    from mogaface.core.track.pipeline import TrackSettings, track_footage
+    from mogaface.core.track.fit import FitSettings
+    from mogaface.core.track.pipeline import TrackSettings, refit, track_footage
 
     record = {"on": True, "paths": []}
 
@@ -179,9 +180,11 @@ def test_reading_and_tracking_the_footage_never_open_the_truth(handheld, tmp_pat
         video = open_footage(handheld / "footage" / "clip.mp4")
         list(video.frames(FrameSelection(end=2)))
         report = track_footage(handheld / "footage" / "clip.mp4", tmp_path / "tracked",
-                               TrackSettings(size=None, fit_steps=10))
+                               TrackSettings(size=None, fit=FitSettings(steps=10)), keep_detections=True)
+        again = refit(tmp_path / "tracked", TrackSettings(size=None, fit=FitSettings(steps=3)))  # as settings are chosen
     finally:
         record["on"] = False
     assert any("clip.mp4" in path for path in record["paths"])
     assert not [path for path in record["paths"] if "truth" in path]
-    assert report["frames"] == 12 and (tmp_path / "tracked" / "transforms_train.json").is_file()
+    assert report["frames"] == again["frames"] == 12 and (tmp_path / "tracked" / "transforms_train.json").is_file()
+    assert again["reprojection_px"] != report["reprojection_px"]  # fitted anew from the same detections

@@ -27,6 +27,7 @@ def run(args) -> int:
     from ..errors import InputError
     from ..progress import ProgressBar
     from ..track.decode import focal_in_pixels, open_footage, selection_from_arguments
+    from ..track.fit import FitSettings
     from ..track.pipeline import TrackSettings, track_footage
 
     if args.input.resolve() in (args.out.resolve(), *args.out.resolve().parents):
@@ -39,8 +40,8 @@ def run(args) -> int:
         focal = focal_in_pixels(args.focal_35mm, info.width, info.height)
     if focal is not None and args.size:  # given at the input's size; the capture's frames are shrunk
         focal *= min(1.0, args.size / max(info.width, info.height))
-    settings = TrackSettings(size=args.size, focal_px=focal, threads=args.threads or 2, fit_steps=args.fit_steps,
-                             head_file=args.head)
+    settings = TrackSettings(size=args.size, focal_px=focal, threads=args.threads or 2,
+                             fit=FitSettings(steps=args.fit_steps), head_file=args.head)
     bars: dict[str, ProgressBar] = {}
 
     def progress(stage, done, total):

@@ -30,6 +30,7 @@ from ..errors import InputError
 from ..io.atomic import write_json
 from ..io.image import write_png
 from ..io.npz import load_npz, save_npz
+from .fit import FitSettings
 
 DETECTIONS_FILE = "track_detections.npz"
 REPORT_FILE = "tracking.json"
@@ -44,7 +45,7 @@ class TrackSettings:
     size: int | None = 512  # the capture's longer side (frames are shrunk to it; None: as stored)
     focal_px: float | None = None  # at the input's size; None: from the file's metadata, else estimated
     threads: int = 2
-    fit_steps: int = 200
+    fit: FitSettings = dataclasses.field(default_factory=FitSettings)  # its focal: see focal_px
     head_file: str | os.PathLike | None = None  # None: the procedural head of subject 0
     static_only: bool = True  # fit the 51 points fixed on the face (iBUG 17–67), not the jaw's contour
 
@@ -103,11 +104,13 @@ def check_output_folder(out: pathlib.Path, source: str) -> bool:
                                 "same input, to resume)")
 
 
-def track_footage(source, out, settings: TrackSettings = TrackSettings(), selection=None, progress=None) -> dict:
+def track_footage(source, out, settings: TrackSettings = TrackSettings(), selection=None, progress=None,
+                  keep_detections: bool = False) -> dict:
     """Track ``source`` (a video, a photo folder or a list of photos) into the capture folder ``out``.
 
     ``progress(stage, done, total)`` is called as it goes (stages: "detect", "fit", "write").
-    Returns the report written to ``tracking.json``.
+    Returns the report written to ``tracking.json``. ``keep_detections``: leave
+    ``track_detections.npz`` for :func:`refit` (choosing the fit's settings).
     """
     from ..flame.model import FlameModel
     from .decode import FrameSelection, open_footage
@@ -127,16 +130,42 @@ def track_footage(source, out, settings: TrackSettings = TrackSettings(), select
     if not (detections.presence > 0).any():
         raise InputError(info.path, None, "no face was found in any frame")
 
+    report = _fit_and_write(out, model, head_file, detections, settings, info, progress)
+    report["seconds"]["detect"] = round(detect_s, 2)
+    report["detect_ms_per_frame"] = round(1000 * detect_s / max(len(detections.presence), 1), 1)
+    write_json(out / REPORT_FILE, report)
+    if not keep_detections:
+        (out / DETECTIONS_FILE).unlink(missing_ok=True)
+    return report
+
+
+def refit(out, settings: TrackSettings) -> dict:
+    """Fit a tracked folder's kept detections again with other settings (the same footage, the same
+    frames); rewrites its parameters, split files and ``tracking.json``."""
+    from ..flame.model import FlameModel
+    from ..io.jsonfile import read_json_object
+    from .decode import open_footage
+
+    out = pathlib.Path(out)
+    previous = read_json_object(out / REPORT_FILE)
+    data = load_npz(out / DETECTIONS_FILE)
+    detections = Detections(**{field.name: data[field.name] for field in dataclasses.fields(Detections)})
+    head_file = out / previous["head_model"]
+    info = open_footage(previous["source"]).info
+    report = _fit_and_write(out, FlameModel.load(head_file), head_file, detections, settings, info, None)
+    report["seconds"]["detect"] = previous["seconds"]["detect"]
+    report["detect_ms_per_frame"] = previous["detect_ms_per_frame"]
+    write_json(out / REPORT_FILE, report)
+    return report
+
+
+def _fit_and_write(out, model, head_file, detections, settings, info, progress) -> dict:
     started = time.monotonic()
     fit = _fit(model, detections, settings, info, progress)
     fit_s = time.monotonic() - started
-
     report = _write_capture(out, fit, detections, head_file, model, info.kind == "video", progress)
     report.update(source=str(info.path), kind=info.kind, input_size=[info.width, info.height], fps=info.fps,
-                  seconds={"detect": round(detect_s, 2), "fit": round(fit_s, 2)},
-                  detect_ms_per_frame=round(1000 * detect_s / max(len(detections.presence), 1), 1))
-    write_json(out / REPORT_FILE, report)
-    (out / DETECTIONS_FILE).unlink(missing_ok=True)
+                  seconds={"fit": round(fit_s, 2)})
     return report
 
 
@@ -202,7 +231,7 @@ def _shrunk(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
 
 def _fit(model, detections: Detections, settings: TrackSettings, info, progress):
     from ..camera import focal_from_35mm
-    from .fit import FitSettings, Observations, fit_landmarks
+    from .fit import Observations, fit_landmarks
 
     embedding, columns = _embedding(model)
     points = detections.landmarks[:, columns, :2].astype(np.float64)  # (T,L,2)
@@ -215,7 +244,7 @@ def _fit(model, detections: Detections, settings: TrackSettings, info, progress)
         focal = focal_from_35mm(lens, width, height)
     sizes = None if detections.one_size else detections.sizes
     observations = Observations(np.nan_to_num(points), confidence, width, height, embedding, sizes)
-    return fit_landmarks(model, observations, FitSettings(steps=settings.fit_steps, focal=focal),
+    return fit_landmarks(model, observations, dataclasses.replace(settings.fit, focal=focal),
                          progress=None if progress is None else lambda done, total, _rms: progress("fit", done, total))
 
 
