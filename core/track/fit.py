@@ -76,9 +76,9 @@ class FitSettings:
     focal: float | None = None  # pixels; None: estimated, starting from a phone's
     huber_px: float = 2.0  # the robust loss's knee
     # weights beside the reprojection loss (pixels²: half the square of a pixel's error)
-    shape_prior: float = 0.1  # of ||shape||² (unit-variance coefficients)
+    shape_prior: float = 1.0  # of ||shape||² (unit-variance coefficients); chosen on validation clips
     expr_prior: float = 0.02  # of the mean squared expression coefficient
-    jaw_prior: float = 0.5  # per radian²
+    jaw_prior: float = 5.0  # per radian²; chosen on validation clips (docs/tracking.md)
     focal_prior: float = 4.0  # of log(f / f_phone)²
     smooth: float = 3.0  # of the second differences (per frame²) of pose and expression
     seed: int = 0
