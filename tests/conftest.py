@@ -49,3 +49,16 @@ def procedural_head_pkl(procedural_head, tmp_path_factory):
     path = tmp_path_factory.mktemp("head") / "head.pkl"
     write_model_file(path, procedural_head)
     return path
+
+
+@pytest.fixture(scope="session")
+def handheld(tmp_path_factory, procedural_head_pkl):
+    """A tiny synthetic phone clip (``make-footage``: 64x112, 12 frames, handheld) and its truth aside."""
+    from mogaface.core.cli import main
+
+    out = tmp_path_factory.mktemp("handheld")
+    code = main(["make-footage", str(out), "--size", "64x112", "--seconds", "0.4", "--supersample", "1",
+                 "--novel-views", "2", "--novel-every", "6", "--novel-size", "32", "--seed", "3", "--quiet",
+                 "--model", str(procedural_head_pkl), "--contact-sheet", str(out / "sheet.png")])
+    assert code == 0
+    return out

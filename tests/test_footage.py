@@ -7,7 +7,6 @@ import sys
 import numpy as np
 import pytest
 
-from mogaface.core.cli import main
 from mogaface.core.data.camera_file import read_cameras
 from mogaface.core.data.footage import FootageScene, make_footage
 from mogaface.core.data.footage_settings import FootageSettings
@@ -30,16 +29,6 @@ def scene_of(truth) -> FootageScene:
 
 def tree(folder):
     return sorted(str(p.relative_to(folder)) for p in folder.rglob("*") if p.is_file())
-
-
-@pytest.fixture(scope="module")
-def handheld(tmp_path_factory, procedural_head_pkl):
-    out = tmp_path_factory.mktemp("handheld")
-    code = main(["make-footage", str(out), "--size", "64x112", "--seconds", "0.4", "--supersample", "1",
-                 "--novel-views", "2", "--novel-every", "6", "--novel-size", "32", "--seed", "3", "--quiet",
-                 "--model", str(procedural_head_pkl), "--contact-sheet", str(out / "sheet.png")])
-    assert code == 0
-    return out
 
 
 @pytest.fixture(scope="module")
