@@ -53,3 +53,30 @@ def test_an_output_that_is_not_an_empty_folder_is_refused_before_any_work(handhe
     (tmp_path / "file").write_text("x")
     with pytest.raises(InputError, match="not a folder"):
         track_footage(handheld / "footage" / "clip.mp4", tmp_path / "file", FAST)
+
+
+def test_an_interrupted_track_resumes_from_its_saved_detections(handheld, tmp_path, monkeypatch):
+    """Stopped part-way (Ctrl-C), the folder has no split files (no reader takes it) and the
+    detections saved so far; the same command goes on from there and ends as a whole run does."""
+    from mogaface.core.track import pipeline
+
+    monkeypatch.setattr(pipeline, "SAVE_EVERY", 4)
+    seen = []
+
+    def stop_at_seven(stage, done, total):
+        seen.append((stage, done))
+        if stage == "detect" and done == 7:
+            raise KeyboardInterrupt
+
+    clip, out = handheld / "footage" / "clip.mp4", tmp_path / "cap"
+    with pytest.raises(KeyboardInterrupt):
+        track_footage(clip, out, FAST, progress=stop_at_seven)
+    assert not (out / "transforms_train.json").exists() and (out / pipeline.DETECTIONS_FILE).is_file()
+    seen.clear()
+    report = track_footage(clip, out, FAST, progress=lambda stage, done, total: seen.append((stage, done)))
+    detected = [done for stage, done in seen if stage == "detect"]
+    assert detected[0] == 5  # frames 0-3 were saved (every 4th frame) and are not detected again
+    assert report["frames"] == 12 and (out / "transforms_train.json").is_file()
+    assert not (out / pipeline.DETECTIONS_FILE).exists()
+    with pytest.raises(InputError, match="is not empty"):  # a finished capture is never tracked over
+        track_footage(clip, out, FAST)
