@@ -73,10 +73,11 @@ def test_the_point_the_cameras_look_at_is_their_subject():
         matrix[:3, 3] = eye
         matrices.append(matrix)
     assert np.abs(where_cameras_look(matrices) - subject).max() < 1e-9
-    assert np.allclose(where_cameras_look(matrices[:1]), matrices[0][:3, 3])  # one camera: its position
-    parallel = [np.eye(4) for _ in range(3)]
+    centre, back = matrices[0][:3, 3], matrices[0][:3, 2]  # one camera: its axis' point nearest the origin
+    assert np.allclose(where_cameras_look(matrices[:1]), centre - (centre @ back) * back)
+    parallel = [np.eye(4) for _ in range(3)]  # looking down -Z from z = 0.6: a tracked clip's camera, thrice
     for index, matrix in enumerate(parallel):
-        matrix[0, 3] = index
+        matrix[0, 3], matrix[2, 3] = index, 0.6
     assert np.allclose(where_cameras_look(parallel), [1.0, 0.0, 0.0])  # no point where parallel axes meet
 
 

@@ -93,14 +93,16 @@ HEAD_RADIUS = 0.22
 def where_cameras_look(matrices) -> np.ndarray:
     """The point nearest to every camera's optical axis, in the least-squares sense: the subject of
     a rig whose cameras aim at it. ``matrices``: Blender camera-to-world 4×4 (looking down -Z).
-    The cameras' mean position when their axes are (nearly) parallel or there is one camera."""
+    One camera (a tracked phone clip) or (nearly) parallel axes meet nowhere: then the point of
+    their mean axis nearest to the world's origin, where a FLAME head stands."""
     matrices = np.asarray(matrices, np.float64).reshape(-1, 4, 4)
     origins = matrices[:, :3, 3]
     axes = -matrices[:, :3, 2] / np.linalg.norm(matrices[:, :3, 2], axis=1, keepdims=True)
     projectors = np.eye(3) - axes[:, :, None] * axes[:, None, :]  # onto each axis' normal plane
     system, target = projectors.sum(axis=0), np.einsum("nij,nj->i", projectors, origins)
     if len(matrices) < 2 or np.linalg.cond(system) > 1e6:
-        return origins.mean(axis=0)
+        origin, axis = origins.mean(axis=0), axes.mean(axis=0) / np.linalg.norm(axes.mean(axis=0))
+        return origin + axis * max(float(-origin @ axis), 0.0)
     return np.linalg.solve(system, target)
 
 
