@@ -195,3 +195,13 @@ def test_lpips_on_images_too_small_for_it_names_the_capture(capture):
         check_lpips_size(small)
     assert str(capture.root) in str(error.value)
     check_lpips_size(capture)  # 48 px: scored with LPIPS
+
+
+def test_a_strip_of_cameras_of_several_sizes_pads_them():
+    """A tracked folder of photos has a camera per photo, each its own size: the strip pads."""
+    from mogaface.core.evaluate.report import strip_image
+
+    small, large = np.ones((4, 3, 3)), np.full((6, 5, 3), 0.5)
+    strip = strip_image([[small, large], [large, small]])
+    assert strip.shape == (12, 10, 3)
+    assert (strip[:4, :3] == 1).all() and (strip[4:6, :3] == 0).all() and (strip[:6, 5:10] == 0.5).all()

@@ -70,5 +70,14 @@ def write_comparison(path: str | os.PathLike, item) -> None:
 
 
 def strip_image(rows: list[list[np.ndarray]]) -> np.ndarray:
-    """Images in a grid: one row per camera, one column per timestep."""
-    return np.concatenate([np.concatenate(row, axis=1) for row in rows], axis=0)
+    """Images in a grid: one row per camera, one column per timestep. Cameras of several sizes
+    (photos) are padded with black to the largest (each image at its top left), never resized."""
+    height = max(image.shape[0] for row in rows for image in row)
+    width = max(image.shape[1] for row in rows for image in row)
+
+    def padded(image):
+        out = np.zeros((height, width, *image.shape[2:]), image.dtype)
+        out[:image.shape[0], :image.shape[1]] = image
+        return out
+
+    return np.concatenate([np.concatenate([padded(image) for image in row], axis=1) for row in rows], axis=0)
