@@ -34,6 +34,12 @@ def test_a_stretch_without_a_face_keeps_its_timesteps_marked_and_out_of_the_spli
               for entry in json.loads((tmp_path / "cap" / f"transforms_{name}.json").read_text())["frames"]}
     assert listed == set(range(12)) - {4, 5, 6}  # nothing trains or is scored on an interpolated guess
     assert (tmp_path / "cap" / "flame_param" / "00005.npz").is_file()  # the timestep is kept
+    from mogaface.core.data.capture import Capture
+
+    capture = Capture.open(tmp_path / "cap")
+    rgb, mask = capture.load_image(next(iter(capture.frames("train"))))
+    wall = mask < 0.01  # the images are stored on white through the person's mask, as training takes them
+    assert wall.mean() > 0.1 and (rgb[wall] > 0.98).all()
 
 
 def test_footage_without_any_face_is_refused_by_name(handheld, tmp_path):

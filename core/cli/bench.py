@@ -26,6 +26,8 @@ BENCHMARKS = {
     "step": "one training step stage by stage (FLAME, binding, render, loss, optimiser, MoGaFace modules)",
     "track": "tracking synthetic phone clips scored against their truth: landmark reprojection, mesh, expression "
              "and camera errors, the stages' speed (--split validation to choose settings on, test to score once)",
+    "track_avatar": "an avatar trained on a tracked test clip against one trained on its truth, with and without the "
+                    "method's corrections: novel-view PSNR at cameras the footage never saw (after bench track)",
     "track_detect": "face tracking's detection step at 720x1280: ms per frame for the detector, mesh, irises and "
                     "person mask (MediaPipe's models on ai-edge-litert)",
     "train": "the full training step (render, loss, backward, Adam) in steps per second",
@@ -36,8 +38,8 @@ BENCHMARKS = {
 OPTION_BENCHMARKS = {"scale": ("train", "step"),
                      "avatar": ("viewport", "refiner", "refiner_search", "refiner_training_search"),
                      "fit_steps": ("refiner",),
-                     "split": ("refiner", "refiner_search", "refiner_training_search", "camera_search", "track"),
-                     "minutes": ("converge",), "work": ("converge", "batch", "camera_search", "track"),
+                     "split": ("refiner", "refiner_search", "refiner_training_search", "camera_search", "track", "track_avatar"),
+                     "minutes": ("converge",), "work": ("converge", "batch", "camera_search", "track", "track_avatar"),
                      "ranks": ("converge",), "variants": ("converge",), "config": ("converge",),
                      "compare": ("converge",), "subjects": ("camera_search",),
                      "test_subjects": ("camera_search",)}

@@ -2,7 +2,8 @@
 
 The capture is an ordinary one in the GaussianAvatars/VHAP layout (:mod:`..data.writer`), so
 ``check-capture``, ``train``, ``eval``, ``solve-cameras`` and Blender's Import Capture take it as
-they take any other: the frames as images, the person's mask as each frame's foreground mask, one
+they take any other: the frames as images on white (through the person's mask, as VHAP exports
+them), the person's mask as each frame's foreground mask, one
 fixed camera (``cam00``, the fitted focal length), FLAME parameters per frame (the head's rotation
 and translation carry the motion between camera and head), the 68 iBUG points in ``landmark2d/``,
 and the head model file. ``tracking.json`` beside them says how each frame went.
@@ -208,7 +209,7 @@ def _detect(footage, out, key, settings, selection, resume, progress):
                           frame.index, size)
         mask = result.mask if result.mask is not None else np.ones((height, width), np.float32)
         camera = 0 if video else position  # photos: each its own camera
-        write_png(out / layout.image_path(position, camera), _shrunk(frame.rgb, size))
+        write_png(out / layout.image_path(position, camera), _shrunk(_on_white(frame.rgb, mask), size))
         write_png(out / layout.mask_path(position, camera), _shrunk((mask * 255 + 0.5).astype(np.uint8), size))
         if len(detections.presence) % SAVE_EVERY == 0:
             detections.save(out / DETECTIONS_FILE, key)
@@ -218,6 +219,14 @@ def _detect(footage, out, key, settings, selection, resume, progress):
     if first is None:
         raise InputError(footage.info.path, None, "no frame in the selected range")
     return detections
+
+
+def _on_white(rgb: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """The frame composited on the capture's background (white) through the person's mask: a
+    capture's images are stored so (VHAP's exports, the synthetic captures), and training takes
+    them as they are; the wall behind the subject would otherwise be learnt as part of the head."""
+    alpha = np.clip(mask, 0.0, 1.0)[..., None]
+    return (rgb * alpha + 255.0 * (1.0 - alpha) + 0.5).astype(np.uint8)
 
 
 def _shrunk(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
