@@ -3,10 +3,10 @@
 The capture is an ordinary one in the GaussianAvatars/VHAP layout (:mod:`..data.writer`), so
 ``check-capture``, ``train``, ``eval``, ``solve-cameras`` and Blender's Import Capture take it as
 they take any other: the frames as images on white (through the person's mask, as VHAP exports
-them), the person's mask as each frame's foreground mask, one
-fixed camera (``cam00``, the fitted focal length), FLAME parameters per frame (the head's rotation
-and translation carry the motion between camera and head), the 68 iBUG points in ``landmark2d/``,
-and the head model file. ``tracking.json`` beside them says how each frame went.
+them), the person's mask as each frame's foreground mask, one fixed camera for a video (``cam00``,
+the fitted focal length; a photo folder: a camera per photo, one lens), FLAME parameters per frame
+(the head's rotation and translation carry the motion between camera and head), the 68 iBUG
+points in ``landmark2d/``, and the head model file. ``tracking.json`` says how each frame went.
 
 Frames where no face was found keep their timestep: their parameters are interpolated by the fit
 (its smoothness term; they have no landmarks) and they are left out of every split, so nothing
@@ -48,7 +48,6 @@ class TrackSettings:
     threads: int = 2
     fit: FitSettings = dataclasses.field(default_factory=FitSettings)  # its focal: see focal_px
     head_file: str | os.PathLike | None = None  # None: the procedural head of subject 0
-    static_only: bool = True  # fit the 51 points fixed on the face (iBUG 17–67), not the jaw's contour
 
 
 @dataclasses.dataclass
