@@ -68,7 +68,7 @@ def novel_psnr(run: pathlib.Path, clip: pathlib.Path, tracked_report: dict, move
 
     from mogaface.core.camera import Camera
     from mogaface.core.data.camera_file import read_cameras
-    from mogaface.core.evaluate.track_error import _head_to_camera, _vertices
+    from mogaface.core.evaluate.track_error import head_to_world, vertices_and_joints
     from mogaface.core.flame.model import FlameModel
     from mogaface.core.io.image import read_image
     from mogaface.core.io.npz import load_npz
@@ -92,8 +92,8 @@ def novel_psnr(run: pathlib.Path, clip: pathlib.Path, tracked_report: dict, move
         shift = np.eye(4)
         if move:
             true_params = load_npz(truth / "flame_param" / f"{frame:05d}.npz")
-            true_head = _head_to_camera(np.eye(4), true_params, _vertices(true_model, true_params, True)[1])
-            fit_head = _head_to_camera(np.eye(4), params, _vertices(fit_model, params, True)[1])
+            true_head = head_to_world(true_params, vertices_and_joints(true_model, true_params, True)[1])
+            fit_head = head_to_world(params, vertices_and_joints(fit_model, params, True)[1])
             shift = true_head @ np.linalg.inv(fit_head)  # tracked head's frame → true head's frame
         for camera_id, camera in novel.items():
             moved = Camera(K=camera.K, w2c=camera.w2c @ shift, width=camera.width, height=camera.height,

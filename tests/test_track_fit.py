@@ -59,3 +59,22 @@ def test_a_clip_is_fitted_to_its_landmarks_and_the_mesh_follows(clip):
     assert np.corrcoef(yaw[seen], truth["rotation"][seen, 1])[0, 1] > 0.98
     jaw = fit.params["jaw_pose"][:, 0]
     assert np.corrcoef(jaw[seen], truth["jaw_pose"][seen, 0])[0, 1] > 0.8
+
+
+def test_the_scoring_aligns_a_similar_copy_exactly_and_places_the_head(clip):
+    """What bench track's errors stand on: the similarity alignment and the head's pose."""
+    from scipy.spatial.transform import Rotation
+
+    from mogaface.core.evaluate.track_error import head_to_world, similarity_aligned, vertices_and_joints
+
+    model, _, truth, vertices = clip
+    points = vertices[3]
+    turn = Rotation.from_rotvec([0.2, -0.4, 0.1]).as_matrix()
+    copy = 1.3 * points @ turn.T + [0.1, -0.2, 0.5]
+    assert np.abs(similarity_aligned(copy, points) - points).max() < 1e-9
+    params = {k: np.asarray(v[3] if k != "shape" else v[0], np.float64) for k, v in truth.items()}
+    posed, joints = vertices_and_joints(model, params, posed=True)
+    unposed, _ = vertices_and_joints(model, {**params, "rotation": 0 * params["rotation"],
+                                             "translation": 0 * params["translation"]}, posed=True)
+    head = head_to_world(params, joints)  # the unposed head carried by the head's pose is the posed head
+    assert np.abs(unposed @ head[:3, :3].T + head[:3, 3] - posed).max() < 1e-9

@@ -41,17 +41,19 @@ def similarity_aligned(source: np.ndarray, target: np.ndarray) -> np.ndarray:
     return scale * s @ rotation.T + mu_t
 
 
-def _head_to_camera(w2c: np.ndarray, params: dict, joints: np.ndarray) -> np.ndarray:
+def head_to_world(params: dict, joints: np.ndarray) -> np.ndarray:
     """4×4 of the head's frame (FLAME's root, turned by ``rotation`` about the root joint, moved by
-    ``translation``) into the camera: what one picture of the head constrains."""
+    ``translation``) into the world: with a camera's ``w2c`` in front, what one picture of the head
+    constrains."""
     rotation = axis_angle_to_matrix(torch.as_tensor(params["rotation"].reshape(1, 3), dtype=torch.float64))[0].numpy()
     head = np.eye(4)
     head[:3, :3] = rotation
     head[:3, 3] = joints[0] - rotation @ joints[0] + params["translation"].reshape(3)
-    return w2c @ head
+    return head
 
 
-def _vertices(model: FlameModel, params: dict, posed: bool) -> tuple[np.ndarray, np.ndarray]:
+def vertices_and_joints(model: FlameModel, params: dict, posed: bool) -> tuple[np.ndarray, np.ndarray]:
+    """The head's vertices and rest joints for ``params`` (numpy); unposed: shape, expression and jaw only."""
     names = ("shape", "expr", "rotation", "neck_pose", "jaw_pose", "eyes_pose", "translation")
     given = {k: torch.as_tensor(np.asarray(params[k], np.float64).reshape(1, -1)) for k in names if k in params}
     if not posed:
@@ -80,18 +82,18 @@ def tracking_errors(capture_dir, truth_dir) -> dict:
         truth = load_npz(truth_dir / "flame_param" / f"{index:05d}.npz")
         fitted = load_npz(capture_dir / layout.flame_param_path(t))
         true_camera, camera = truth_cameras[f"{index:05d}"], capture.camera(frame)
-        true_vertices, true_joints = _vertices(model, truth, posed=True)
-        fit_vertices, fit_joints = _vertices(fitted_model, fitted, posed=True)
+        true_vertices, true_joints = vertices_and_joints(model, truth, posed=True)
+        fit_vertices, fit_joints = vertices_and_joints(fitted_model, fitted, posed=True)
         in_true = true_vertices @ true_camera.w2c[:3, :3].T + true_camera.w2c[:3, 3]
         in_fit = fit_vertices @ camera.w2c[:3, :3].T + camera.w2c[:3, 3]
-        neutral_true = _vertices(model, {**truth, "expr": 0 * truth["expr"], "jaw_pose": 0 * truth["jaw_pose"]},
+        neutral_true = vertices_and_joints(model, {**truth, "expr": 0 * truth["expr"], "jaw_pose": 0 * truth["jaw_pose"]},
                                  posed=False)[0]
-        neutral_fit = _vertices(fitted_model, {**fitted, "expr": 0 * fitted["expr"],
+        neutral_fit = vertices_and_joints(fitted_model, {**fitted, "expr": 0 * fitted["expr"],
                                                "jaw_pose": 0 * fitted["jaw_pose"]}, posed=False)[0]
-        expression_true = _vertices(model, truth, posed=False)[0] - neutral_true
-        expression_fit = _vertices(fitted_model, fitted, posed=False)[0] - neutral_fit
-        true_pose = _head_to_camera(true_camera.w2c, truth, true_joints)
-        fit_pose = _head_to_camera(camera.w2c, fitted, fit_joints)
+        expression_true = vertices_and_joints(model, truth, posed=False)[0] - neutral_true
+        expression_fit = vertices_and_joints(fitted_model, fitted, posed=False)[0] - neutral_fit
+        true_pose = true_camera.w2c @ head_to_world(truth, true_joints)
+        fit_pose = camera.w2c @ head_to_world(fitted, fit_joints)
         true_centre = np.linalg.inv(true_pose)[:3, 3]  # the camera's centre in the head's frame
         fit_centre = np.linalg.inv(fit_pose)[:3, 3]
         rows.append({
