@@ -57,41 +57,27 @@ def test_the_round_trip_covers_every_8_bit_value():
     assert np.abs(np.round(srgb_from_blender(out) * 255) - np.arange(256)[None, :, None]).max() == 0
 
 
-def test_the_point_the_cameras_look_at_is_their_subject():
-    from mogaface.core.scene.cameras import where_cameras_look
+def test_where_one_camera_or_parallel_ones_look_is_the_axis_point_nearest_the_head():
+    """A tracked clip's one camera (and parallel axes) meet nowhere: Import Capture frames the point
+    of the axis nearest the origin, where a FLAME head stands (``look_point``'s least norm)."""
+    from mogaface.core.camera import Camera, look_point
 
-    rng = np.random.default_rng(0)
-    subject = np.array([0.1, -0.2, 1.6])
-    matrices = []
-    for direction in rng.normal(size=(16, 3)):
-        eye = subject + 1.2 * direction / np.linalg.norm(direction)
-        back = (eye - subject) / np.linalg.norm(eye - subject)  # a camera looks down its -Z
-        right = np.cross([0.0, 0.0, 1.0], back)
-        right /= np.linalg.norm(right)
-        matrix = np.eye(4)
-        matrix[:3, :3] = np.stack([right, np.cross(back, right), back], axis=1)
-        matrix[:3, 3] = eye
-        matrices.append(matrix)
-    assert np.abs(where_cameras_look(matrices) - subject).max() < 1e-9
-    centre, back = matrices[0][:3, 3], matrices[0][:3, 2]  # one camera: its axis' point nearest the origin
-    assert np.allclose(where_cameras_look(matrices[:1]), centre - (centre @ back) * back)
-    parallel = [np.eye(4) for _ in range(3)]  # looking down -Z from z = 0.6: a tracked clip's camera, thrice
-    for index, matrix in enumerate(parallel):
-        matrix[0, 3], matrix[2, 3] = index, 0.6
-    assert np.allclose(where_cameras_look(parallel), [1.0, 0.0, 0.0])  # no point where parallel axes meet
+    one = Camera.look_at((0.3, 0.1, 0.6), (0.0, 0.05, 0.0), width=64, height=64, fx=60.0)
+    axis, centre = one.w2c[2, :3], one.center
+    assert np.allclose(look_point([one]), centre - (centre @ axis) * axis)
+    parallel = [Camera.look_at((x, 0.0, 0.6), (x, 0.0, 0.0), width=64, height=64, fx=60.0) for x in (0.0, 1.0, 2.0)]
+    assert np.allclose(look_point(parallel), [1.0, 0.0, 0.0])
 
 
 def test_an_import_frames_the_head_of_a_synthetic_capture(procedural_head):
     """The synthetic rig's cameras look at the head: the point an import frames is its centre."""
+    from mogaface.core.camera import look_point
     from mogaface.core.data.generator import camera_dome
-    from mogaface.core.scene.axes import flame_to_blender
-    from mogaface.core.scene.cameras import blender_camera, where_cameras_look
 
     vertices = procedural_head["v_template"]
     cameras, _ = camera_dome(16, 64, vertices, np.random.default_rng(0))
-    centre = where_cameras_look([blender_camera(camera).matrix_world for camera in cameras])
-    head = flame_to_blender(0.5 * (vertices.min(0) + vertices.max(0)))
-    assert np.linalg.norm(centre - head) < 0.01  # within 1 cm of the head's centre
+    head = 0.5 * (vertices.min(0) + vertices.max(0))
+    assert np.linalg.norm(look_point(cameras) - head) < 0.01  # within 1 cm of the head's centre
 
 
 def test_view_framing_sees_every_point():

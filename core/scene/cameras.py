@@ -12,10 +12,10 @@ import pathlib
 
 import numpy as np
 
-from ..camera import Camera
+from ..camera import Camera, look_point
 from ..data.capture import Capture
 from ..errors import InputError
-from .axes import CV_TO_BLENDER_CAMERA, flame_to_blender_matrix, timestep_to_frame
+from .axes import CV_TO_BLENDER_CAMERA, flame_to_blender, flame_to_blender_matrix, timestep_to_frame
 
 # -- cameras ------------------------------------------------------------------------------------
 
@@ -82,28 +82,13 @@ class CaptureScene:
     # Camera ids whose pose differs between frames (a union of sequences: VHAP moves each
     # sequence's cameras); they are imported at the pose of their first frame.
     moving_cameras: list[str] = dataclasses.field(default_factory=list)
-    # Where the cameras look (Blender's world): the subject's head, framed after an import.
+    # Where the cameras look (Blender's world; :func:`~..camera.look_point`: for one camera, a tracked
+    # clip's, the point of its axis nearest the origin, where the head stands): framed after an import.
     subject_centre: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
 
 #: Half the size of what a view framing the subject shows: a FLAME head with its neck and some room, in metres.
 HEAD_RADIUS = 0.22
-
-
-def where_cameras_look(matrices) -> np.ndarray:
-    """The point nearest to every camera's optical axis, in the least-squares sense: the subject of
-    a rig whose cameras aim at it. ``matrices``: Blender camera-to-world 4×4 (looking down -Z).
-    One camera (a tracked phone clip) or (nearly) parallel axes meet nowhere: then the point of
-    their mean axis nearest to the world's origin, where a FLAME head stands."""
-    matrices = np.asarray(matrices, np.float64).reshape(-1, 4, 4)
-    origins = matrices[:, :3, 3]
-    axes = -matrices[:, :3, 2] / np.linalg.norm(matrices[:, :3, 2], axis=1, keepdims=True)
-    projectors = np.eye(3) - axes[:, :, None] * axes[:, None, :]  # onto each axis' normal plane
-    system, target = projectors.sum(axis=0), np.einsum("nij,nj->i", projectors, origins)
-    if len(matrices) < 2 or np.linalg.cond(system) > 1e6:
-        origin, axis = origins.mean(axis=0), axes.mean(axis=0) / np.linalg.norm(axes.mean(axis=0))
-        return origin + axis * max(float(-origin @ axis), 0.0)
-    return np.linalg.solve(system, target)
 
 
 def capture_scene(folder, refined_cameras=None) -> CaptureScene:
@@ -119,12 +104,13 @@ def capture_scene(folder, refined_cameras=None) -> CaptureScene:
     first_frame = {}
     for frame in sorted(capture.frames(), key=lambda f: (f.timestep_index, f.camera_index)):
         first_frame.setdefault(frame.camera_id, frame)
-    cameras = []
+    cameras, poses = [], []
     for camera_id, camera in capture.cameras.items():
         frame = first_frame.get(camera_id)
         image = capture.path(frame, "file_path") if frame is not None else None
         pose = refined.get(camera_id) or (capture.camera(frame) if frame is not None else camera)
         cameras.append(blender_camera(pose, f"Camera {camera_id}", image))
+        poses.append(pose)
     moving = sorted({f.camera_id for f in capture.frames() if f.camera_id not in refined
                      if not np.allclose(capture.camera(f).w2c, capture.camera(first_frame[f.camera_id]).w2c)})
     return CaptureScene(
@@ -134,7 +120,7 @@ def capture_scene(folder, refined_cameras=None) -> CaptureScene:
         frame_end=timestep_to_frame(max(capture.timesteps)),
         n_timesteps=len(capture.timesteps),
         moving_cameras=moving,
-        subject_centre=tuple(float(v) for v in where_cameras_look([c.matrix_world for c in cameras])),
+        subject_centre=tuple(float(v) for v in flame_to_blender(look_point(poses))),
     )
 
 
