@@ -35,11 +35,7 @@ def run(args) -> int:
     info = open_footage(args.input).info
     for line in info.lines():
         print(line)
-    focal = args.focal
-    if focal is None and args.focal_35mm is not None:
-        focal = focal_in_pixels(args.focal_35mm, info.width, info.height)
-    if focal is not None and args.size:  # given at the input's size; the capture's frames are shrunk
-        focal *= min(1.0, args.size / max(info.width, info.height))
+    focal = args.focal if args.focal is not None else focal_in_pixels(args.focal_35mm, info.width, info.height)
     settings = TrackSettings(size=args.size, focal_px=focal, threads=args.threads or 2,
                              fit=FitSettings(steps=args.fit_steps), head_file=args.head)
     bars: dict[str, ProgressBar] = {}

@@ -44,7 +44,7 @@ SAVE_EVERY = 25
 @dataclasses.dataclass
 class TrackSettings:
     size: int | None = 512  # the capture's longer side (frames are shrunk to it; None: as stored)
-    focal_px: float | None = None  # at the input's size; None: from the file's metadata, else estimated
+    focal_px: float | None = None  # at the input's (first frame's) size; None: the file's metadata, else estimated
     threads: int = 2
     fit: FitSettings = dataclasses.field(default_factory=FitSettings)  # its focal: see focal_px
     head_file: str | os.PathLike | None = None  # None: the procedural head of subject 0
@@ -245,11 +245,12 @@ def _fit(model, detections: Detections, settings: TrackSettings, info, progress)
     points = detections.landmarks[:, columns, :2].astype(np.float64)  # (T,L,2)
     confidence = np.repeat(detections.presence[:, None], len(columns), 1).astype(np.float64)
     confidence[~np.isfinite(points).all(-1)] = 0
-    width, height = (int(v) for v in detections.sizes[0])
-    focal = settings.focal_px
+    width, height = (int(v) for v in detections.sizes[0])  # the capture's first frame
     lens = info.photos[0].focal_35mm if info.kind == "photos" and info.photos else info.focal_35mm
-    if focal is None and lens:  # the file's lens, at the capture's size of the first frame
-        focal = focal_from_35mm(lens, width, height)
+    if settings.focal_px is not None:  # given at the input's size (its first frame's, upright)
+        focal = settings.focal_px * width / info.width
+    else:  # the file's lens, or estimated
+        focal = focal_from_35mm(lens, width, height) if lens else None
     sizes = None if detections.one_size else detections.sizes
     observations = Observations(np.nan_to_num(points), confidence, width, height, embedding, sizes)
     return fit_landmarks(model, observations, dataclasses.replace(settings.fit, focal=focal),
