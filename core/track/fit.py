@@ -9,9 +9,9 @@ One fixed camera per clip. The subject turning in front of a still phone and a p
 still subject give the same pictures: either is the head's rotation and translation per frame in
 front of a fixed camera, which is what ``solve-cameras``, training and Blender's import take.
 
-The fit (torch, float64, every frame at once): a rigid start (the mean head turned and moved to
-its landmarks, frame by frame), then every parameter together with Adam on a robust (Huber)
-reprojection loss weighted by confidence, Gaussian priors on shape, expression and jaw, and a
+The fit (torch, float64, every frame at once, L-BFGS): a rigid start (the mean head placed at each
+frame's landmarks, then turned and moved onto them), then every parameter together on a robust
+(Huber) reprojection loss weighted by confidence, Gaussian priors on shape, expression and jaw, and a
 smoothness term on second differences over time (a clip's motion is smooth; a detector's noise is
 not). Only the vertices the landmarks sit on are posed (:class:`LandmarkHead`): the same linear
 blend skinning as :class:`~mogaface.core.flame.model.FlameModel`, on a few hundred vertices.

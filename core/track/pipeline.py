@@ -82,14 +82,18 @@ class Detections:
         save_npz(path, {**dataclasses.asdict(self), "source": np.array(source)})
 
     @classmethod
+    def read(cls, path: pathlib.Path) -> tuple["Detections", str]:
+        """Saved detections and the key of the input they were found in."""
+        data = load_npz(path)
+        return cls(**{field.name: data[field.name] for field in dataclasses.fields(cls)}), str(data.get("source", ""))
+
+    @classmethod
     def load(cls, path: pathlib.Path, source: str) -> "Detections | None":
         """The saved detections of the same input, or None (another input's are not resumed)."""
         if not path.is_file():
             return None
-        data = load_npz(path)
-        if str(data.get("source", "")) != source:
-            return None
-        return cls(**{field.name: data[field.name] for field in dataclasses.fields(cls)})
+        detections, saved_from = cls.read(path)
+        return detections if saved_from == source else None
 
 
 def check_output_folder(out: pathlib.Path, source: str) -> bool:
@@ -148,8 +152,7 @@ def refit(out, settings: TrackSettings) -> dict:
 
     out = pathlib.Path(out)
     previous = read_json_object(out / REPORT_FILE)
-    data = load_npz(out / DETECTIONS_FILE)
-    detections = Detections(**{field.name: data[field.name] for field in dataclasses.fields(Detections)})
+    detections, _ = Detections.read(out / DETECTIONS_FILE)
     head_file = out / previous["head_model"]
     info = open_footage(previous["source"]).info
     report = _fit_and_write(out, FlameModel.load(head_file), head_file, detections, settings, info, None)
