@@ -12,6 +12,7 @@ a held-out camera. PSNR against the truth's renders (white background).
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import pathlib
@@ -24,7 +25,6 @@ PRESETS = ("demo", "mogaface-demo")
 
 def truth_capture(clip: pathlib.Path, tracked: pathlib.Path, out: pathlib.Path) -> pathlib.Path:
     """``tracked``'s images, masks and splits with the truth's cameras and parameters."""
-    from mogaface.core.camera import Camera
     from mogaface.core.data import layout
     from mogaface.core.data.camera_file import read_cameras
     from mogaface.core.data.capture import Capture
@@ -47,19 +47,13 @@ def truth_capture(clip: pathlib.Path, tracked: pathlib.Path, out: pathlib.Path) 
                 t = frame.timestep_index
                 index = report["input_frames"][t]
                 true = cameras[f"{index:05d}"]
-                scale = frame_width(capture, frame) / true.width
-                camera = Camera(K=np.diag([scale, scale, 1.0]) @ true.K, w2c=true.w2c, width=round(true.width * scale),
-                                height=round(true.height * scale), camera_id="cam00")
+                camera = dataclasses.replace(true.scaled(capture.camera(frame).width / true.width), camera_id="cam00")
                 for name in (layout.image_path(t, 0), layout.mask_path(t, 0)):
                     (out / name).parent.mkdir(parents=True, exist_ok=True)
                     shutil.copyfile(tracked / name, out / name)
                 writer.write_flame_params(t, load_npz(truth / "flame_param" / f"{index:05d}.npz"))
                 writer.record_frame(t, camera, split=split, camera_index=0)
     return out
-
-
-def frame_width(capture, frame) -> int:
-    return capture.camera(frame).width
 
 
 def novel_psnr(run: pathlib.Path, clip: pathlib.Path, tracked_report: dict, move: bool) -> dict:
