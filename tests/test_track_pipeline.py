@@ -57,7 +57,7 @@ def test_an_output_that_is_not_an_empty_folder_is_refused_before_any_work(handhe
         track_footage(handheld / "footage" / "clip.mp4", tmp_path / "full", FAST)
     assert (tmp_path / "full" / "mine.txt").read_text() == "keep"
     (tmp_path / "file").write_text("x")
-    with pytest.raises(InputError, match="not a folder"):
+    with pytest.raises(InputError, match="file: is a regular file; expected a folder for the outputs"):
         track_footage(handheld / "footage" / "clip.mp4", tmp_path / "file", FAST)
 
 

@@ -28,7 +28,7 @@ import numpy as np
 
 from ..data.writer import CaptureWriter
 from ..errors import InputError
-from ..io.atomic import write_json
+from ..io.atomic import check_output_target, write_json
 from ..io.image import write_png
 from ..io.npz import load_npz, save_npz
 from .fit import FitSettings
@@ -98,8 +98,7 @@ class Detections:
 
 def check_output_folder(out: pathlib.Path, source: str) -> bool:
     """The output is new, empty, or an interrupted track of the same input (True: resume)."""
-    if out.exists() and not out.is_dir():
-        raise InputError(out, None, "exists and is not a folder; expected a new or empty folder for the capture")
+    check_output_target(out, folder=True)  # a file, FIFO or device where the folder would be
     if not out.exists() or not any(out.iterdir()):
         return False
     if Detections.load(out / DETECTIONS_FILE, source) is not None and not (out / "transforms_train.json").exists():
