@@ -42,7 +42,8 @@ OPTION_BENCHMARKS = {"scale": ("train", "step"),
                      "minutes": ("converge",), "work": ("converge", "batch", "camera_search", "track", "track_avatar"),
                      "ranks": ("converge",), "variants": ("converge",), "config": ("converge",),
                      "compare": ("converge",), "subjects": ("camera_search",),
-                     "test_subjects": ("camera_search",)}
+                     "test_subjects": ("camera_search",), "compare_with": ("splat", "step", "train"),
+                     "rounds": ("splat", "step", "train")}
 
 
 def add_arguments(parser):
@@ -84,6 +85,11 @@ def add_arguments(parser):
     parser.add_argument("--scale", choices=["small", "real"],
                         help="train, step: 'real' times 802x550 images, 16 cameras, 100k Gaussians "
                              "(train: the full method; step: both variants stage by stage)")
+    parser.add_argument("--compare-with", metavar="REF",
+                        help="splat, step, train: also run the benchmark of commit REF (a temporary git worktree), "
+                             "alternately with this tree's in this invocation; print this/REF ratios and the load")
+    parser.add_argument("--rounds", type=int,
+                        help="with --compare-with: runs of each side, alternating which goes first (default 2)")
 
 
 def run(args) -> int:
@@ -104,8 +110,21 @@ def run(args) -> int:
     if args.ranks is not None and args.ranks < 1:
         print("error: --ranks must be at least 1", file=sys.stderr)
         return 2
+    if args.rounds is not None and args.compare_with is None:
+        print("error: --rounds applies with --compare-with only", file=sys.stderr)
+        return 2
     options = {name: getattr(args, name) for name in OPTION_BENCHMARKS if getattr(args, name) is not None}
-    report = module.run(threads=args.threads, quick=args.quick, **options)
+    if args.compare_with is not None:
+        from mogaface.bench import compare
+
+        ref = options.pop("compare_with")
+        try:
+            report = compare.run(args.name, ref, threads=args.threads, quick=args.quick, **options)
+        except (ValueError, RuntimeError) as error:
+            print(f"error: {error}", file=sys.stderr)
+            return 2
+    else:
+        report = module.run(threads=args.threads, quick=args.quick, **options)
     text = json.dumps(report, indent=2)
     print(text)
     if args.out:
