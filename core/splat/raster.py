@@ -226,6 +226,7 @@ def backward(packed, ranks, tile_offsets, tile_queue, tiles_x, width, height,
         st = np.zeros(7 * TILE * TILE, np.float32)
         st[:TILE * TILE] = 1.0
         st[6 * TILE * TILE:] = -1.0
+        row_last = np.full(TILE, -1.0, np.float32)  # the last splat that counts in any pixel of a row
         k_end = k0
         for i in range(y0, y1 + 1):
             for j in range(x0, x1 + 1):
@@ -238,7 +239,9 @@ def backward(packed, ranks, tile_offsets, tile_queue, tiles_x, width, height,
                                + rgb[i, j, 2] * v_rgb[i, j, 2] + depth[i, j] * v_depth[i, j]
                                - trans[i, j] * v_alpha[i, j])
                 if last[i, j] >= 0:
-                    st[n6 + pix] = np.float32(last[i, j] - k0)
+                    lf = np.float32(last[i, j] - k0)
+                    st[n6 + pix] = lf
+                    row_last[i - y0] = max(row_last[i - y0], lf)
                 k_end = max(k_end, last[i, j] + 1)
         for k in range(k0, k_end):
             if (k & 63) == 0 and _flag(cancel) != 0:
@@ -248,18 +251,21 @@ def backward(packed, ranks, tile_offsets, tile_queue, tiles_x, width, height,
             ca, cbb, cc, op = p[CA], p[CB], p[CC], p[OP]
             cr, cg, cbl, cz = p[CR], p[CG], p[CBL], p[DZ]
             kf = np.float32(k - k0)
-            s_mx = zero
-            s_my = zero
-            s_a = zero
-            s_b = zero
-            s_c = zero
-            s_o = zero
+            # over the rows: Σ v_q, Σ v_q·dy, Σ v_q·dy², Σ v_q·dx, Σ v_q·dx·dy, Σ v_q·dx²
+            s_q = zero
+            s_qy = zero
+            s_qyy = zero
+            s_qx = zero
+            s_qxy = zero
+            s_qxx = zero
             s_r = zero
             s_g = zero
             s_bl = zero
             s_z = zero
             i0, i1 = _rows(p, y0, y1)
             for i in range(i0, i1 + 1):
+                if kf > row_last[i - y0]:
+                    continue
                 dy = np.float32(i) + half - my
                 j0, j1 = _cols(p, dy, x0, x1)
                 if j0 > j1:
@@ -269,13 +275,15 @@ def backward(packed, ranks, tile_offsets, tile_queue, tiles_x, width, height,
                 row = (i - y0) * TILE
                 base = np.uint64(row)
                 fx0 = np.float32(x0) + half - mx
+                # within a row dy is constant, so three sums of v_q carry every conic and mean term
+                r_q = zero
+                r_qx = zero
+                r_qxx = zero
                 for l in range(row_len):
                     pix = base + np.uint64(l)
                     dx = fx0 + np.float32(l)
                     q = (ca * dx + by) * dx + qy
-                    gauss = _exp_neg(nh * q)
-                    raw = op * gauss
-                    alpha = min(a_max, raw)
+                    alpha = min(a_max, op * _exp_neg(nh * q))
                     ok = (q <= q_max) & (alpha >= a_min) & (kf <= st[n6 + pix])
                     tp = st[pix]
                     gr = st[n2 + pix]
@@ -292,21 +300,25 @@ def backward(packed, ranks, tile_offsets, tile_queue, tiles_x, width, height,
                     s_bl += w * gb
                     s_z += w * gd
                     v_al = tp * f - r / (one - alpha)
-                    v_al = v_al if ok & (raw < a_max) else zero
-                    s_o += v_al * gauss
-                    v_q = nh * alpha * v_al
-                    s_a += v_q * dx * dx
-                    s_b += v_q * dx * dy
-                    s_c += v_q * dy * dy
-                    s_mx += v_q * (ca * dx + cbb * dy)
-                    s_my += v_q * (cbb * dx + cc * dy)
+                    v_q = nh * alpha * v_al if ok & (alpha < a_max) else zero
+                    r_q += v_q
+                    v_qx = v_q * dx
+                    r_qx += v_qx
+                    r_qxx += v_qx * dx
+                s_q += r_q
+                s_qy += r_q * dy
+                s_qyy += r_q * dy * dy
+                s_qx += r_qx
+                s_qxy += r_qx * dy
+                s_qxx += r_qxx
             out = slot_grads[k]
-            out[0] = -two * s_mx
-            out[1] = -two * s_my
-            out[2] = s_a
-            out[3] = two * s_b
-            out[4] = s_c
-            out[5] = s_o
+            # dq/dmean = -2 (conic · d); dalpha/dopacity = gauss = alpha / op where it is not clamped
+            out[0] = -two * (ca * s_qx + cbb * s_qy)
+            out[1] = -two * (cbb * s_qx + cc * s_qy)
+            out[2] = s_qxx
+            out[3] = two * s_qxy
+            out[4] = s_qyy
+            out[5] = np.float32(-2.0) * s_q / op
             out[6] = s_r
             out[7] = s_g
             out[8] = s_bl
