@@ -27,6 +27,27 @@ def test_ssim_of_identical_images_is_one_and_differentiable():
     assert torch.isfinite(pred.grad).all() and pred.grad.abs().sum() > 0
 
 
+@pytest.mark.parametrize("shape", [(32, 40, 3), (24, 24), (11, 30, 3)])
+def test_ssim_kernels_match_the_torch_ssim_and_its_gradient(shape):
+    generator = torch.Generator().manual_seed(0)
+    pred = torch.rand(shape, generator=generator, requires_grad=True)
+    target = (pred.detach() + 0.2 * torch.randn(shape, generator=generator)).clamp(0, 1)
+    fast, reference = losses.ssim(pred, target), losses.ssim_torch(pred, target)
+    assert float(fast) == pytest.approx(float(reference), abs=2e-6)
+    (g_fast,) = torch.autograd.grad(3 * fast, pred)
+    (g_reference,) = torch.autograd.grad(3 * reference, pred)
+    assert g_fast.shape == pred.shape
+    assert (g_fast - g_reference).abs().max() <= 1e-5 * g_reference.abs().max()
+
+
+def test_ssim_outside_the_kernels_is_the_torch_ssim():
+    a, b = torch.rand(16, 16, 3, dtype=torch.float64), torch.rand(16, 16, 3, dtype=torch.float64)
+    assert float(losses.ssim(a, b)) == float(losses.ssim_torch(a, b))
+    b32 = b.float().requires_grad_()  # a differentiable target
+    losses.ssim(a.float(), b32).backward()
+    assert b32.grad is not None and b32.grad.abs().sum() > 0
+
+
 def test_position_hinge_values():
     local = torch.tensor([[0.5, 0.0, 0.0], [3.0, 4.0, 0.0], [0.0, 0.0, -2.0]])
     # norms 0.5, 5, 2 -> relu(norm - 1) = 0, 4, 1

@@ -36,8 +36,53 @@ def _blur(x: torch.Tensor) -> torch.Tensor:
     return F.conv2d(F.conv2d(x, horizontal, groups=channels), vertical, groups=channels)
 
 
+class _SSIM(torch.autograd.Function):
+    """:func:`ssim_torch` by the numba kernels of :mod:`.ssim_kernels` (the prediction differentiated)."""
+
+    @staticmethod
+    def forward(ctx, pred, target):
+        import numpy as np
+
+        from . import ssim_kernels
+
+        a = np.ascontiguousarray(pred.detach().permute(2, 0, 1).numpy())
+        b = np.ascontiguousarray(target.detach().permute(2, 0, 1).numpy())
+        c, h, w = a.shape
+        radius = SSIM_RADIUS
+        derivs = np.empty((c, 3, h - 2 * radius, w - 2 * radius), np.float32)
+        total = ssim_kernels.forward(a, b, _TAPS.numpy(), np.float32(_C1), np.float32(_C2), derivs)
+        ctx.state = (a, b, derivs)
+        return pred.new_tensor(total / derivs[:, 0].size)
+
+    @staticmethod
+    def backward(ctx, grad_output):
+        import numpy as np
+
+        from . import ssim_kernels
+
+        a, b, derivs = ctx.state
+        grad = np.empty_like(a)
+        ssim_kernels.backward(a, b, _TAPS.numpy(), derivs, np.float32(float(grad_output) / derivs[:, 0].size), grad)
+        return torch.from_numpy(grad).permute(1, 2, 0), None
+
+
 def ssim(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-    """Mean SSIM of two ``(H,W,3)`` (or ``(H,W)``) images in [0,1]; differentiable."""
+    """Mean SSIM of two ``(H,W,3)`` (or ``(H,W)``) images in [0,1]; differentiable in ``pred``.
+
+    float32 CPU images of at least the window's size go through the numba kernels (forward and
+    backward about 4.5x less CPU time than torch's convolutions at 802x550); the rest through
+    :func:`ssim_torch`."""
+    fast = (pred.dtype == torch.float32 and target.dtype == torch.float32 and not target.requires_grad
+            and pred.device.type == "cpu" and min(pred.shape[:2]) > 2 * SSIM_RADIUS)
+    if not fast:
+        return ssim_torch(pred, target)
+    if pred.dim() == 2:
+        pred, target = pred[..., None], target[..., None]
+    return _SSIM.apply(pred, target)
+
+
+def ssim_torch(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """:func:`ssim` in torch operations (any dtype, both inputs differentiable): the reference."""
     if pred.dim() == 2:
         pred, target = pred[..., None], target[..., None]
     a = pred.permute(2, 0, 1)[None]
