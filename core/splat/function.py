@@ -20,14 +20,12 @@ def _np(t: torch.Tensor) -> np.ndarray:
     return np.ascontiguousarray(t.detach().numpy())
 
 
-ITEMS_PER_THREAD = 8192
+ITEMS_PER_THREAD = 65536
 
 
 class _threads:
-    """Run per-splat passes on fewer threads when they are tiny: waking a second thread costs more
-    than it saves there. With passive OpenMP waiting (``OMP_WAIT_POLICY=PASSIVE``) a second
-    thread costs nothing measurable when other processes hold the cores, so from 16k splats on
-    every thread given takes part."""
+    """Run per-splat passes on fewer threads when they are short: waking a second thread costs
+    more than it saves there, and far more when other processes hold the cores."""
 
     def __init__(self, items):
         self.count = max(1, min(numba.get_num_threads(), items // ITEMS_PER_THREAD))
