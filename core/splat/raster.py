@@ -1,8 +1,8 @@
 """Tile rasterization kernels: front-to-back alpha compositing and its backward.
 
 One tile (16x16 pixels) per parallel task. Each splat of a tile's list visits only the tile rows
-its ellipse reaches, each as one SIMD pass over the row, so thin and small splats cost about what
-they cover. The backward walks the same lists in the same order, rebuilding each pixel's
+its ellipse reaches, all of them as one SIMD loop over that run of the tile's row-major pixels (a
+loop per row cost more in its setup than in its 16 lanes). The backward walks the same lists in the same order, rebuilding each pixel's
 transmittance exactly as the forward did, and takes the light behind a splat as the pixel total
 minus what is in front of it; each (tile, splat) pair writes its own gradient slot, so no two
 threads ever write the same memory.
@@ -20,10 +20,10 @@ from .tiles import ALPHA_MIN, MAX_HALF, SIGMAS, TILE, margin, support_q
 
 T_MIN = 1e-4  # a pixel stops once its transmittance would fall below this
 ALPHA_MAX = 0.99
-NPACK = 16
+NPACK = 16  # one 64-byte line per splat (11 fields used)
 
 # packed per-splat record (float32, one 64-byte line), in depth-rank order
-MX, MY, CA, CB, CC, OP, CR, CG, CBL, DZ, QM, KX, SQS, ISYY, EY = range(15)
+MX, MY, CA, CB, CC, OP, CR, CG, CBL, DZ, EY = range(11)
 
 
 @njit(cache=True, parallel=True, nogil=True)
@@ -33,7 +33,7 @@ def pack(order, means2d, conics, cov2d, opacities, colors, depths):
     out = np.zeros((n, NPACK), np.float32)
     for r in prange(n):
         g = order[r]
-        sxx, sxy, syy = cov2d[g, 0], cov2d[g, 1], cov2d[g, 2]
+        syy = cov2d[g, 2]
         qm = margin(support_q(np.float64(opacities[g])))
         out[r, MX] = means2d[g, 0]
         out[r, MY] = means2d[g, 1]
@@ -45,10 +45,6 @@ def pack(order, means2d, conics, cov2d, opacities, colors, depths):
         out[r, CG] = colors[g, 1]
         out[r, CBL] = colors[g, 2]
         out[r, DZ] = depths[g]
-        out[r, QM] = qm
-        out[r, KX] = sxy / syy
-        out[r, SQS] = min(math.sqrt(max(sxx - sxy * sxy / syy, 0.0)), MAX_HALF)
-        out[r, ISYY] = 1.0 / syy
         out[r, EY] = min(math.sqrt(qm * syy), MAX_HALF)
     return out
 
@@ -70,18 +66,6 @@ def _rows(p, y0, y1):
     i0 = max(int(math.ceil(max(my - ey, y0 - 1.0) - 0.5)), y0)
     i1 = min(int(math.floor(min(my + ey, y1 + 1.0) - 0.5)), y1)
     return i0, i1
-
-
-@njit(cache=True, inline="always")
-def _cols(p, dy, x0, x1):
-    rem = p[QM] - dy * dy * p[ISYY]
-    if rem < 0.0:
-        return 0, -1
-    half = math.sqrt(rem) * p[SQS]
-    xc = p[MX] + p[KX] * dy
-    j0 = max(int(math.ceil(max(xc - half, x0 - 1.0) - 0.5)), x0)
-    j1 = min(int(math.floor(min(xc + half, x1 + 1.0) - 0.5)), x1)
-    return j0, j1
 
 
 # exp(y) on [-0.575, 0]: Chebyshev fit of degree 5, in the power basis
@@ -108,10 +92,10 @@ def forward(packed, ranks, tile_offsets, tile_queue, tiles_x, width, height, bac
     """Composite every tile; writes ``rgb (H,W,3)``, ``depth``, final transmittance ``trans`` and
     ``last`` (the slot of the last splat that counted in each pixel, -1 if none).
 
-    A splat visits the tile rows its ellipse reaches and tests all pixels of such a row exactly
-    (pixels outside its support fail the tests), so the row loop is branch-free and vectorises:
-    per-pixel state lives in one buffer at fixed offsets, indices are unsigned, and a stopped
-    pixel keeps its transmittance with a negative sign. Once ``cancel[0]`` is set, each tile stops
+    A splat visits the tile rows its ellipse reaches and tests all their pixels exactly (pixels
+    outside its support fail the tests) in one branch-free loop that vectorises: per-pixel state,
+    and each lane's column and row, live in one buffer at fixed offsets, indices are unsigned,
+    and a stopped pixel (or one outside the image) keeps its transmittance with a negative sign. Once ``cancel[0]`` is set, each tile stops
     within 64 splats and the tiles not started are skipped (the caller then discards the
     image; see ``cancel.py``).
     """
@@ -124,6 +108,7 @@ def forward(packed, ranks, tile_offsets, tile_queue, tiles_x, width, height, bac
     half = np.float32(0.5)
     n = np.uint64(TILE * TILE)
     n2, n3, n4, n5 = n + n, n + n + n, n * np.uint64(4), n * np.uint64(5)
+    n6, n7 = n * np.uint64(6), n * np.uint64(7)
     for qi in prange(tile_queue.shape[0]):
         if _flag(cancel) != 0:
             continue
@@ -132,10 +117,15 @@ def forward(packed, ranks, tile_offsets, tile_queue, tiles_x, width, height, bac
         x0, y0 = tx * TILE, ty * TILE
         x1, y1 = min(x0 + TILE, width) - 1, min(y0 + TILE, height) - 1
         row_len = x1 - x0 + 1
-        # T, r, g, b, depth, last (tile-local index, as float32: exact below 2^24)
-        st = np.zeros(6 * TILE * TILE, np.float32)
-        st[:TILE * TILE] = 1.0
-        st[5 * TILE * TILE:] = -1.0
+        # T, r, g, b, depth, last (tile-local index, as float32: exact below 2^24), each lane's
+        # column and row in the tile; lanes outside the image are stopped from the start
+        st = np.zeros(8 * TILE * TILE, np.float32)
+        st[5 * TILE * TILE:6 * TILE * TILE] = -1.0
+        for m in range(TILE * TILE):
+            inside = (m % TILE < row_len) & (m // TILE <= y1 - y0)
+            st[m] = 1.0 if inside else -1.0
+            st[6 * TILE * TILE + m] = np.float32(m % TILE)
+            st[7 * TILE * TILE + m] = np.float32(m // TILE)
         n_live = row_len * (y1 - y0 + 1)
         k0 = tile_offsets[t]
         for k in range(k0, tile_offsets[t + 1]):
@@ -145,36 +135,29 @@ def forward(packed, ranks, tile_offsets, tile_queue, tiles_x, width, height, bac
             r_, g_, b_, z_ = p[CR], p[CG], p[CBL], p[DZ]
             kf = np.float32(k - k0)
             i0, i1 = _rows(p, y0, y1)
-            for i in range(i0, i1 + 1):
-                dy = np.float32(i) + half - my
-                j0, j1 = _cols(p, dy, x0, x1)
-                if j0 > j1:
-                    continue
-                qy = cc * dy * dy
-                by = c2b * dy
-                row = (i - y0) * TILE
-                stops = 0
-                base = np.uint64(row)
-                fx0 = np.float32(x0) + half - mx
-                for l in range(row_len):
-                    pix = base + np.uint64(l)
-                    dx = fx0 + np.float32(l)
-                    q = (ca * dx + by) * dx + qy
-                    alpha = min(a_max, op * _exp_neg(np.float32(-0.5) * q))
-                    tp = st[pix]
-                    t_next = tp * (one - alpha)
-                    ok = (q <= q_max) & (alpha >= a_min) & (tp > zero)
-                    stop = ok & (t_next < t_min)
-                    use = ok & (t_next >= t_min)
-                    w = alpha * tp if use else zero
-                    st[n + pix] += w * r_
-                    st[n2 + pix] += w * g_
-                    st[n3 + pix] += w * b_
-                    st[n4 + pix] += w * z_
-                    st[pix] = t_next if use else (-tp if stop else tp)
-                    st[n5 + pix] = max(st[n5 + pix], kf if use else zero - one)
-                    stops += np.int32(1) if stop else np.int32(0)
-                n_live -= stops
+            fx0 = np.float32(x0) + half - mx
+            fy0 = np.float32(y0) + half - my
+            stops = 0
+            for pu in range((i0 - y0) * TILE, (i1 - y0 + 1) * TILE):
+                pix = np.uint64(pu)
+                dx = fx0 + st[n6 + pix]
+                dy = fy0 + st[n7 + pix]
+                q = (ca * dx + c2b * dy) * dx + cc * dy * dy
+                alpha = min(a_max, op * _exp_neg(np.float32(-0.5) * q))
+                tp = st[pix]
+                t_next = tp * (one - alpha)
+                ok = (q <= q_max) & (alpha >= a_min) & (tp > zero)
+                stop = ok & (t_next < t_min)
+                use = ok & (t_next >= t_min)
+                w = alpha * tp if use else zero
+                st[n + pix] += w * r_
+                st[n2 + pix] += w * g_
+                st[n3 + pix] += w * b_
+                st[n4 + pix] += w * z_
+                st[pix] = t_next if use else (-tp if stop else tp)
+                st[n5 + pix] = max(st[n5 + pix], kf if use else zero - one)
+                stops += np.int32(1) if stop else np.int32(0)
+            n_live -= stops
             if n_live == 0 or ((k & 63) == 0 and _flag(cancel) != 0):
                 break
         for i in range(y0, y1 + 1):
@@ -200,8 +183,10 @@ def backward(packed, ranks, tile_offsets, tile_queue, tiles_x, width, height,
 
     Front to back like the forward: with ``S`` the pixel's total (colour and depth dotted with
     their gradients, minus the alpha term) and ``R_i = S - Σ_{j<=i} w_j f_j`` what lies behind
-    splat ``i``, ``dL/dalpha_i = T_i f_i - R_i / (1 - alpha_i)``. Stops as the forward does once
-    ``cancel[0]`` is set.
+    splat ``i``, ``dL/dalpha_i = T_i f_i - R_i / (1 - alpha_i)``. A pixel drops out after the
+    last splat that counted in it (saved by the forward), the tile after the last of its pixels'.
+    The rows a splat reaches are one loop, as in the forward, so its ten sums are reduced once
+    per (tile, splat) pair. Stops as the forward does once ``cancel[0]`` is set.
     """
     q_max = np.float32(SIGMAS * SIGMAS)
     a_min = np.float32(ALPHA_MIN)
@@ -213,6 +198,7 @@ def backward(packed, ranks, tile_offsets, tile_queue, tiles_x, width, height,
     nh = np.float32(-0.5)
     n = np.uint64(TILE * TILE)
     n2, n3, n4, n5, n6 = n + n, n + n + n, n * np.uint64(4), n * np.uint64(5), n * np.uint64(6)
+    n7, n8 = n * np.uint64(7), n * np.uint64(8)
     for qi in prange(tile_queue.shape[0]):
         if _flag(cancel) != 0:
             continue
@@ -220,13 +206,15 @@ def backward(packed, ranks, tile_offsets, tile_queue, tiles_x, width, height,
         ty, tx = t // tiles_x, t % tiles_x
         x0, y0 = tx * TILE, ty * TILE
         x1, y1 = min(x0 + TILE, width) - 1, min(y0 + TILE, height) - 1
-        row_len = x1 - x0 + 1
         k0 = tile_offsets[t]
-        # T, rest, dL/dr, dL/dg, dL/db, dL/ddepth, last (tile-local, float32)
-        st = np.zeros(7 * TILE * TILE, np.float32)
+        # T, rest, dL/dr, dL/dg, dL/db, dL/ddepth, last (tile-local, float32), each lane's column
+        # and row in the tile
+        st = np.zeros(9 * TILE * TILE, np.float32)
         st[:TILE * TILE] = 1.0
-        st[6 * TILE * TILE:] = -1.0
-        row_last = np.full(TILE, -1.0, np.float32)  # the last splat that counts in any pixel of a row
+        st[6 * TILE * TILE:7 * TILE * TILE] = -1.0
+        for m in range(TILE * TILE):
+            st[7 * TILE * TILE + m] = np.float32(m % TILE)
+            st[8 * TILE * TILE + m] = np.float32(m // TILE)
         k_end = k0
         for i in range(y0, y1 + 1):
             for j in range(x0, x1 + 1):
@@ -241,7 +229,6 @@ def backward(packed, ranks, tile_offsets, tile_queue, tiles_x, width, height,
                 if last[i, j] >= 0:
                     lf = np.float32(last[i, j] - k0)
                     st[n6 + pix] = lf
-                    row_last[i - y0] = max(row_last[i - y0], lf)
                 k_end = max(k_end, last[i, j] + 1)
         for k in range(k0, k_end):
             if (k & 63) == 0 and _flag(cancel) != 0:
@@ -251,7 +238,6 @@ def backward(packed, ranks, tile_offsets, tile_queue, tiles_x, width, height,
             ca, cbb, cc, op = p[CA], p[CB], p[CC], p[OP]
             cr, cg, cbl, cz = p[CR], p[CG], p[CBL], p[DZ]
             kf = np.float32(k - k0)
-            # over the rows: Σ v_q, Σ v_q·dy, Σ v_q·dy², Σ v_q·dx, Σ v_q·dx·dy, Σ v_q·dx²
             s_q = zero
             s_qy = zero
             s_qyy = zero
@@ -263,54 +249,42 @@ def backward(packed, ranks, tile_offsets, tile_queue, tiles_x, width, height,
             s_bl = zero
             s_z = zero
             i0, i1 = _rows(p, y0, y1)
-            for i in range(i0, i1 + 1):
-                if kf > row_last[i - y0]:
-                    continue
-                dy = np.float32(i) + half - my
-                j0, j1 = _cols(p, dy, x0, x1)
-                if j0 > j1:
-                    continue
-                qy = cc * dy * dy
-                by = two * cbb * dy
-                row = (i - y0) * TILE
-                base = np.uint64(row)
-                fx0 = np.float32(x0) + half - mx
-                # within a row dy is constant, so three sums of v_q carry every conic and mean term
-                r_q = zero
-                r_qx = zero
-                r_qxx = zero
-                for l in range(row_len):
-                    pix = base + np.uint64(l)
-                    dx = fx0 + np.float32(l)
-                    q = (ca * dx + by) * dx + qy
-                    alpha = min(a_max, op * _exp_neg(nh * q))
-                    ok = (q <= q_max) & (alpha >= a_min) & (kf <= st[n6 + pix])
-                    tp = st[pix]
-                    gr = st[n2 + pix]
-                    gg = st[n3 + pix]
-                    gb = st[n4 + pix]
-                    gd = st[n5 + pix]
-                    w = alpha * tp if ok else zero
-                    f = cr * gr + cg * gg + cbl * gb + cz * gd
-                    r = st[n + pix] - w * f
-                    st[n + pix] = r
-                    st[pix] = tp * (one - alpha) if ok else tp
-                    s_r += w * gr
-                    s_g += w * gg
-                    s_bl += w * gb
-                    s_z += w * gd
-                    v_al = tp * f - r / (one - alpha)
-                    v_q = nh * alpha * v_al if ok & (alpha < a_max) else zero
-                    r_q += v_q
-                    v_qx = v_q * dx
-                    r_qx += v_qx
-                    r_qxx += v_qx * dx
-                s_q += r_q
-                s_qy += r_q * dy
-                s_qyy += r_q * dy * dy
-                s_qx += r_qx
-                s_qxy += r_qx * dy
-                s_qxx += r_qxx
+            fx0 = np.float32(x0) + half - mx
+            fy0 = np.float32(y0) + half - my
+            # the rows i0..i1 are one run of the tile's row-major state: one loop over all their
+            # lanes (lanes right of the image have no last splat and count nowhere), so the sums
+            # are reduced once per (tile, splat) pair
+            for pu in range((i0 - y0) * TILE, (i1 - y0 + 1) * TILE):
+                pix = np.uint64(pu)
+                dx = fx0 + st[n7 + pix]
+                dy = fy0 + st[n8 + pix]
+                q = (ca * dx + two * cbb * dy) * dx + cc * dy * dy
+                alpha = min(a_max, op * _exp_neg(nh * q))
+                ok = (q <= q_max) & (alpha >= a_min) & (kf <= st[n6 + pix])
+                tp = st[pix]
+                gr = st[n2 + pix]
+                gg = st[n3 + pix]
+                gb = st[n4 + pix]
+                gd = st[n5 + pix]
+                w = alpha * tp if ok else zero
+                f = cr * gr + cg * gg + cbl * gb + cz * gd
+                r = st[n + pix] - w * f
+                st[n + pix] = r
+                st[pix] = tp * (one - alpha) if ok else tp
+                s_r += w * gr
+                s_g += w * gg
+                s_bl += w * gb
+                s_z += w * gd
+                v_al = tp * f - r / (one - alpha)
+                v_q = nh * alpha * v_al if ok & (alpha < a_max) else zero
+                v_qx = v_q * dx
+                v_qy = v_q * dy
+                s_q += v_q
+                s_qx += v_qx
+                s_qy += v_qy
+                s_qxx += v_qx * dx
+                s_qxy += v_qx * dy
+                s_qyy += v_qy * dy
             out = slot_grads[k]
             # dq/dmean = -2 (conic · d); dalpha/dopacity = gauss = alpha / op where it is not clamped
             out[0] = -two * (ca * s_qx + cbb * s_qy)
