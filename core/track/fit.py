@@ -82,6 +82,7 @@ class FitSettings:
     focal_prior: float = 4.0  # of log(f / f_phone)²
     smooth: float = 3.0  # of the second differences (per frame²) of pose and expression
     seed: int = 0
+    shape: np.ndarray | None = None  # held fixed when given (an avatar's identity: a performance drives it)
 
 
 @dataclasses.dataclass
@@ -174,7 +175,7 @@ def fit_landmarks(model: FlameModel, observations: Observations, settings: FitSe
     lens = (sizes.norm(dim=1) / math.hypot(obs.width, obs.height))[:, None, None]  # each frame's focal / the first's
 
     log_focal = torch.tensor(math.log(settings.focal or phone), dtype=d, requires_grad=settings.focal is None)
-    shape = torch.zeros(1, model.n_shape, dtype=d, requires_grad=True)
+    shape = _start_shape(settings.shape, model.n_shape)
     expr = torch.zeros(frames, model.n_expr, dtype=d, requires_grad=True)
     jaw = torch.zeros(frames, 3, dtype=d, requires_grad=True)
     rotation = torch.zeros(frames, 3, dtype=d, requires_grad=True)
@@ -213,7 +214,8 @@ def fit_landmarks(model: FlameModel, observations: Observations, settings: FitSe
         translation_cm.copy_(100 * _placed(head(shape, expr, rotation, jaw, translation_cm), points, weight,
                                           torch.exp(log_focal) * lens[:, 0, 0], centre[:, 0], w2c))
     stages = (([rotation, translation_cm], True, max(settings.steps // 4, 1)),
-              ([shape, expr, jaw, rotation, translation_cm] + ([log_focal] if settings.focal is None else []), False,
+              ([shape] * shape.requires_grad + [expr, jaw, rotation, translation_cm]
+               + ([log_focal] if settings.focal is None else []), False,
                settings.steps))
     done = 0
     for unknowns, rigid_only, steps in stages:
@@ -242,6 +244,14 @@ def fit_landmarks(model: FlameModel, observations: Observations, settings: FitSe
               "rotation": rotation.detach().numpy(), "neck_pose": zeros, "jaw_pose": jaw.detach().numpy(),
               "eyes_pose": np.zeros((frames, 6)), "translation": translation_cm.detach().numpy() / 100}
     return Fit(params, camera, _rms(residual, weight).numpy(), seen.numpy(), obs.sizes)
+
+
+def _start_shape(fixed, count: int) -> torch.Tensor:
+    """``(1, count)``: zeros to fit, or the given identity held fixed (cut or padded to ``count``)."""
+    if fixed is None:
+        return torch.zeros(1, count, dtype=torch.float64, requires_grad=True)
+    values = np.asarray(fixed, np.float64).reshape(-1)[:count]
+    return torch.as_tensor(np.pad(values, (0, count - len(values))), dtype=torch.float64)[None]
 
 
 def _placed(rest: torch.Tensor, points: torch.Tensor, weight: torch.Tensor, focal: torch.Tensor, centre: torch.Tensor,
