@@ -8,7 +8,8 @@ import pytest
 
 from mogaface.core.errors import InputError
 from mogaface.core.io.npz import load_npz, save_npz
-from mogaface.core.track.drive import DriveSettings, Identity, drive_clip, put_on_rest, retime, thin_channel, thinned
+from mogaface.core.scene.tracking import thin_channel, thinned
+from mogaface.core.track.drive import DriveSettings, Identity, drive_clip, put_on_rest, retime
 
 
 def test_retiming_keeps_the_span_and_samples_the_motion_linearly():

@@ -10,7 +10,8 @@ import pathlib
 def add_arguments(parser) -> None:
     from ..track.decode import add_footage_arguments
 
-    parser.add_argument("input", type=pathlib.Path, help="a video file (mp4, mov, …) or a folder of photos")
+    parser.add_argument("input", type=pathlib.Path, nargs="+",
+                        help="a video file (mp4, mov, …), a folder of photos, or several photos")
     parser.add_argument("--out", type=pathlib.Path, required=True,
                         help="capture folder to write (new or empty; an interrupted track of the same input resumes)")
     add_footage_arguments(parser)
@@ -65,9 +66,10 @@ def run(args) -> int:
     from ..track.fit import FitSettings
     from ..track.pipeline import TrackSettings, track_footage
 
-    if args.input.resolve() in (args.out.resolve(), *args.out.resolve().parents):
+    source = args.input[0] if len(args.input) == 1 else list(args.input)
+    if any(path.resolve() in (args.out.resolve(), *args.out.resolve().parents) for path in args.input):
         raise InputError(args.out, None, "the capture folder must not hold the input")
-    info = open_footage(args.input).info
+    info = open_footage(source).info
     for line in info.lines():
         print(line)
     focal = args.focal if args.focal is not None else focal_in_pixels(args.focal_35mm, info.width, info.height)
@@ -75,7 +77,7 @@ def run(args) -> int:
                              fit=FitSettings(steps=args.fit_steps), head_file=args.head)
     progress, close = progress_reporter(args)
     try:
-        report = track_footage(args.input, args.out, settings, selection_from_arguments(args), progress)
+        report = track_footage(source, args.out, settings, selection_from_arguments(args), progress)
     except BaseException:
         close()
         raise

@@ -5,9 +5,9 @@ files (the folder ``render --params`` and Blender's Import Tracking read).
 The head's motion is carried over relative to the performer's mean pose and put on the avatar's
 rest pose (its first tracked timestep, or the pose a Blender head shows), so a performance filmed
 at arm's length drives an avatar captured by a dome; with ``keep_head_still`` the avatar keeps its
-rest pose and only the face moves. Keys are thinned within a tolerance (:func:`thin_channel`, the
-same for the command line's files and Blender's F-curves), so a scene carries only the keys that
-matter and both play the same values.
+rest pose and only the face moves. Keys are thinned within a tolerance
+(:func:`~..scene.tracking.thin_channel`: the same for the command line's files and Blender's
+F-curves), so a scene carries only the keys that matter and both play the same values.
 """
 
 from __future__ import annotations
@@ -20,7 +20,6 @@ import tempfile
 import numpy as np
 
 from ..errors import InputError
-from .fit import FitSettings
 
 #: The per-frame channels a performance carries (FLAME names), identity excluded.
 CHANNELS = ("expr", "rotation", "neck_pose", "jaw_pose", "eyes_pose", "translation")
@@ -129,43 +128,6 @@ def put_on_rest(params: dict, rest: dict, seen: np.ndarray | None = None, keep_h
     return out
 
 
-def thin_channel(values: np.ndarray, tolerance: float) -> np.ndarray:
-    """Indices of the keys of one channel ``(T,)`` to keep so that linear interpolation between them
-    stays within ``tolerance`` of every value (Ramer-Douglas-Peucker); the ends are always kept."""
-    values = np.asarray(values, np.float64)
-    count = len(values)
-    if count <= 2 or tolerance <= 0:
-        return np.arange(count)
-    keep = np.zeros(count, bool)
-    keep[[0, -1]] = True
-    stack = [(0, count - 1)]
-    while stack:
-        low, high = stack.pop()
-        if high - low < 2:
-            continue
-        inside = np.arange(low + 1, high)
-        line = values[low] + (values[high] - values[low]) * (inside - low) / (high - low)
-        error = np.abs(values[inside] - line)
-        worst = int(np.argmax(error))
-        if error[worst] > tolerance:
-            middle = int(inside[worst])
-            keep[middle] = True
-            stack += [(low, middle), (middle, high)]
-    return np.nonzero(keep)[0]
-
-
-def thinned(values: np.ndarray, tolerance: float) -> tuple[np.ndarray, int]:
-    """``values (T,n)`` as their thinned keys play them back (linear between kept keys), and the keys kept."""
-    values = np.asarray(values, np.float64).reshape(len(values), -1)
-    out, keys = np.empty_like(values), 0
-    steps = np.arange(len(values))
-    for i in range(values.shape[1]):
-        kept = thin_channel(values[:, i], tolerance)
-        out[:, i] = np.interp(steps, kept, values[kept, i])
-        keys += len(kept)
-    return out, keys
-
-
 # -- the drive ---------------------------------------------------------------------------------
 @dataclasses.dataclass
 class DriveSettings:
@@ -184,6 +146,8 @@ def drive_clip(clip, identity: Identity, out, settings: DriveSettings = DriveSet
     ``capture``: keep the tracked capture there (default: a temporary folder, removed).
     ``progress(stage, done, total)`` as :func:`~.pipeline.track_footage` calls it."""
     from ..io.atomic import check_output_target
+    from ..scene.tracking import read_tracking
+    from .fit import FitSettings
     from .pipeline import TrackSettings, track_footage
 
     out = pathlib.Path(out)
@@ -196,8 +160,6 @@ def drive_clip(clip, identity: Identity, out, settings: DriveSettings = DriveSet
         track = TrackSettings(size=settings.size, threads=settings.threads, head_file=identity.head_file,
                               fit=FitSettings(steps=settings.fit_steps, shape=identity.shape))
         report = track_footage(clip, tracked, track, selection, progress)
-        from ..scene.tracking import read_tracking
-
         performance = read_tracking(tracked / "flame_param").params
         clip_fps = float(report.get("fps") or 0) or (settings.fps or 30.0)
         result = performance_frames(performance, report["lost_frames"], clip_fps, identity, settings)
@@ -221,6 +183,8 @@ def performance_frames(performance: dict, lost: list[int], clip_fps: float, iden
                        settings: DriveSettings) -> dict:
     """A tracked performance (``(T,n)`` per channel at ``clip_fps``) as the frames the avatar plays:
     put on its rest pose, retimed, thinned; with what ``drive.json`` says of it."""
+    from ..scene.tracking import thinned
+
     frames = len(performance["expr"])
     seen = np.ones(frames, bool)
     seen[[t for t in lost if t < frames]] = False
@@ -252,3 +216,28 @@ def write_performance(folder: pathlib.Path, params: dict, identity: Identity) ->
             frame["static_offset"] = identity.static_offset[None].astype(np.float32)
         save_npz(folder / f"{t:05d}.npz", frame)
     return count
+
+
+def write_identity(path, shape, static_offset=None, rest: dict | None = None) -> None:
+    """An identity file for :meth:`Identity.of`: a head's ``shape`` (and static offset), and the
+    pose it rests in (``rotation``, ``neck_pose``, ``translation``): what a Blender head shows."""
+    from ..io.npz import save_npz
+
+    arrays = {"shape": np.asarray(shape, np.float64).reshape(-1)}
+    if static_offset is not None:
+        arrays["static_offset"] = np.asarray(static_offset, np.float64).reshape(-1, 3)
+    for name in HEAD_MOTION:
+        arrays[name] = np.asarray((rest or {}).get(name, np.zeros(3)), np.float64).reshape(3)
+    save_npz(path, arrays)
+
+
+def folder_beside(source, suffix: str) -> pathlib.Path:
+    """A new folder's path beside the footage ``source``: ``clip_capture``, else ``clip_capture_2``, …
+    (Blender's Track Footage and Drive from Footage write there unless told where)."""
+    source = pathlib.Path(source)
+    base = source.parent / f"{source.stem if source.is_file() else source.name}_{suffix}"
+    candidate, number = base, 1
+    while candidate.exists():
+        number += 1
+        candidate = base.with_name(f"{base.name}_{number}")
+    return candidate
