@@ -94,7 +94,7 @@ say "the extension in a window: dependencies, import, train, render, export"
 xvfb-run -a -s "-screen 0 1600x1000x24" blender --enable-event-simulate --python /src/tests/real_blender/ui_check.py -- \
     '{"work": "/work", "images": "/work/images", "capture": "/work/capture", "head": "/work/head.npz",
       "torch_index": "$torch_index", "system_torch": $([ "$system_torch" = yes ] && echo true || echo false),
-      "steps": 150, "footage": "/work/footage/footage/clip.mp4",
+      "steps": 300, "footage": "/work/footage/footage/clip.mp4",
       "performance": "/work/performance-clip/footage/clip.mp4"}'
 python3 -c "import json, sys; r = json.load(open('/work/results.json')); print(json.dumps(r, indent=1)); sys.exit(0 if r.get('ok') else 1)"
 say "headless: --factory-startup, then a .blend"

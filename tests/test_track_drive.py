@@ -85,3 +85,25 @@ def test_a_clip_drives_an_identity_with_its_shape_held_fixed(handheld, procedura
         drive_clip(handheld / "footage" / "clip.mp4", identity, out)
     with pytest.raises(InputError, match="head model"):
         Identity.of(tmp_path / "identity.npz")
+
+
+def test_the_commands_write_progress_events_and_drive_a_tracked_capture(handheld, tmp_path, capsys):
+    from mogaface.core.cli import main
+
+    clip, capture, events = handheld / "footage" / "clip.mp4", tmp_path / "capture", tmp_path / "events.jsonl"
+    assert main(["track", str(clip), "--out", str(capture), "--size", "112", "--fit-steps", "3", "--quiet",
+                 "--events", str(events)]) == 0
+    lines = [json.loads(line) for line in events.read_text().splitlines()]
+    assert {e["stage"] for e in lines if e["event"] == "iter"} == {"detect", "fit", "write"}
+    assert all(e["eta_s"] is not None and e["eta_s"] >= 0 for e in lines if e["event"] == "iter")
+    assert lines[-1]["event"] == "done" and lines[-1]["frames"] == 12
+    out = tmp_path / "performance"
+    assert main(["drive", str(clip), "--avatar", str(capture), "--out", str(out), "--size", "112", "--fit-steps",
+                 "3", "--to-fps", "15", "--keep-head-still", "--quiet"]) == 0
+    assert "drove 6 frames at 15 fps" in capsys.readouterr().out
+    rest = load_npz(capture / "flame_param" / "00000.npz")
+    for t in (0, 5):
+        frame = load_npz(out / f"{t:05d}.npz")
+        for name in ("shape", "rotation", "translation"):  # the capture's identity, held at its first pose
+            np.testing.assert_allclose(frame[name].reshape(-1), rest[name].reshape(-1), atol=1e-6)
+    assert main(["drive", str(clip), "--avatar", str(capture), "--out", str(tmp_path / "x"), "--tolerance", "-1"]) == 2

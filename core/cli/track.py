@@ -38,6 +38,7 @@ def progress_reporter(args):
     log = EventLog(args.events) if getattr(args, "events", None) else None
     bars: dict = {}
     started: dict = {}
+    last = [time.monotonic()]  # a stage starts when the one before it ended (the first: now)
 
     def progress(stage, done, total):
         if not args.quiet:
@@ -46,7 +47,8 @@ def progress_reporter(args):
             bar.update(done - bar.done)
         if log is not None:
             now = time.monotonic()
-            first = started.setdefault(stage, (now, done))
+            first = started.setdefault(stage, (last[0], 0))
+            last[0] = now
             rate = (done - first[1]) / (now - first[0]) if now > first[0] and done > first[1] else None
             log.emit("iter", stage=stage, step=int(done), steps=int(max(total, done, 1)),
                      eta_s=None if rate is None else (max(total, done) - done) / rate)
