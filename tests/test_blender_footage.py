@@ -66,6 +66,20 @@ def test_lost_frames_become_markers_and_a_report_line(tracked):
     footage.mark_lost_frames(scene, [])
 
 
+def test_footage_comes_from_a_movie_clip_of_the_file_or_the_files_picked(tracked):
+    from types import SimpleNamespace
+
+    footage = importlib.import_module(MODULE + ".operators.footage")
+    clip = bpy.data.movieclips.load(str(tracked["clip"]), check_existing=True)
+    picked = SimpleNamespace(movie_clip=clip.name, directory="", files=[], filepath="")
+    assert footage.footage_paths(picked) == [str(tracked["clip"])]
+    photos = SimpleNamespace(movie_clip="", directory="/photos/", filepath="/photos/a.jpg",
+                             files=[SimpleNamespace(name="a.jpg"), SimpleNamespace(name="b.jpg")])
+    assert footage.footage_paths(photos) == ["/photos/a.jpg", "/photos/b.jpg"]
+    photos.files = []
+    assert footage.footage_paths(photos) == ["/photos/a.jpg"]
+
+
 def test_drive_from_footage_keys_the_performance_at_the_scene_rate(tracked, tmp_path):
     scene, head = bpy.context.scene, tracked["head"]
     scene.render.fps, scene.render.fps_base = 24, 1.0
@@ -96,9 +110,25 @@ def test_footage_errors_are_reported(tracked, tmp_path):
     with pytest.raises(RuntimeError, match="not a MoGaFace head"):
         bpy.ops.mogaface.drive_from_footage(filepath=str(tracked["clip"]))
     bpy.context.view_layer.objects.active = tracked["head"]
-    (tmp_path / "not_a_video.mp4").write_bytes(b"nothing")
-    with pytest.raises(RuntimeError, match="not_a_video"):
-        bpy.ops.mogaface.track_footage(filepath=str(tmp_path / "not_a_video.mp4"), out=str(tmp_path / "c"))
+
+
+def test_cancel_stops_the_tracking_child_and_leaves_no_capture(tracked, tmp_path):
+    """The panel's Cancel sends the child SIGINT: it stops where it is (here in a long fit), and the folder
+    has no split file (no reader takes it; Track Footage on the same folder resumes from its detections)."""
+    import time
+
+    from mogaface.core.worker import FootageWorker, track_command
+
+    out = tmp_path / "capture"
+    worker = FootageWorker(track_command(None, [tracked["clip"]], out, tmp_path, size=112, fit_steps=5000), tmp_path)
+    worker.start()
+    started = time.monotonic()
+    while worker.poll().step < 1 and not worker.progress.finished and time.monotonic() - started < 60:
+        time.sleep(0.05)
+    worker.cancel()
+    progress = worker.wait(interval=0.1, timeout=60)
+    assert progress.state == "cancelled", progress
+    assert out.is_dir() and not (out / "transforms_train.json").exists()
 
 
 def test_disabling_leaves_no_footage_operator(tracked):

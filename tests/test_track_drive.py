@@ -9,7 +9,7 @@ import pytest
 from mogaface.core.errors import InputError
 from mogaface.core.io.npz import load_npz, save_npz
 from mogaface.core.scene.tracking import thin_channel, thinned
-from mogaface.core.track.drive import DriveSettings, Identity, drive_clip, put_on_rest, retime
+from mogaface.core.track.drive import Identity, drive_clip, put_on_rest, retime
 
 
 def test_retiming_keeps_the_span_and_samples_the_motion_linearly():
@@ -58,36 +58,9 @@ def test_the_head_moves_relative_to_the_performers_mean_pose_onto_the_avatars_re
     np.testing.assert_array_equal(still["jaw_pose"], params["jaw_pose"])
 
 
-def test_a_clip_drives_an_identity_with_its_shape_held_fixed(handheld, procedural_head_pkl, tmp_path):
-    shape = np.zeros(300)
-    shape[:5] = [1.5, -1.0, 0.5, 0.8, -0.3]
-    rest = np.array([0.0, 0.2, 0.0])
-    save_npz(tmp_path / "identity.npz", {"shape": shape, "rotation": rest})
-    identity = Identity.of(tmp_path / "identity.npz", procedural_head_pkl)
-    out = tmp_path / "performance"
-    result = drive_clip(handheld / "footage" / "clip.mp4", identity, out,
-                        DriveSettings(fps=20.0, keep_head_still=True, tolerance=0.001, fit_steps=5, size=None),
-                        capture=tmp_path / "tracked")
-    assert result["frames"] == 8 and result["fps"] == 20.0 and result["clip_fps"] == 30.0  # 12 frames at 30 fps
-    report = json.loads((out / "drive.json").read_text())
-    assert report["frames"] == 8 and report["keys"] <= report["keys_dense"]
-    files = sorted(out.glob("*.npz"))
-    assert [f.stem for f in files] == [f"{t:05d}" for t in range(8)]
-    tracked = load_npz(tmp_path / "tracked" / "flame_param" / "00000.npz")
-    n_shape = tracked["shape"].reshape(-1).shape[0]
-    np.testing.assert_allclose(tracked["shape"].reshape(-1), shape[:n_shape], atol=1e-6)  # held, not fitted
-    frame = load_npz(files[3])
-    np.testing.assert_allclose(frame["shape"].reshape(-1), shape, atol=1e-6)
-    np.testing.assert_allclose(frame["rotation"].reshape(-1), rest, atol=1e-6)  # kept still on the rest pose
-    expr = np.stack([load_npz(f)["expr"].reshape(-1) for f in files])
-    assert np.abs(expr).max() > 0 and not np.allclose(expr[0], expr[-1])  # the face moves
-    with pytest.raises(InputError, match="not empty"):
-        drive_clip(handheld / "footage" / "clip.mp4", identity, out)
-    with pytest.raises(InputError, match="head model"):
-        Identity.of(tmp_path / "identity.npz")
-
-
 def test_the_commands_write_progress_events_and_drive_a_tracked_capture(handheld, tmp_path, capsys):
+    """``track`` with ``--events``; then ``drive`` of the clip onto that capture: its shape held fixed
+    (not fitted again), its first pose kept, retimed to 15 fps."""
     from mogaface.core.cli import main
 
     clip, capture, events = handheld / "footage" / "clip.mp4", tmp_path / "capture", tmp_path / "events.jsonl"
@@ -99,11 +72,25 @@ def test_the_commands_write_progress_events_and_drive_a_tracked_capture(handheld
     assert lines[-1]["event"] == "done" and lines[-1]["frames"] == 12
     out = tmp_path / "performance"
     assert main(["drive", str(clip), "--avatar", str(capture), "--out", str(out), "--size", "112", "--fit-steps",
-                 "3", "--to-fps", "15", "--keep-head-still", "--quiet"]) == 0
+                 "3", "--to-fps", "15", "--keep-head-still", "--tolerance", "0.001", "--quiet", "--capture",
+                 str(tmp_path / "tracked")]) == 0
     assert "drove 6 frames at 15 fps" in capsys.readouterr().out
+    report = json.loads((out / "drive.json").read_text())
+    assert report["frames"] == 6 and report["clip_fps"] == 30.0 and report["keys"] < report["keys_dense"]
     rest = load_npz(capture / "flame_param" / "00000.npz")
+    held = load_npz(tmp_path / "tracked" / "flame_param" / "00000.npz")["shape"]
+    np.testing.assert_allclose(held.reshape(-1), rest["shape"].reshape(-1), atol=1e-6)  # held, not fitted
     for t in (0, 5):
         frame = load_npz(out / f"{t:05d}.npz")
         for name in ("shape", "rotation", "translation"):  # the capture's identity, held at its first pose
             np.testing.assert_allclose(frame[name].reshape(-1), rest[name].reshape(-1), atol=1e-6)
+    expr = np.stack([load_npz(out / f"{t:05d}.npz")["expr"].reshape(-1) for t in range(6)])
+    assert not np.allclose(expr[0], expr[-1])  # the face moves
     assert main(["drive", str(clip), "--avatar", str(capture), "--out", str(tmp_path / "x"), "--tolerance", "-1"]) == 2
+    with pytest.raises(InputError, match="not empty"):
+        drive_clip(clip, Identity.of(capture), out)
+    save_npz(tmp_path / "identity.npz", {"shape": np.zeros(3), "rotation": np.zeros(2)})
+    with pytest.raises(InputError, match="head model"):
+        Identity.of(tmp_path / "identity.npz")
+    with pytest.raises(InputError, match="rotation"):
+        Identity.of(tmp_path / "identity.npz", capture / "head.pkl")
