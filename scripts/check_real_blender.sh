@@ -15,7 +15,11 @@
 # viewport and in F12; the pixels of each place read back against the core render, one line each
 # ("pixels PLACE: X dB against the core render"; below 35 dB under Standard fails), with
 # screenshots under AgX and Standard; disable the extension (F12 without the avatar, the head a
-# mesh again, no threads left) and enable it again; headless: scripts/mogaface_blend.py with
+# mesh again, no threads left) and enable it again; Drive from Footage on the trained avatar with
+# another subject's clip (the keys equal the tracker's parameters, two rendered frames each the core
+# render of its keys) and Track Footage of a phone clip (the movie behind the camera, the head's
+# landmarks read back from Blender against the tracker's fit, its F12 silhouette against the
+# person's mask, the interface timed while each child runs); headless: scripts/mogaface_blend.py with
 # --factory-startup, with a .blend, and training with the demo preset (scored with LPIPS); then
 # disable and remove the extension (its user folder must be gone).
 #

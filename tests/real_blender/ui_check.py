@@ -598,7 +598,7 @@ def drive_from_footage_stages(head):
         result = bpy.ops.mogaface.drive_from_footage("INVOKE_DEFAULT", filepath=ARGS["performance"], out=str(out),
                                                      target=head.name, tolerance=0.001, size=160, fit_steps=60)
         check(result == {"RUNNING_MODAL"}, f"drive from footage gave {result}")
-    yield from follow_footage_job("drive from footage", "9-drive-from-footage")
+    yield from follow_footage_job("drive from footage", "12-drive-from-footage")
     performance = module("core.scene.tracking").read_tracking(out)
     n_expr = performance.params["expr"].shape[1]
     worst = 0.0
@@ -660,7 +660,7 @@ def track_footage_stages(avatar_head):
         result = bpy.ops.mogaface.track_footage("INVOKE_DEFAULT", filepath=ARGS["footage"], out=str(out), size=160,
                                                 fit_steps=100)
         check(result == {"RUNNING_MODAL"}, f"track footage gave {result}")
-    yield from follow_footage_job("track footage", "10-tracking-footage")
+    yield from follow_footage_job("track footage", "13-tracking-footage")
     report = json.loads((out / "tracking.json").read_text())
     head, camera = bpy.context.view_layer.objects.active, scene.camera
     check(module("operators.handlers.head_rig").is_head(head), "Track Footage left no head active")
@@ -727,10 +727,12 @@ def track_footage_stages(avatar_head):
     check_at_end(iou > 0.6, f"the tracked head's silhouette covers the person's mask poorly: IoU {iou:.3f}")
     window, area, _ = window_and_view()
     area.spaces.active.region_3d.view_perspective = "CAMERA"
+    head.display_type = "WIRE"  # the footage seen through the tracked head, as a user checks the fit
     area.tag_redraw()
     yield from show_panel()
     yield 1.0
-    shot("11-tracked-head-over-footage")
+    shot("14-tracked-head-over-footage")
+    head.display_type = "TEXTURED"
     stage("Track Footage: the camera, the keyed head over the movie, read back from Blender")
 
 
