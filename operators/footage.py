@@ -17,6 +17,7 @@ import tempfile
 
 import bpy
 from bpy.props import BoolProperty, CollectionProperty, FloatProperty, IntProperty, StringProperty
+from bpy_extras.io_utils import ImportHelper
 
 from .common import dependencies_ready, run_core
 from .dependencies import FILE_MODULES, interpreter, worker_paths
@@ -97,8 +98,9 @@ def show_movie_behind(camera_object, path: str, first_frame: int):
     return clip
 
 
-class _FootageJob(FollowsChildJob):
-    """What both operators share: the footage they are given, the child they start."""
+class _FootageJob(ImportHelper, FollowsChildJob):
+    """What both operators share: the footage they are given (Blender's import file browser: one or
+    several files, or a folder), the child they start."""
 
     filepath: StringProperty(name="Footage", subtype="FILE_PATH",
                              description="A video file (mp4, mov, …) or a folder of photos")
