@@ -58,6 +58,7 @@ MODULE = "bl_ext.user_default.mogaface"
 CLASS_NAMES = (
     "MOGAFACE_OT_import_capture", "MOGAFACE_OT_use_capture_camera", "MOGAFACE_OT_import_head",
     "MOGAFACE_OT_import_tracking", "MOGAFACE_OT_improve_tracking", "MOGAFACE_OT_improve_tracking_cancel",
+    "MOGAFACE_OT_track_footage", "MOGAFACE_OT_drive_from_footage", "MOGAFACE_OT_footage_cancel",
     "MOGAFACE_OT_train", "MOGAFACE_OT_train_cancel", "MOGAFACE_OT_load_avatar",
     "MOGAFACE_OT_render_frame", "MOGAFACE_OT_render_animation", "MOGAFACE_OT_export_ply",
     "MOGAFACE_OT_render_cancel", "MOGAFACE_OT_setup_render_layer", "MOGAFACE_OT_gaussians_to_mesh",
@@ -412,6 +413,13 @@ class RecordingLayout:
         self.log.append(("operator", idname, self.enabled))
         return type("Properties", (), {})()
 
+    def prop_search(self, data, name, search_data, search_name, **kwargs):
+        assert name in data.bl_rna.properties and hasattr(search_data, search_name), name
+        self.log.append(("prop", name))
+
+    def separator(self, **kwargs):
+        pass
+
     def template_list(self, *args, **kwargs):
         self.log.append(("template_list",))
 
@@ -428,8 +436,10 @@ def test_panels_draw_every_section_and_name_missing_packages(scenario, monkeypat
     bpy.context.view_layer.objects.active = scenario["head_object"]
     log = draw_panels([name for name in CLASS_NAMES if "_PT_" in name])
     assert ("label", "Python packages: ready", True) in log
-    for idname in ("mogaface.import_capture", "mogaface.import_head", "mogaface.import_tracking"):
+    for idname in ("mogaface.import_capture", "mogaface.import_head", "mogaface.import_tracking",
+                   "mogaface.track_footage", "mogaface.drive_from_footage"):
         assert ("operator", idname, True) in log
+    assert ("prop", "footage_clip") in log and ("prop", "drive_tolerance") in log
     assert ("prop", '["mogaface_jaw_pose"]') in log and ("prop", "run_folder") in log
     for idname in ("mogaface.train", "mogaface.load_avatar", "mogaface.render_frame", "mogaface.export_ply"):
         assert ("operator", idname, True) in log

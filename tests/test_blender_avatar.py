@@ -379,16 +379,20 @@ def test_headless_script_help():
     assert result.returncode == 0 and "--blend" in result.stdout and "--train" in result.stdout
 
 
-def test_headless_script_builds_a_scene_that_reopens_with_everything(scene, tmp_path):
+def test_headless_script_builds_a_scene_that_reopens_with_everything(scene, tmp_path, handheld):
+    """Trained, then driven by a performance clip (tracked with the avatar's shape), rendered, saved."""
     blend, frames = tmp_path / "scene.blend", tmp_path / "frames"
     env = {**os.environ, **{name: str(tmp_path / "user") for name in addon_test._USER_VARS}}
     result = subprocess.run(
         [sys.executable, str(SCRIPT), str(scene["capture"]), "--run", str(tmp_path / "run"), "--train",
          "--preset", "quick", "--steps", "5", "--blend", str(blend), "--render-dir", str(frames),
-         "--frames", "2", "4"],
-        capture_output=True, text=True, timeout=120, env=env,
+         "--frames", "2", "4", "--drive", str(handheld / "footage" / "clip.mp4"), "--drive-out",
+         str(tmp_path / "performance"), "--fps", "15", "--fit-steps", "5", "--track-size", "112"],
+        capture_output=True, text=True, timeout=180, env=env,
     )
     assert result.returncode == 0, result.stdout + result.stderr
+    performance = read_tracking(tmp_path / "performance")
+    assert len(performance.frames) == 6  # 12 frames at 30 fps, retimed to the scene's 15
     assert sorted(p.name for p in frames.glob("*.png")) == [f"Camera_cam01_{f:04d}.png" for f in (2, 3, 4)]
     bpy.ops.wm.open_mainfile(filepath=str(blend))
     cameras = [o for o in bpy.data.objects if o.type == "CAMERA"]
@@ -398,7 +402,11 @@ def test_headless_script_builds_a_scene_that_reopens_with_everything(scene, tmp_
     images = [bpy.data.images[render_image_name("Camera cam01", f)] for f in (2, 3, 4)]
     assert all(image.packed_file is not None and tuple(image.size) == (48, 48) for image in images)
     assert image_array(images[0])[..., 3].max() > 0.5  # pixels survived the round trip
+    assert bpy.context.scene.mogaface.tracking_folder == str(tmp_path / "performance")
+    assert (bpy.context.scene.frame_start, bpy.context.scene.frame_end) == (1, 6)
     bpy.context.scene.frame_set(3)
+    expr = np.array([head.data.shape_keys.key_blocks[i + 1].value for i in range(performance.params["expr"].shape[1])])
+    np.testing.assert_allclose(expr, performance.params["expr"][2], atol=1e-5)  # the performance is what plays
     assert bpy.ops.mogaface.render_frame() == {"FINISHED"}
 
 

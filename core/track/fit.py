@@ -86,6 +86,7 @@ class FitSettings:
     gaze_prior: float = 1.0  # per radian² of the gaze (both eyes turned alike, from the iris centres)
     photometric: PhotometricSettings = dataclasses.field(default_factory=PhotometricSettings)
     seed: int = 0
+    shape: np.ndarray | None = None  # held fixed when given (an avatar's identity: a performance drives it)
 
 
 @dataclasses.dataclass
@@ -181,7 +182,7 @@ def fit_landmarks(model: FlameModel, observations: Observations, settings: FitSe
     lens = (sizes.norm(dim=1) / math.hypot(obs.width, obs.height))[:, None, None]  # each frame's focal / the first's
 
     log_focal = torch.tensor(math.log(settings.focal or phone), dtype=d, requires_grad=settings.focal is None)
-    shape = torch.zeros(1, model.n_shape, dtype=d, requires_grad=True)
+    shape = _start_shape(settings.shape, model.n_shape)
     expr = torch.zeros(frames, model.n_expr, dtype=d, requires_grad=True)
     jaw = torch.zeros(frames, 3, dtype=d, requires_grad=True)
     rotation = torch.zeros(frames, 3, dtype=d, requires_grad=True)
@@ -237,7 +238,7 @@ def fit_landmarks(model: FlameModel, observations: Observations, settings: FitSe
     with torch.no_grad():
         translation_cm.copy_(100 * _placed(head(shape, expr, rotation, jaw, translation_cm), points, weight,
                                           torch.exp(log_focal) * lens[:, 0, 0], centre[:, 0], w2c))
-    everything = [shape, expr, jaw, gaze, rotation, translation_cm]
+    everything = [shape] * shape.requires_grad + [expr, jaw, gaze, rotation, translation_cm]
     stages = [([rotation, translation_cm], objective, True, max(settings.steps // 4, 1)),
               (everything + ([log_focal] if settings.focal is None else []), objective, False, settings.steps)]
     photometric_steps = settings.photometric.steps if brightness is not None and obs.sizes is None else 0
@@ -286,6 +287,14 @@ def eyes_pose(gaze: torch.Tensor) -> torch.Tensor:
     ``(pitch, yaw, 0)`` (at a phone's distance the eyes converge too little to tell them apart)."""
     turn = torch.cat([gaze, torch.zeros_like(gaze[:, :1])], dim=1)
     return torch.cat([turn, turn], dim=1)
+
+
+def _start_shape(fixed, count: int) -> torch.Tensor:
+    """``(1, count)``: zeros to fit, or the given identity held fixed (cut or padded to ``count``)."""
+    if fixed is None:
+        return torch.zeros(1, count, dtype=torch.float64, requires_grad=True)
+    values = np.asarray(fixed, np.float64).reshape(-1)[:count]
+    return torch.as_tensor(np.pad(values, (0, count - len(values))), dtype=torch.float64)[None]
 
 
 def _placed(rest: torch.Tensor, points: torch.Tensor, weight: torch.Tensor, focal: torch.Tensor, centre: torch.Tensor,
