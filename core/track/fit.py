@@ -182,7 +182,10 @@ def fit_landmarks(model: FlameModel, observations: Observations, settings: FitSe
     lens = (sizes.norm(dim=1) / math.hypot(obs.width, obs.height))[:, None, None]  # each frame's focal / the first's
 
     log_focal = torch.tensor(math.log(settings.focal or phone), dtype=d, requires_grad=settings.focal is None)
-    shape = _start_shape(settings.shape, model.n_shape)
+    # The shared unknowns are stepped in units of 1/sqrt(T): their curvature, a sum over the frames,
+    # then matches one frame's own, and L-BFGS converges in far fewer iterations on long clips.
+    unit = math.sqrt(frames)
+    shape_stepped = _start_shape(settings.shape, model.n_shape, unit)
     expr = torch.zeros(frames, model.n_expr, dtype=d, requires_grad=True)
     jaw = torch.zeros(frames, 3, dtype=d, requires_grad=True)
     rotation = torch.zeros(frames, 3, dtype=d, requires_grad=True)
@@ -203,21 +206,24 @@ def fit_landmarks(model: FlameModel, observations: Observations, settings: FitSe
     def second_differences(x):
         return (x[2:] - 2 * x[1:-1] + x[:-2]).pow(2).sum() if len(x) > 2 else x.sum() * 0
 
+    def shared_shape():
+        return shape_stepped / unit
+
     def current() -> dict[str, np.ndarray]:
         with torch.no_grad():
-            return {"shape": shape.numpy()[0].copy(), "expr": expr.numpy().copy(), "rotation": rotation.numpy().copy(),
+            return {"shape": shared_shape().numpy()[0].copy(), "expr": expr.numpy().copy(), "rotation": rotation.numpy().copy(),
                     "neck_pose": np.zeros((frames, 3)), "jaw_pose": jaw.numpy().copy(),
                     "eyes_pose": eyes_pose(gaze).numpy(), "translation": translation_cm.numpy() / 100}
 
     def landmarks():
-        return head(shape, expr, rotation, jaw, translation_cm / 100, eyes_pose(gaze))
+        return head(shared_shape(), expr, rotation, jaw, translation_cm / 100, eyes_pose(gaze))
 
     def objective(rigid_only: bool):
         loss, residual = reprojection(landmarks())
         smooth = second_differences(rotation) + second_differences(translation_cm / 100)
         if rigid_only:
             return loss + settings.smooth * scale * smooth, residual
-        prior = (settings.shape_prior * shape.pow(2).sum() * scale + settings.expr_prior * expr.pow(2).mean()
+        prior = (settings.shape_prior * shared_shape().pow(2).sum() * scale + settings.expr_prior * expr.pow(2).mean()
                  + settings.jaw_prior * jaw.pow(2).mean() + settings.gaze_prior * gaze.pow(2).mean())
         if settings.focal is None:
             prior = prior + settings.focal_prior * (log_focal - math.log(phone)) ** 2
@@ -227,7 +233,7 @@ def fit_landmarks(model: FlameModel, observations: Observations, settings: FitSe
     def photometric(agreement, skin):
         def stage_objective(_):
             loss, residual = objective(False)
-            pixels = project(skin(shape, expr, rotation, jaw, translation_cm / 100, eyes_pose(gaze)))
+            pixels = project(skin(shared_shape(), expr, rotation, jaw, translation_cm / 100, eyes_pose(gaze)))
             return loss + settings.photometric.weight * agreement(pixels), residual
         return stage_objective
 
@@ -236,9 +242,9 @@ def fit_landmarks(model: FlameModel, observations: Observations, settings: FitSe
     # brightness) everything but the focal length, the skin's brightness agreeing between frames.
     scale = 1.0 / frames
     with torch.no_grad():
-        translation_cm.copy_(100 * _placed(head(shape, expr, rotation, jaw, translation_cm), points, weight,
+        translation_cm.copy_(100 * _placed(head(shared_shape(), expr, rotation, jaw, translation_cm), points, weight,
                                           torch.exp(log_focal) * lens[:, 0, 0], centre[:, 0], w2c))
-    everything = [shape] * shape.requires_grad + [expr, jaw, gaze, rotation, translation_cm]
+    everything = [shape_stepped] * shape_stepped.requires_grad + [expr, jaw, gaze, rotation, translation_cm]
     stages = [([rotation, translation_cm], objective, True, max(settings.steps // 4, 1)),
               (everything + ([log_focal] if settings.focal is None else []), objective, False, settings.steps)]
     photometric_steps = settings.photometric.steps if brightness is not None and obs.sizes is None else 0
@@ -289,12 +295,13 @@ def eyes_pose(gaze: torch.Tensor) -> torch.Tensor:
     return torch.cat([turn, turn], dim=1)
 
 
-def _start_shape(fixed, count: int) -> torch.Tensor:
-    """``(1, count)``: zeros to fit, or the given identity held fixed (cut or padded to ``count``)."""
+def _start_shape(fixed, count: int, unit: float) -> torch.Tensor:
+    """``(1, count)`` times ``unit``: zeros to fit, or the given identity held fixed (cut or padded
+    to ``count``)."""
     if fixed is None:
         return torch.zeros(1, count, dtype=torch.float64, requires_grad=True)
     values = np.asarray(fixed, np.float64).reshape(-1)[:count]
-    return torch.as_tensor(np.pad(values, (0, count - len(values))), dtype=torch.float64)[None]
+    return unit * torch.as_tensor(np.pad(values, (0, count - len(values))), dtype=torch.float64)[None]
 
 
 def _placed(rest: torch.Tensor, points: torch.Tensor, weight: torch.Tensor, focal: torch.Tensor, centre: torch.Tensor,
