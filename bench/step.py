@@ -58,8 +58,8 @@ def _instrument(watch: Stopwatch) -> list:
     from mogaface.core.avatar import avatar as avatar_module
     from mogaface.core.avatar.densify import DensifyStrategy
     from mogaface.core.avatar.gaussians import BoundGaussians
-    from mogaface.core.mogaface.model import MoGaFace
-    from mogaface.core.mogaface.training import CorrectionTraining
+    from mogaface.core.correction.model import MoGaFace
+    from mogaface.core.correction.training import CorrectionTraining
     from mogaface.core.splat import api
     from mogaface.core.splat.function import Project, Rasterize
     from mogaface.core.train import data, losses, mogaface_part, training_view

@@ -215,7 +215,7 @@ def test_render_frame_equals_the_core_render(scene):
 
 def test_a_mogaface_run_renders_with_its_modules(scene):
     """A run with MoGaFace modules: keyed with its corrected tracking, rendered as the core renders it."""
-    from mogaface.core.mogaface.avatar import ModulatedAvatar
+    from mogaface.core.correction.avatar import ModulatedAvatar
 
     run = scene["root"] / "run_mogaface"
     command = train_command(sys.executable, scene["capture"], run, preset="mogaface-demo", steps=5)

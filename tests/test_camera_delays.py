@@ -9,11 +9,11 @@ import pytest
 import torch
 
 from mogaface.core.avatar.avatar import Avatar
+from mogaface.core.correction.avatar import render_world
 from mogaface.core.data.capture import Capture
 from mogaface.core.data.generator import CaptureSettings, make_capture, params_at
 from mogaface.core.errors import InputError
 from mogaface.core.flame.model import FlameModel
-from mogaface.core.mogaface.avatar import render_world
 from mogaface.core.run.names import DELAYS_FILE
 from mogaface.core.train import config as C
 from mogaface.core.train.camera_delays import CameraDelays, _neighbours, read_delays

@@ -79,12 +79,12 @@ def image_assisted_sources(capture, run):
     """name → source: every source an image-assisted result is made of, as the benchmark and
     ``refine-tracking`` build them (smoothing with fixed σ: choosing σ reads the truth of the
     training sequences by design, see :func:`..sources.smoothed.choose_sigmas`)."""
+    from mogaface.core.correction.model import MoGaFace
     from mogaface.core.evaluate.sources.fitted import FittedParams
     from mogaface.core.evaluate.sources.mogaface import MoGaFaceParams
     from mogaface.core.evaluate.sources.refined import RefinedParams, RefinerInference, run_refiner
     from mogaface.core.evaluate.sources.smoothed import SmoothedParams
     from mogaface.core.evaluate.sources.tracked import AlignedTrackedParams, TrackedParams
-    from mogaface.core.mogaface.model import MoGaFace
     from mogaface.core.run.cameras import InputCameras
 
     avatar = run.load_avatar()

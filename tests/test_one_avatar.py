@@ -24,9 +24,9 @@ import torch
 
 from mogaface.core.avatar.avatar import Avatar, flame_params_to_torch
 from mogaface.core.cli import main
+from mogaface.core.correction.avatar import ModulatedAvatar
 from mogaface.core.evaluate.images import render_frame
 from mogaface.core.evaluate.protocols import TrackedParams
-from mogaface.core.mogaface.avatar import ModulatedAvatar
 from mogaface.core.run.folder import RunFolder
 from mogaface.core.scene.avatar import avatar_location, load_avatar
 from mogaface.core.scene.axes import blender_to_flame
@@ -40,8 +40,8 @@ def modulated(tmp_path_factory):
     """A run with MoGaFace modules whose texture offsets change the picture (≈ 20 dB from the plain avatar)."""
     from test_mogaface_train import config
 
+    from mogaface.core.correction.model import MoGaFace
     from mogaface.core.data.generator import CaptureSettings, make_capture
-    from mogaface.core.mogaface.model import MoGaFace
     from mogaface.core.train.trainer import Trainer
 
     root = tmp_path_factory.mktemp("one_avatar")

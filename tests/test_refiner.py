@@ -280,8 +280,8 @@ def test_the_refiner_renders_a_modulated_avatar_with_its_texture_attention(run_r
     """A MoGaFace run's avatar changes its Gaussians with the parameters (texture attention): the
     refiner's renders are the avatar's own ``render`` at those parameters, not the bare Gaussians'."""
     from mogaface.core.avatar.avatar import flame_params_to_torch
-    from mogaface.core.mogaface.avatar import ModulatedAvatar
-    from mogaface.core.mogaface.model import MoGaFace
+    from mogaface.core.correction.avatar import ModulatedAvatar
+    from mogaface.core.correction.model import MoGaFace
     from mogaface.core.refiner.crops import crop_camera, head_window
     from mogaface.core.refiner.views import render_crop
 

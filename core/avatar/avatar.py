@@ -73,7 +73,7 @@ class Avatar(torch.nn.Module):
 
     def world_posed(self, vertices: torch.Tensor, flame_params: dict | None = None) -> dict[str, torch.Tensor]:
         """World Gaussians on the already posed mesh ``vertices (V,3)``; ``flame_params`` are read
-        only by an avatar whose appearance follows them (:class:`~..mogaface.avatar.ModulatedAvatar`)."""
+        only by an avatar whose appearance follows them (:class:`~..correction.avatar.ModulatedAvatar`)."""
         return self.gaussians.world(vertices, self.flame.faces)
 
     def render(

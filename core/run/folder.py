@@ -206,14 +206,14 @@ class RunFolder:
 
     def load_avatar(self):
         """The run's avatar as ``render`` draws it: :class:`~..avatar.avatar.Avatar`, wrapped in
-        :class:`~..mogaface.avatar.ModulatedAvatar` when the run has MoGaFace modules."""
+        :class:`~..correction.avatar.ModulatedAvatar` when the run has MoGaFace modules."""
         from ..avatar.avatar import Avatar
 
         avatar = Avatar.load(self.avatar_path)
         if not self.has_modules():
             return avatar
-        from ..mogaface.avatar import ModulatedAvatar
-        from ..mogaface.model import MoGaFace
+        from ..correction.avatar import ModulatedAvatar
+        from ..correction.model import MoGaFace
 
         try:
             model = MoGaFace.load(self.modules_path)

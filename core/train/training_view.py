@@ -13,8 +13,8 @@ import dataclasses
 import torch
 
 from ..camera import Camera
-from ..mogaface.avatar import render_world
-from ..mogaface.training import CorrectionTraining, StepCorrection
+from ..correction.avatar import render_world
+from ..correction.training import CorrectionTraining, StepCorrection
 from ..splat.api import SplatOutput
 from .config import TrainConfig
 from .losses import image_loss, position_hinge, psnr, scaling_hinge
