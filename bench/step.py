@@ -62,13 +62,13 @@ def _instrument(watch: Stopwatch) -> list:
     from mogaface.core.correction.training import CorrectionTraining
     from mogaface.core.splat import api
     from mogaface.core.splat.function import Project, Rasterize
-    from mogaface.core.train import data, losses, mogaface_part, training_view
+    from mogaface.core.train import correction_part, data, losses, training_view
 
     undo = [
         watch.wrap(data.TrainingData, "target", "image loading"),
         watch.wrap(avatar_module.Avatar, "posed_vertices", "FLAME"),
         watch.wrap(BoundGaussians, "world", "binding"),
-        watch.wrap(mogaface_part, "world_with_offsets", "binding"),
+        watch.wrap(correction_part, "world_with_offsets", "binding"),
         watch.wrap(CorrectionTraining, "step", "MoGaFace correction (encoder, fusion, head, bank)"),
         watch.wrap(MoGaFace, "texture_offsets", "MoGaFace texture attention"),
         watch.wrap(api, "sh_to_rgb", "render: SH colours"),

@@ -9,7 +9,7 @@ from mogaface.core.data.capture import Capture
 from mogaface.core.run.folder import load_flame_file
 from mogaface.core.train import config as C
 from mogaface.core.train.checkpoint import latest_checkpoint, load_checkpoint
-from mogaface.core.train.mogaface_part import mogaface_world
+from mogaface.core.train.correction_part import mogaface_world
 from mogaface.core.train.trainer import Trainer
 
 FULL = {"mode": "multi", "bank": True, "texture": True, "input_size": 32, "feature_dim": 16, "encoder_width": 4,

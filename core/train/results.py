@@ -18,7 +18,7 @@ from ..io.atomic import write_json
 from ..io.npz import save_npz
 from ..run.names import DELAYS_FILE, REFINED_CAMERAS_FILE, RUN_FORMAT, RUN_VERSION
 from .camera_refine import write_refined_cameras
-from .mogaface_part import corrected_avatar, finish_mogaface
+from .correction_part import corrected_avatar, finish_mogaface
 
 if TYPE_CHECKING:
     from .trainer import Trainer
@@ -108,7 +108,7 @@ def write_run_json(trainer: Trainer, complete: bool) -> None:
 
 def current_avatar(trainer: Trainer):
     """``(table, avatar)`` as the run would write them at this step: the corrected parameters and
-    the modulated avatar for a MoGaFace run (:func:`.mogaface_part.corrected_avatar`), so a check
+    the modulated avatar for a MoGaFace run (:func:`.correction_part.corrected_avatar`), so a check
     during training scores what ``render`` will draw."""
     trainer.avatar.gaussians.active_sh_degree = trainer.strategy.schedule.sh_degree(trainer.schedule_step())
     if trainer.mogaface is None:

@@ -37,10 +37,10 @@ from . import config as config_module
 from .camera_start import build_camera_delays, build_camera_offsets, load_cameras
 from .checkpoint import save_checkpoint, starting_state
 from .config import TrainConfig
+from .correction_part import build_mogaface
 from .data import TrainingData, capture_head_file, principal_point_notes
 from .distributed import Communicator
 from .events import EventLog, Listener
-from .mogaface_part import build_mogaface
 from .results import quick_check, write_learned_cameras, write_results, write_run_json
 from .run_lock import take_run_folder
 from .training_view import ViewRenderer, ViewResult

@@ -17,8 +17,8 @@ from ..correction.avatar import render_world
 from ..correction.training import CorrectionTraining, StepCorrection
 from ..splat.api import SplatOutput
 from .config import TrainConfig
+from .correction_part import mogaface_render
 from .losses import image_loss, position_hinge, psnr, scaling_hinge
-from .mogaface_part import mogaface_render
 
 IMAGE_TERMS = ("l1", "ssim", "rgb")  # ``rgb`` = (1 − λ)·l1 + λ·(1 − ssim): the image term of the total
 
