@@ -80,8 +80,8 @@ def image_assisted_sources(capture, run):
     ``refine-tracking`` build them (smoothing with fixed σ: choosing σ reads the truth of the
     training sequences by design, see :func:`..sources.smoothed.choose_sigmas`)."""
     from mogaface.core.correction.model import MoGaFace
+    from mogaface.core.evaluate.sources.corrected import MoGaFaceParams
     from mogaface.core.evaluate.sources.fitted import FittedParams
-    from mogaface.core.evaluate.sources.mogaface import MoGaFaceParams
     from mogaface.core.evaluate.sources.refined import RefinedParams, RefinerInference, run_refiner
     from mogaface.core.evaluate.sources.smoothed import SmoothedParams
     from mogaface.core.evaluate.sources.tracked import AlignedTrackedParams, TrackedParams

@@ -117,7 +117,7 @@ def test_resume_is_exact_with_modules_and_bank(tiny_capture, tmp_path):
 def test_evaluation_never_feeds_the_scored_view(full_run, tiny_capture, monkeypatch):
     from mogaface.core.correction.views import ViewImages
     from mogaface.core.evaluate.evaluation import evaluate_run
-    from mogaface.core.evaluate.sources.mogaface import MoGaFaceParams
+    from mogaface.core.evaluate.sources.corrected import MoGaFaceParams
     from mogaface.core.run.folder import RunFolder
 
     run = RunFolder(full_run)

@@ -73,8 +73,8 @@ def standard_sources(run: RunFolder, capture, avatar, fit_steps=FIT_STEPS,
     from ..data.capture_info import capture_info
     from ..run.cameras import InputCameras
     from .sources.base import INPUT_VIEWS, training_cameras
+    from .sources.corrected import MoGaFaceParams
     from .sources.fitted import FittedParams
-    from .sources.mogaface import MoGaFaceParams
     from .sources.refined import RefinedParams, RefinerInference, run_refiner
     from .sources.smoothed import SmoothedParams, choose_sigmas
     from .sources.tracked import AlignedTrackedParams, TrackedParams

@@ -80,7 +80,7 @@ def evaluate_run(
         check_output_target(out / name)
     cap = run.open_capture()
     if avatar is None and source is None:
-        from .sources.mogaface import run_inference
+        from .sources.corrected import run_inference
 
         avatar, source = run_inference(run, cap)  # MoGaFace runs: modules + image-assisted inference
         avatar, source = _with_refiner(run, cap, avatar, source)

@@ -17,7 +17,7 @@ from ..io.atomic import check_output_target
 from ..io.image import srgb_to_linear, write_exr, write_png
 from ..run.folder import RunFolder, load_flame_file
 from .protocols import TrackedParams, render_frame
-from .sources.mogaface import run_inference
+from .sources.corrected import run_inference
 
 RENDER_DIR = "renders"
 

@@ -104,7 +104,7 @@ def run_folder(out: pathlib.Path, name: str, seed: int) -> pathlib.Path:
 def image_source(run_dir):
     """``(avatar, source)``: the run's own inference, image-assisted where it has modules."""
     from ..correction.avatar import ModulatedAvatar
-    from ..evaluate.sources.mogaface import MoGaFaceParams
+    from ..evaluate.sources.corrected import MoGaFaceParams
     from ..evaluate.sources.tracked import TrackedParams
     from ..run.folder import RunFolder
 
