@@ -653,7 +653,7 @@ def gpu_draw_pixels(head, viewport):
     import numpy as np
 
     gpu_splats = module("operators.handlers.gpu_splats")
-    core_gpu = module("core.scene.gpu_splats")
+    core_gpu = module("core.scene.splat_buffers")
     render = module("core.scene.render")
     check(gpu_splats.program() is not None, f"the GPU draw cannot run: {gpu_splats.unavailable()}")
     _, area, _ = window_and_view()
@@ -719,7 +719,7 @@ class Profile:
     def __init__(self):
         gpu_splats = module("operators.handlers.gpu_splats")
         viewport = module("operators.handlers.viewport")
-        core_gpu = module("core.scene.gpu_splats")
+        core_gpu = module("core.scene.splat_buffers")
         self.targets = [(viewport, "draw_head", "draw handler, in all"),
                         (viewport, "update_view", "CPU image: request"),
                         (viewport, "textures", "CPU image: upload"),
