@@ -194,7 +194,7 @@ class MOGAFACE_PT_avatar(_SubPanel, bpy.types.Panel):
 
 def draw_gpu_unavailable(layout, context) -> None:
     """The line saying the viewport's GPU draw cannot run here (the CPU image is drawn instead)."""
-    from ..operators.handlers.gpu_splats import software_renderer, unavailable
+    from ..operators.handlers.gpu_draw import software_renderer, unavailable
 
     reason = unavailable()
     if reason is not None:

@@ -112,7 +112,7 @@ def test_view_colors_are_the_engines_sh_for_the_camera():
 
 
 def shader_draw(packed, values, width, height):
-    """The vertex and fragment shaders of operators/handlers/gpu_splats.py step by step in numpy,
+    """The vertex and fragment shaders of operators/handlers/gpu_draw.py step by step in numpy,
     blended "over" in the packed (back-to-front) order: ``(H, W, 4)`` linear premultiplied, top row
     first."""
     from mogaface.core.io.image import srgb_to_linear

@@ -1,6 +1,6 @@
 """The avatar's Gaussians for the viewport's GPU draw: posed, coloured for a view, sorted, packed.
 
-The GPU draw (``operators/handlers/gpu_splats.py``) splats each Gaussian as an instanced quad;
+The GPU draw (``operators/handlers/gpu_draw.py``) splats each Gaussian as an instanced quad;
 everything it needs up to the float texture it uploads is plain numpy here, testable without
 Blender:
 

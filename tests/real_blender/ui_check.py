@@ -652,7 +652,7 @@ def gpu_draw_pixels(head, viewport):
     its frames per second at 30k and 100k Gaussians."""
     import numpy as np
 
-    gpu_splats = module("operators.handlers.gpu_splats")
+    gpu_splats = module("operators.handlers.gpu_draw")
     core_gpu = module("core.scene.splat_buffers")
     render = module("core.scene.render")
     check(gpu_splats.program() is not None, f"the GPU draw cannot run: {gpu_splats.unavailable()}")
@@ -717,7 +717,7 @@ class Profile:
     upload); what is left of a block is Blender's own redraw and the GL work it waits for."""
 
     def __init__(self):
-        gpu_splats = module("operators.handlers.gpu_splats")
+        gpu_splats = module("operators.handlers.gpu_draw")
         viewport = module("operators.handlers.viewport")
         core_gpu = module("core.scene.splat_buffers")
         self.targets = [(viewport, "draw_head", "draw handler, in all"),
@@ -815,7 +815,7 @@ def scrub_blocks(head, viewport):
     scene = bpy.context.scene
     frames = list(range(scene.frame_start, min(scene.frame_end, scene.frame_start + 11) + 1))
     idle = RESULTS.get("load_avatar", {}).get("idle_longest_block_s", 0.0)
-    RESULTS["software_opengl"] = module("operators.handlers.gpu_splats").software_renderer()
+    RESULTS["software_opengl"] = module("operators.handlers.gpu_draw").software_renderer()
     for mode in ("BOTH", "GPU"):
         setattr(head, viewport.DRAW_PROPERTY, mode)
         changes = [lambda frame=frame: scene.frame_set(frame) for frame in frames + frames[::-1]]
