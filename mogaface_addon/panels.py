@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import bpy
 
-from ..operators.handlers.head_rig import is_head
+from ..operators.handlers.heads import is_head
 from .preferences import draw_dependencies
 from .text import wrapped_label
 

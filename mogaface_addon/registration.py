@@ -18,7 +18,7 @@ from ..operators.dependencies import add_site_packages, remove_site_packages
 from ..operators.export import MOGAFACE_OT_export_ply
 from ..operators.gaussian_points import MOGAFACE_OT_gaussians_to_mesh
 from ..operators.handlers import viewport
-from ..operators.handlers.head_rig import update_heads_on_edit, update_heads_on_frame_change
+from ..operators.handlers.heads import update_heads_on_edit, update_heads_on_frame_change
 from ..operators.handlers.render_layers import render_avatar_layers
 from ..operators.handlers.suspend import (
     resume_after_load,

@@ -10,7 +10,7 @@ from __future__ import annotations
 import bpy
 
 from .dependencies import LazyModule
-from .handlers.head_rig import AVATAR_PATH_PROPERTY, expression_values, head_objects, is_head, pose_values, rig_of
+from .handlers.heads import AVATAR_PATH_PROPERTY, expression_values, head_objects, is_head, pose_values, rig_of
 
 np = LazyModule("numpy")  # imported on first use: registering needs no numpy
 

@@ -9,7 +9,7 @@ from bpy.props import BoolProperty, IntProperty, StringProperty
 
 from .avatar_head import head_params, head_with_avatar
 from .common import OpensFileBrowser, dependencies_ready, run_core
-from .handlers.head_rig import AVATAR_PATH_PROPERTY
+from .handlers.heads import AVATAR_PATH_PROPERTY
 
 
 class MOGAFACE_OT_export_ply(OpensFileBrowser, bpy.types.Operator):

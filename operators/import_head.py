@@ -7,7 +7,7 @@ from bpy.props import StringProperty
 
 from .common import OpensFileBrowser, dependencies_ready, run_core
 from .dependencies import FILE_MODULES, LazyModule
-from .handlers.head_rig import MODEL_PATH_PROPERTY, POSE_KEY_NAME
+from .handlers.heads import MODEL_PATH_PROPERTY, POSE_KEY_NAME
 
 np = LazyModule("numpy")  # imported on first use: registering needs no numpy
 

@@ -11,7 +11,7 @@ from bpy.props import BoolProperty, StringProperty
 
 from .animation import fcurve_container, id_fcurves, write_fcurve
 from .common import dependencies_ready, run_core
-from .handlers.head_rig import is_head, rig_of, update_head
+from .handlers.heads import is_head, rig_of, update_head
 
 
 def existing_keys(obj) -> int:

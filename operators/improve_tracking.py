@@ -14,7 +14,7 @@ from bpy.props import IntProperty, StringProperty
 
 from .common import dependencies_ready
 from .dependencies import interpreter, worker_paths
-from .handlers.head_rig import is_head
+from .handlers.heads import is_head
 from .import_tracking import existing_keys, head_or_report, key_tracking
 from .jobs import FollowsChildJob, cancel_operator, end_job, job_progress, new_job, refuse_if_busy
 from .train import preferred_threads

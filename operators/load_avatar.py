@@ -13,7 +13,7 @@ from bpy.props import StringProperty
 
 from .avatar_head import BACKGROUND_PROPERTY
 from .common import OpensFileBrowser, clear_status_text, dependencies_ready, redraw_areas, run_core
-from .handlers.head_rig import AVATAR_PATH_PROPERTY, is_head
+from .handlers.heads import AVATAR_PATH_PROPERTY, is_head
 
 
 def _located_avatar(path: str):

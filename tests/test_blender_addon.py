@@ -179,7 +179,7 @@ def test_installing_registers_the_operators_panels_settings_and_handler(scenario
     assert prefs.python_path == "" and prefs.threads == 0  # empty: Blender's own Python
     assert prefs.torch_index == "https://download.pytorch.org/whl/cpu"
     assert bpy.types.MOGAFACE_PT_main.bl_category == "MoGaFace"
-    head_rig = importlib.import_module(MODULE + ".operators.handlers.head_rig")
+    head_rig = importlib.import_module(MODULE + ".operators.handlers.heads")
     assert (head_rig.MODEL_PATH_PROPERTY, head_rig.POSE_KEY_NAME, head_rig.AVATAR_PATH_PROPERTY) \
         == (MODEL_PATH_PROPERTY, POSE_KEY_NAME, AVATAR_PATH_PROPERTY)
 

@@ -30,7 +30,7 @@ from bpy.props import BoolProperty, EnumProperty
 from ..common import background_thread
 from ..dependencies import LazyModule
 from . import gpu_draw
-from .head_rig import AVATAR_PATH_PROPERTY, is_head
+from .heads import AVATAR_PATH_PROPERTY, is_head
 
 np = LazyModule("numpy")  # imported on first use: registering needs no numpy
 

@@ -727,7 +727,7 @@ class Profile:
                         (gpu_splats.GpuSplats, "draw", "GPU draw: sort, upload, draw"),
                         (core_gpu.SplatOrder, "update", "GPU draw: sort and colours"),
                         (gpu_splats.Posing, "latest", "GPU draw: posing hand-over"),
-                        (module("operators.handlers.head_rig"), "_update_heads", "head meshes re-posed")]
+                        (module("operators.handlers.heads"), "_update_heads", "head meshes re-posed")]
         self.seconds, self.calls, self.saved = {}, {}, []
 
     def __enter__(self):
