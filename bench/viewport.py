@@ -73,8 +73,8 @@ def run(threads: int = 2, quick: bool = False, avatar: str | None = None) -> dic
     import numpy as np
     import torch
 
-    from mogaface.core.scene.avatar import avatar_location, load_avatar, render_avatar
-    from mogaface.core.scene.render import RenderRequest, depth_buffer_values, render, view_camera
+    from mogaface.core.for_blender.avatar import avatar_location, load_avatar, render_avatar
+    from mogaface.core.for_blender.render import RenderRequest, depth_buffer_values, render, view_camera
 
     torch.set_num_threads(threads)
     try:
@@ -106,7 +106,7 @@ def run(threads: int = 2, quick: bool = False, avatar: str | None = None) -> dic
 
         warm = viewport_frame()  # numba kernels load or compile
         camera = view_camera(view, projection, np.eye(4), size, size).camera
-        from mogaface.core.scene.render import fitted_params
+        from mogaface.core.for_blender.render import fitted_params
 
         params = fitted_params(values, model)
         fps, best = _median_fps(viewport_frame, repeats)
@@ -142,8 +142,8 @@ def _gpu_path(path: str, values: dict, repeats: int, quick: bool) -> dict:
     check (tests/real_blender/ui_check.py) measures it."""
     import numpy as np
 
-    from mogaface.core.scene import splat_buffers
-    from mogaface.core.scene.render import view_camera
+    from mogaface.core.for_blender import splat_buffers
+    from mogaface.core.for_blender.render import view_camera
 
     def pose(jaw):
         splat_buffers._pose_cache.clear()

@@ -38,7 +38,7 @@ class MOGAFACE_OT_export_ply(OpensFileBrowser, bpy.types.Operator):
         if head is None:
             return {"CANCELLED"}
         from ..core.avatar.export import export_world_ply
-        from ..core.scene.avatar import load_avatar
+        from ..core.for_blender.avatar import load_avatar
 
         scene = context.scene
         path = bpy.path.abspath(self.filepath)

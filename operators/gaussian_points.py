@@ -59,7 +59,7 @@ class MOGAFACE_OT_gaussians_to_mesh(bpy.types.Operator):
     frame_end: IntProperty(name="End", default=0, description="Last frame (0: the scene's)")
 
     def execute(self, context):
-        from ..core.scene.points import gaussian_points
+        from ..core.for_blender.points import gaussian_points
         from .avatar_head import head_values, head_with_avatar
 
         if not dependencies_ready(self, context):

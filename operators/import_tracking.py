@@ -69,7 +69,7 @@ def head_or_report(operator, obj) -> bool:
 def key_tracking(operator, context, obj, folder: str) -> bool:
     """Key head ``obj``'s expressions and pose from a ``flame_param`` folder, one key per timestep;
     what goes wrong is reported through ``operator``. The scene's Tracking field becomes ``folder``."""
-    from ..core.scene.tracking import tracking_channels
+    from ..core.for_blender.tracking import tracking_channels
 
     replaced = existing_keys(obj)
     key = obj.data.shape_keys

@@ -18,7 +18,7 @@ from .handlers.heads import AVATAR_PATH_PROPERTY, is_head
 
 def _located_avatar(path: str):
     """The avatar file, its training background and the loaded avatar (thread-safe core work)."""
-    from ..core.scene.avatar import avatar_location, load_avatar
+    from ..core.for_blender.avatar import avatar_location, load_avatar
     from .dependencies import preload_native_libraries
 
     preload_native_libraries()  # the first load imports torch: its libraries, without the GIL

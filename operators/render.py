@@ -43,7 +43,7 @@ class _RenderBase:
 
     def _store(self, camera, result):
         """Put a finished render into its image (and files); returns the image or None."""
-        from ..core.scene.render import render_image_name
+        from ..core.for_blender.render import render_image_name
 
         frame = result.request.frame
         image = store_image(render_image_name(camera.name, frame), result)
@@ -55,7 +55,7 @@ class _RenderBase:
         return image
 
     def _render(self, context, head, camera, frame: int):
-        from ..core.scene.render import render
+        from ..core.for_blender.render import render
 
         result = run_core(self, lambda: render(self._request(context, head, camera, frame)))
         return None if result is None else self._store(camera, result)

@@ -41,10 +41,8 @@ from mogaface.core.data.capture import Capture  # noqa: E402
 from mogaface.core.data.writer import CaptureWriter  # noqa: E402
 from mogaface.core.flame.model import FlameModel  # noqa: E402
 from mogaface.core.flame.model_file import write_model_file  # noqa: E402
-from mogaface.core.io.npz import save_npz  # noqa: E402
-from mogaface.core.metrics import lpips_weights  # noqa: E402
-from mogaface.core.scene.axes import blender_to_flame, flame_to_blender  # noqa: E402
-from mogaface.core.scene.head_rig import (  # noqa: E402
+from mogaface.core.for_blender.axes import blender_to_flame, flame_to_blender  # noqa: E402
+from mogaface.core.for_blender.head_rig import (  # noqa: E402
     AVATAR_PATH_PROPERTY,
     MODEL_PATH_PROPERTY,
     POSE_KEY_NAME,
@@ -52,6 +50,8 @@ from mogaface.core.scene.head_rig import (  # noqa: E402
     HeadRig,
     load_head_model,
 )
+from mogaface.core.io.npz import save_npz  # noqa: E402
+from mogaface.core.metrics import lpips_weights  # noqa: E402
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 MODULE = "bl_ext.user_default.mogaface"

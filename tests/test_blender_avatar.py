@@ -28,12 +28,12 @@ from mogaface.core.avatar.avatar import Avatar  # noqa: E402
 from mogaface.core.data.capture import Capture  # noqa: E402
 from mogaface.core.data.generator import CaptureSettings, make_capture  # noqa: E402
 from mogaface.core.flame.model_file import write_model_file  # noqa: E402
+from mogaface.core.for_blender.avatar import load_avatar, render_avatar  # noqa: E402
+from mogaface.core.for_blender.axes import timestep_to_frame  # noqa: E402
+from mogaface.core.for_blender.head_rig import AVATAR_PATH_PROPERTY, POSE_PROPERTIES  # noqa: E402
+from mogaface.core.for_blender.render import render_image_name  # noqa: E402
+from mogaface.core.for_blender.tracking import read_tracking  # noqa: E402
 from mogaface.core.run.folder import RunFolder  # noqa: E402
-from mogaface.core.scene.avatar import load_avatar, render_avatar  # noqa: E402
-from mogaface.core.scene.axes import timestep_to_frame  # noqa: E402
-from mogaface.core.scene.head_rig import AVATAR_PATH_PROPERTY, POSE_PROPERTIES  # noqa: E402
-from mogaface.core.scene.render import render_image_name  # noqa: E402
-from mogaface.core.scene.tracking import read_tracking  # noqa: E402
 from mogaface.core.worker import TrainWorker, train_command  # noqa: E402
 
 MODULE = addon_test.MODULE

@@ -19,10 +19,10 @@ from mogaface.core.data.capture import Capture
 from mogaface.core.errors import InputError
 from mogaface.core.evaluate.sources.refined import RefinedParams, run_refiner
 from mogaface.core.evaluate.sources.tracked import AlignedTrackedParams, TrackedParams
+from mogaface.core.for_blender.tracking import read_tracking
 from mogaface.core.refiner.training import RefinerSettings, frozen_avatar, train_refiner
 from mogaface.core.run.cameras import InputCameras
 from mogaface.core.run.folder import RunFolder
-from mogaface.core.scene.tracking import read_tracking
 from mogaface.core.worker import RefineTrackingWorker
 from mogaface.core.workflows.refine_tracking import RECORD_FILE, refine_tracking
 

@@ -1,4 +1,4 @@
-"""The Blender-free parts of the viewport's GPU draw (core/scene/splat_buffers.py): covariances,
+"""The Blender-free parts of the viewport's GPU draw (core/for_blender/splat_buffers.py): covariances,
 back-to-front order keyed on view, frame and pose, the packed texture, the posing cache, and the
 draw's maths (the shaders' steps, replayed here in numpy on the packed texture) against the
 splat engine's render of the same view."""
@@ -10,8 +10,8 @@ import pytest
 import torch
 
 from mogaface.core.camera import Camera
-from mogaface.core.scene import splat_buffers
-from mogaface.core.scene.render import RenderRequest, blender_rgba, render, view_camera
+from mogaface.core.for_blender import splat_buffers
+from mogaface.core.for_blender.render import RenderRequest, blender_rgba, render, view_camera
 
 
 def _rotation(axis, angle):
@@ -179,7 +179,7 @@ def _view(width, height):
 
 
 def test_posing_is_the_avatars_own_and_cached_per_pose(small_avatar):
-    from mogaface.core.scene.avatar import load_avatar
+    from mogaface.core.for_blender.avatar import load_avatar
 
     values = {"expr": np.zeros(3), "jaw_pose": np.array([0.2, 0.0, 0.0])}
     first = splat_buffers.posed_splats(str(small_avatar), values)
@@ -188,7 +188,7 @@ def test_posing_is_the_avatars_own_and_cached_per_pose(small_avatar):
     assert other.key != first.key and np.abs(other.means - first.means).max() > 1e-4  # the jaw closed
     avatar = load_avatar(str(small_avatar))
     from mogaface.core.avatar.avatar import flame_params_to_torch
-    from mogaface.core.scene.render import fitted_params
+    from mogaface.core.for_blender.render import fitted_params
 
     with torch.no_grad():
         world = avatar.world_gaussians(flame_params_to_torch(fitted_params(values, avatar)))
@@ -199,7 +199,7 @@ def test_posing_is_the_avatars_own_and_cached_per_pose(small_avatar):
 def test_the_draws_maths_agree_with_the_engines_render(small_avatar):
     """The same view drawn by the shaders' maths and rendered by the engine: ≥ 30 dB over the
     avatar's pixels, as premultiplied sRGB (what "Standard" shows over black)."""
-    from mogaface.core.scene.render import srgb_from_blender
+    from mogaface.core.for_blender.render import srgb_from_blender
 
     width, height = 96, 80
     view_matrix, projection = _view(width, height)

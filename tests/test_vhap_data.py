@@ -351,8 +351,8 @@ def test_our_synthetic_capture_reads_as_gaussianavatars_reads_it(tmp_path):
 
 
 def test_blender_side_reads_teeth_tracking_and_union_cameras(data, head):
-    from mogaface.core.scene.cameras import capture_scene
-    from mogaface.core.scene.head_rig import head_import
+    from mogaface.core.for_blender.cameras import capture_scene
+    from mogaface.core.for_blender.head_rig import head_import
 
     scene = capture_scene(data["union"])
     assert len(scene.cameras) == 3 and len(scene.moving_cameras) == 3

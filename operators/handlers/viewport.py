@@ -81,7 +81,7 @@ def viewport_request(head, view_matrix, projection, size: tuple[int, int], frame
 
     ``view_matrix``/``projection``: ``RegionView3D.view_matrix`` / ``window_matrix``.
     """
-    from ...core.scene.render import RenderRequest, view_camera
+    from ...core.for_blender.render import RenderRequest, view_camera
     from ..avatar_head import head_values
 
     view = view_camera(np.array(view_matrix), np.array(projection), np.array(head.matrix_world), *size)
@@ -92,13 +92,13 @@ def viewport_request(head, view_matrix, projection, size: tuple[int, int], frame
 def viewport_image(result, view, projection) -> ViewportImage:
     """A finished render as the draw's pixel buffers (rows flipped, depth in window units).
 
-    The colours are :func:`core.scene.render.blender_rgba`'s, as everywhere. A ``POST_VIEW``
+    The colours are :func:`core.for_blender.render.blender_rgba`'s, as everywhere. A ``POST_VIEW``
     handler draws into the view's overlay buffer, which holds linear values encoded as sRGB and
     is laid over the scene after its view transform: the avatar is shown with the core's sRGB
     colours under every view transform, exactly as the capture photo a camera shows as its
     background image (checked in Blender 4.3 by reading the screen back).
     """
-    from ...core.scene.render import blender_rgba, depth_buffer_values
+    from ...core.for_blender.render import blender_rgba, depth_buffer_values
 
     height, width = result.alpha.shape
     rgba = blender_rgba(result)
@@ -131,7 +131,7 @@ class ViewState:
         self.posing = gpu_draw.Posing()
 
     def submit(self, request, view, projection) -> None:
-        from ...core.scene.render import render
+        from ...core.for_blender.render import render
 
         projection = np.array(projection)
 

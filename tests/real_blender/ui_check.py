@@ -501,14 +501,14 @@ def core_render(head, camera, frame, transparent):
     avatar_head = module("operators.avatar_head")
     request = avatar_head.head_request(scene, head, avatar_head.camera_of(scene, camera, head), frame,
                                        transparent=transparent, keyed=True)
-    return module("core.scene.render").render(request)
+    return module("core.for_blender.render").render(request)
 
 
 def render_frame_pixels(head, camera):
     """Render Frame's image saved through the view transform: under Standard the core render."""
     scene = bpy.context.scene
     frame = scene.frame_current
-    image = bpy.data.images[module("core.scene.render").render_image_name(camera.name, frame)]
+    image = bpy.data.images[module("core.for_blender.render").render_image_name(camera.name, frame)]
     core = core_render(head, camera, frame, transparent=False)
     mask = core.alpha > 1 / 255
     check(scene.view_settings.view_transform == "Standard", "Import Capture did not set Standard")
@@ -573,7 +573,7 @@ def viewport_pixels(head, viewport):
     yield from wait_until(full_size, 300, "the still viewport at the region's size")
     request, _ = viewport.viewport_request(head, np.array(region_3d.view_matrix), np.array(region_3d.window_matrix),
                                            (region.width, region.height), bpy.context.scene.frame_current)
-    core = module("core.scene.render").render(request)
+    core = module("core.for_blender.render").render(request)
     alpha = np.where(core.alpha >= viewport.OPAQUE_ALPHA, 1.0, core.alpha)[..., None]
     straight = np.divide(core.rgb, core.alpha[..., None], out=np.zeros_like(core.rgb), where=core.alpha[..., None] > 0)
     RESULTS["viewport_size"] = [region.width, region.height]
@@ -653,8 +653,8 @@ def gpu_draw_pixels(head, viewport):
     import numpy as np
 
     gpu_splats = module("operators.handlers.gpu_draw")
-    core_gpu = module("core.scene.splat_buffers")
-    render = module("core.scene.render")
+    core_gpu = module("core.for_blender.splat_buffers")
+    render = module("core.for_blender.render")
     check(gpu_splats.program() is not None, f"the GPU draw cannot run: {gpu_splats.unavailable()}")
     _, area, _ = window_and_view()
     region_3d = area.spaces.active.region_3d
@@ -698,7 +698,7 @@ def live_gpu_pixels(head, viewport):
     yield 1.0  # the avatar drawn again before the screenshot below
     request, _ = viewport.viewport_request(head, np.array(region_3d.view_matrix), np.array(region_3d.window_matrix),
                                            (region.width, region.height), bpy.context.scene.frame_current)
-    core = module("core.scene.render").render(request)
+    core = module("core.for_blender.render").render(request)
     alpha = core.alpha[..., None]
     straight = np.divide(core.rgb, alpha, out=np.zeros_like(core.rgb), where=alpha > 0)
     expected = over(straight, alpha, behind)
@@ -719,7 +719,7 @@ class Profile:
     def __init__(self):
         gpu_splats = module("operators.handlers.gpu_draw")
         viewport = module("operators.handlers.viewport")
-        core_gpu = module("core.scene.splat_buffers")
+        core_gpu = module("core.for_blender.splat_buffers")
         self.targets = [(viewport, "draw_head", "draw handler, in all"),
                         (viewport, "update_view", "CPU image: request"),
                         (viewport, "textures", "CPU image: upload"),
