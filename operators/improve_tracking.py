@@ -89,7 +89,7 @@ class MOGAFACE_OT_improve_tracking(FollowsChildJob, bpy.types.Operator):
             self.report({"ERROR"}, f"{run or 'The scene has no run folder'}: not a finished run (no avatar.pt); "
                                    "train one first")
             return {"CANCELLED"}
-        from ..core.worker import RefineTrackingWorker, refine_tracking_command
+        from ..core.for_blender.worker import RefineTrackingWorker, refine_tracking_command
 
         python = bpy.path.abspath(self.python) if self.python else interpreter(context)
         out = bpy.path.abspath(self.out) if self.out else None

@@ -1,7 +1,7 @@
 """``mogaface.train`` and ``mogaface.train_cancel``: training in a separate process.
 
 The child is ``python -m mogaface train`` with the interpreter from the preferences; its
-progress is read by the core's :class:`~mogaface.core.worker.TrainWorker`. In the UI a modal
+progress is read by the core's :class:`~mogaface.core.for_blender.worker.TrainWorker`. In the UI a modal
 operator polls it from a timer (Blender never blocks); in background mode, where timers and
 modal operators never run, the same poll runs in a blocking loop. Cancel sends SIGINT, and the
 trainer writes a checkpoint before it exits.
@@ -102,8 +102,8 @@ class MOGAFACE_OT_train(FollowsChildJob, bpy.types.Operator):
             return None
         if not dependencies_ready(self, context):
             return None
-        from ..core.launcher import launcher_arguments
-        from ..core.worker import TrainWorker, train_command
+        from ..core.for_blender.launcher import launcher_arguments
+        from ..core.for_blender.worker import TrainWorker, train_command
 
         settings = context.scene.mogaface
         capture = bpy.path.abspath(self.capture or settings.capture_folder)
@@ -125,7 +125,7 @@ class MOGAFACE_OT_train(FollowsChildJob, bpy.types.Operator):
             centres_measured=settings.camera_centres_measured, camera_delays=settings.camera_delays,
             minutes=self.minutes, paths=worker_paths(python), extra=launcher_arguments(launcher, resume),
         )
-        from ..core.launcher import with_launcher
+        from ..core.for_blender.launcher import with_launcher
 
         command = with_launcher(command, launcher)
         os.makedirs(run, exist_ok=True)

@@ -598,7 +598,7 @@ def test_the_train_operator_takes_its_interpreter_from_its_python_property(scena
 
 
 def test_the_train_operator_asks_for_the_scenes_camera_rounds(scenario, tmp_path, monkeypatch):
-    worker = importlib.import_module(MODULE + ".core.worker")
+    worker = importlib.import_module(MODULE + ".core.for_blender.worker")
     started = []
 
     def refuse(self):

@@ -33,8 +33,8 @@ from mogaface.core.for_blender.axes import timestep_to_frame  # noqa: E402
 from mogaface.core.for_blender.head_rig import AVATAR_PATH_PROPERTY, POSE_PROPERTIES  # noqa: E402
 from mogaface.core.for_blender.render import render_image_name  # noqa: E402
 from mogaface.core.for_blender.tracking import read_tracking  # noqa: E402
+from mogaface.core.for_blender.worker import TrainWorker, train_command  # noqa: E402
 from mogaface.core.run.folder import RunFolder  # noqa: E402
-from mogaface.core.worker import TrainWorker, train_command  # noqa: E402
 
 MODULE = addon_test.MODULE
 ROOT = addon_test.ROOT
@@ -144,7 +144,7 @@ def test_a_crashing_training_is_reported_with_its_message(trained, tmp_path):
 
 
 def test_worker_ignores_events_of_earlier_sessions_and_partial_lines(tmp_path):
-    from mogaface.core.worker import EventReader
+    from mogaface.core.for_blender.worker import EventReader
 
     path = tmp_path / "events.jsonl"
     path.write_text('{"event": "iter", "step": 1}\n{"event": "it')

@@ -494,7 +494,7 @@ def addon_test_image(name):
 
 def test_a_finished_training_fills_the_avatar_field(scene, tmp_path):
     train = ops("train")
-    from mogaface.core.worker import Progress
+    from mogaface.core.for_blender.worker import Progress
 
     run = tmp_path / "run"
     run.mkdir()
@@ -602,7 +602,7 @@ def test_improve_tracking_asks_before_replacing_keys_and_shows_its_progress(scen
     assert improving.MOGAFACE_OT_improve_tracking.invoke(fake, context, None) == {"RUNNING_MODAL"}
     assert count and str(count) in asked[0]["message"] and not executed
 
-    from mogaface.core.worker import Progress
+    from mogaface.core.for_blender.worker import Progress
 
     panels = importlib.import_module(MODULE + ".mogaface_addon.panels")
     running = types.SimpleNamespace(progress=Progress(state="running", stage="offsets", step=3, steps=50))

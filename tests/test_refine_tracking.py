@@ -20,10 +20,10 @@ from mogaface.core.errors import InputError
 from mogaface.core.evaluate.sources.refined import RefinedParams, run_refiner
 from mogaface.core.evaluate.sources.tracked import AlignedTrackedParams, TrackedParams
 from mogaface.core.for_blender.tracking import read_tracking
+from mogaface.core.for_blender.worker import RefineTrackingWorker
 from mogaface.core.refiner.training import RefinerSettings, frozen_avatar, train_refiner
 from mogaface.core.run.cameras import InputCameras
 from mogaface.core.run.folder import RunFolder
-from mogaface.core.worker import RefineTrackingWorker
 from mogaface.core.workflows.refine_tracking import RECORD_FILE, refine_tracking
 
 TINY = dict(starts=2, offsets_per_start=2, gap_timesteps=2, threads=1,
@@ -253,7 +253,7 @@ def test_a_stopped_job_leaves_the_previous_result_and_a_foreign_folder_is_refuse
 
 
 def test_the_command_and_its_worker(run_root, tmp_path):
-    from mogaface.core.worker import refine_tracking_command
+    from mogaface.core.for_blender.worker import refine_tracking_command
 
     out = tmp_path / "refined"
     worker = RefineTrackingWorker(refine_tracking_command(sys.executable, run_root, out=out, passes=1, views=2,
@@ -306,7 +306,7 @@ def test_errors_against_the_truth_are_zero_for_the_truth_and_its_gauge(run_root,
 def test_cancelling_the_worker_stops_the_child_and_keeps_nothing_half_done(run_root, tmp_path):
     import time
 
-    from mogaface.core.worker import refine_tracking_command
+    from mogaface.core.for_blender.worker import refine_tracking_command
 
     bare = tmp_path / "run"
     shutil.copytree(run_root, bare)

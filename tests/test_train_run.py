@@ -186,8 +186,8 @@ def test_a_signal_during_the_final_evaluation_leaves_a_resumable_run(tiny_captur
 def test_a_metric_that_cannot_be_scored_at_the_end_never_loses_the_avatar(tiny_capture, tmp_path, monkeypatch):
     """Without the LPIPS weights (a Blender whose dependencies predate them), the run completes, the
     avatar is written, and the metrics and a warning say what was not scored and why."""
+    from mogaface.core.for_blender.worker import TrainWorker
     from mogaface.core.metrics import lpips_weights
-    from mogaface.core.worker import TrainWorker
 
     monkeypatch.setenv(lpips_weights.ENV_VAR, str(tmp_path / "nowhere.ckpt"))
     run = tmp_path / "run"

