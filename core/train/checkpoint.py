@@ -28,7 +28,7 @@ LATEST = "latest"
 REFUSED = ".refused"  # the suffix of a checkpoint set aside because it did not load
 _NAME = re.compile(r"^step_(\d{6,})\.pt$")
 
-if TYPE_CHECKING:  # the lock takes this module's remove_partials: no import back at run time
+if TYPE_CHECKING:
     from ..run.folder import RunFolder
     from .run_lock import RunLock
 
@@ -80,17 +80,6 @@ def load_checkpoint(path: str | os.PathLike) -> dict:
     state = load_torch_state(path, "checkpoint")
     check_format(state, path, CHECKPOINT_FORMAT, CHECKPOINT_VERSION)
     return state
-
-
-def remove_partials(folder: str | os.PathLike) -> list[pathlib.Path]:
-    """Delete the temporary files a killed writer left in ``folder`` (``.*.partial*``)."""
-    folder = pathlib.Path(folder)
-    if not folder.is_dir():
-        return []
-    removed = [p for p in folder.iterdir() if p.name.startswith(".") and ".partial" in p.name and p.is_file()]
-    for p in removed:
-        p.unlink(missing_ok=True)
-    return removed
 
 
 def newest_intact_checkpoint(folder: str | os.PathLike) -> tuple[pathlib.Path, dict, list[str]]:

@@ -93,8 +93,8 @@ def _read_pid(fd: int) -> int | None:
 
 def take_run_folder(root: pathlib.Path) -> RunLock:
     """Create ``root`` if needed and hold its lock; then clear what killed writers left there."""
-    from ..io.atomic import check_output_target
-    from .checkpoint import remove_partials
+    from ..io.atomic import check_output_target, remove_partials
+    from ..run.names import CHECKPOINT_DIR
 
     check_output_target(root, folder=True)  # a FIFO, device or file there: say what it is
     try:
@@ -102,5 +102,5 @@ def take_run_folder(root: pathlib.Path) -> RunLock:
     except OSError as error:
         raise InputError(root, None, f"cannot create the run folder ({error.strerror})") from None
     lock = RunLock(root).acquire()
-    lock.removed_partials = remove_partials(root / "checkpoints") + remove_partials(root)
+    lock.removed_partials = remove_partials(root / CHECKPOINT_DIR) + remove_partials(root)
     return lock
