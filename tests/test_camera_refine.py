@@ -237,7 +237,7 @@ def test_by_default_only_the_rotations_are_stepped_and_the_centres_move_with_the
 
 
 def test_camera_rates_decay_to_their_final_ratio(capture, tmp_path):
-    from mogaface.core.train.trainer import camera_lrs
+    from mogaface.core.train.schedule import camera_lrs
 
     config = refine_config(steps=6)
     config.cameras.final_ratio = 0.01

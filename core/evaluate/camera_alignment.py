@@ -48,7 +48,7 @@ def align_camera(avatar, camera: Camera, views: list[tuple[dict, np.ndarray]], b
     """
     from ..correction.avatar import render_world
     from ..train.camera_refine import CameraOffsets
-    from ..train.trainer import decayed
+    from ..train.schedule import decayed
 
     if not views:
         raise ValueError("aligning a camera needs at least one view")

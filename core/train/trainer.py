@@ -26,7 +26,7 @@ import torch
 
 from ..avatar.avatar import Avatar
 from ..avatar.binding import triangle_frames
-from ..avatar.densify import DensifySchedule, DensifyStrategy
+from ..avatar.densify import DensifyStrategy
 from ..errors import InputError, MogafaceError
 from ..io.atomic import atomic_path, write_text
 from ..run.folder import RunFolder
@@ -43,6 +43,7 @@ from .distributed import Communicator
 from .events import EventLog, Listener
 from .results import quick_check, write_learned_cameras, write_results, write_run_json
 from .run_lock import take_run_folder
+from .schedule import camera_lrs, densify_schedule, image_scale, position_lr
 from .training_view import ViewRenderer, ViewResult
 
 
@@ -52,41 +53,6 @@ def set_threads(threads: int) -> None:
 
     torch.set_num_threads(threads)
     numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
-
-
-def densify_schedule(config: TrainConfig) -> DensifySchedule:
-    d = config.densify
-    return DensifySchedule(**{name: getattr(d, name) for name in DensifySchedule.__dataclass_fields__})
-
-
-def decayed(rate: float, final_ratio: float, step: int, steps: int) -> float:
-    """Exponential decay from ``rate`` at the first step to ``final_ratio × rate`` at the last."""
-    t = min(max(step / max(steps, 1), 0.0), 1.0)
-    return rate * math.exp(t * math.log(final_ratio))
-
-
-def position_lr(config: TrainConfig, extent: float, step: int) -> float:
-    return decayed(config.lr.position * extent, config.lr.position_final_ratio, step, config.train.steps)
-
-
-def camera_lrs(config: TrainConfig, step: int) -> dict[str, float]:
-    """The camera offsets' rates at ``step``: constant unless ``cameras.final_ratio`` < 1."""
-    cams = config.cameras
-    return {f"cameras.{name}": decayed(rate, cams.final_ratio, step, config.train.steps)
-            for name, rate in (("rotation", cams.rotation_lr), ("translation", cams.translation_lr),
-                               ("delay", cams.delay_lr))}
-
-
-def image_scale(config: TrainConfig, progress: float) -> float:
-    """Progressive resolution: the scale of the training images at ``progress`` (0 to 1) of the
-    training. From ``train.resolution_start`` it doubles in even stages up to full size at
-    ``train.resolution_full``: early steps, which shape the avatar coarsely, cost a fraction of a
-    full-size step."""
-    start, full = config.train.resolution_start, config.train.resolution_full
-    if start >= 1.0 or full <= 0.0:
-        return 1.0
-    stages = math.ceil(math.log2(1.0 / start) - 1e-9)
-    return min(1.0, start * 2.0 ** min(stages, int(progress / full * stages)))
 
 
 def hold_still(optimizer, holds) -> None:

@@ -12,9 +12,8 @@ import torch
 
 from ...data.capture import Capture, Frame
 from ...data.capture_info import capture_info
-from ...data.target import target_image
+from ...data.target import area_resized, target_image
 from ...run.cameras import InputCameras
-from ...train.training_view import area_resized
 from .base import ParamSource, input_views, timestep_of
 
 # The width of the prior toward the start per parameter (make-capture's default tracker error for
