@@ -159,3 +159,27 @@ class TrainingData:
                 "cameras": sorted({f.camera_id for f in frames}),
             }
         return out
+
+
+class FrameOrder:
+    """Training frames in a fresh random order each epoch (every image seen once per epoch); its
+    state (the epoch's order, the place in it) is part of a checkpoint."""
+
+    def __init__(self, count: int):
+        self.count = count
+        self.order = torch.zeros(0, dtype=torch.long)
+        self.position = 0
+
+    def next(self, generator: torch.Generator) -> int:
+        """The index of the next training frame, drawing a new order from ``generator`` at an epoch's end."""
+        if self.position >= len(self.order):
+            self.order = torch.randperm(self.count, generator=generator)
+            self.position = 0
+        self.position += 1
+        return int(self.order[self.position - 1])
+
+    def state(self) -> dict:
+        return {"order": self.order.clone(), "position": self.position}
+
+    def load_state(self, state: dict) -> None:
+        self.order, self.position = state["order"].clone(), int(state["position"])
