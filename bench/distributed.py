@@ -27,7 +27,7 @@ BATCH = 2
 
 
 def _settings(variant: str, threads: int) -> dict:
-    from mogaface.core.train.config import FLAME_FINETUNE, FULL_METHOD
+    from mogaface.core.train.presets import FLAME_FINETUNE, FULL_METHOD
 
     extra = {"mogaface": {**FULL_METHOD, "encoder_views": 8}, "flame": FLAME_FINETUNE} if variant == "mogaface" else {}
     return {"train": {"steps": 100000, "threads": threads, "checkpoint_every": 0, "batch": BATCH},

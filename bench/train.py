@@ -28,7 +28,7 @@ VIEWS = 10  # 9 training cameras: 8 other views for the encoder, the held-out on
 
 def _variants() -> dict:
     """Settings over the defaults; "mogaface" is the full method as its preset trains it."""
-    from mogaface.core.train.config import FLAME_FINETUNE, FULL_METHOD
+    from mogaface.core.train.presets import FLAME_FINETUNE, FULL_METHOD
 
     return {"freeze": {}, "mogaface": {"mogaface": {**FULL_METHOD, "encoder_views": 8}, "flame": FLAME_FINETUNE}}
 

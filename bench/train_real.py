@@ -92,7 +92,7 @@ def worker(capture: str, run: str, threads: int, steps: int, out: str) -> None:
 
     from mogaface.bench.train import _grow
     from mogaface.core.train import config as config_module
-    from mogaface.core.train.config import FLAME_FINETUNE, FULL_METHOD
+    from mogaface.core.train.presets import FLAME_FINETUNE, FULL_METHOD
     from mogaface.core.train.trainer import Trainer
 
     config = config_module.resolve(overrides={

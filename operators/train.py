@@ -18,7 +18,7 @@ from .common import dependencies_ready
 from .dependencies import interpreter, top_package, worker_paths
 from .jobs import FollowsChildJob, cancel_operator, end_job, job_progress, new_job, refuse_if_busy
 
-#: Training presets (core.train.config.PRESETS) offered in the UI, with a one-line description each.
+#: Training presets (core.train.presets.PRESETS) offered in the UI, with a one-line description each.
 PRESET_ITEMS = (
     ("quick", "Quick", "Smoke run: 200 steps, a minute or two"),
     ("demo", "Demo", "1000 steps, a few minutes: a recognisable avatar"),

@@ -19,6 +19,7 @@ import torch
 from mogaface.core.io.torch_file import load_torch_state
 from mogaface.core.train import config as C
 from mogaface.core.train.checkpoint import list_checkpoints, load_checkpoint
+from mogaface.core.train.presets import FLAME_FINETUNE, FULL_METHOD
 from mogaface.core.train.trainer import Trainer
 
 SETTINGS = {
@@ -26,8 +27,8 @@ SETTINGS = {
     "densify": {"start": 2, "stop": 10, "interval": 3, "grad_threshold": 1e-6, "opacity_reset_interval": 0,
                 "sh_degree_interval": 4, "max_gaussians": 20000, "percent_dense": 0.005},
     "eval": {"at_end": False, "lpips": False},
-    "mogaface": {**C.FULL_METHOD, "encoder_views": 2, "input_size": 32},
-    "flame": C.FLAME_FINETUNE,
+    "mogaface": {**FULL_METHOD, "encoder_views": 2, "input_size": 32},
+    "flame": FLAME_FINETUNE,
 }
 
 

@@ -17,7 +17,7 @@ import pathlib
 import numpy as np
 
 from ..run.folder import is_complete
-from ..train.config import FULL_METHOD
+from ..train.presets import FULL_METHOD
 
 
 def _variant(mode: str, bank: bool = False, texture: bool = False, finetune: bool = True) -> dict:
