@@ -194,7 +194,8 @@ def _scene(folder: str, scale: str):
 def run(threads: int = 2, quick: bool = False, scale: str = "small") -> dict:
     import torch
 
-    from mogaface.bench.train import _grow, _variants
+    from mogaface.bench.grow import grow
+    from mogaface.bench.train import _variants
     from mogaface.bench.train_real import HEIGHT, TARGET_GAUSSIANS, WIDTH
     from mogaface.core.train import config as config_module
     from mogaface.core.train.trainer import Trainer
@@ -210,7 +211,7 @@ def run(threads: int = 2, quick: bool = False, scale: str = "small") -> dict:
                 "densify": {"start": 100000, "stop": 100000, "opacity_reset_interval": 0},
                 "eval": {"at_end": False}, **settings})
             trainer = Trainer(capture, os.path.join(folder, variant), config)
-            _grow(trainer, factor or max(1, round(TARGET_GAUSSIANS / len(trainer.avatar.gaussians))))
+            grow(trainer, factor or max(1, round(TARGET_GAUSSIANS / len(trainer.avatar.gaussians))))
             with torch.no_grad():
                 trainer.avatar.gaussians.opacity_logit.fill_(2.0)
             for _ in range(3):
