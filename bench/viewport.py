@@ -73,7 +73,8 @@ def run(threads: int = 2, quick: bool = False, avatar: str | None = None) -> dic
     import numpy as np
     import torch
 
-    from mogaface.core.for_blender.avatar import avatar_location, load_avatar, render_avatar
+    from mogaface.core.avatar.avatar import render_frame
+    from mogaface.core.for_blender.avatar import avatar_location, load_avatar
     from mogaface.core.for_blender.render import RenderRequest, depth_buffer_values, render, view_camera
 
     torch.set_num_threads(threads)
@@ -110,7 +111,7 @@ def run(threads: int = 2, quick: bool = False, avatar: str | None = None) -> dic
 
         params = fitted_params(values, model)
         fps, best = _median_fps(viewport_frame, repeats)
-        ref_fps, ref_best = _median_fps(lambda: render_avatar(model, params, camera, (1, 1, 1)), repeats)
+        ref_fps, ref_best = _median_fps(lambda: render_frame(model, params, camera, (1, 1, 1)), repeats)
         results.append({"size": size, "viewport_fps": fps, "viewport_fps_best": best,
                         "render_frame_fps": ref_fps, "render_frame_fps_best": ref_best,
                         "viewport_over_render_frame_time": round(ref_fps / fps, 3),

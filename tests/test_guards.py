@@ -142,9 +142,9 @@ def test_no_image_assisted_source_reads_the_answers(capture, trained):
 
 def test_the_spy_catches_a_source_that_reads_the_answers(capture, trained):
     """Negative control: fitting started from the truth, and the scoring cameras, are caught."""
-    from mogaface.core.evaluate.images import ScoringCameras
     from mogaface.core.evaluate.sources.fitted import FittedParams
     from mogaface.core.evaluate.sources.true import TrueParams
+    from mogaface.core.run.cameras import ScoringCameras
 
     run, _ = trained
     avatar = run.load_avatar()

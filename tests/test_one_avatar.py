@@ -22,10 +22,9 @@ import numpy as np
 import pytest
 import torch
 
-from mogaface.core.avatar.avatar import Avatar, flame_params_to_torch
+from mogaface.core.avatar.avatar import Avatar, flame_params_to_torch, render_frame
 from mogaface.core.cli import main
 from mogaface.core.correction.avatar import ModulatedAvatar
-from mogaface.core.evaluate.images import render_frame
 from mogaface.core.evaluate.protocols import TrackedParams
 from mogaface.core.for_blender.avatar import avatar_location, load_avatar
 from mogaface.core.for_blender.axes import blender_to_flame

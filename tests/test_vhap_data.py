@@ -12,13 +12,12 @@ import pytest
 import torch
 import vhap_fixture as V
 
-from mogaface.core.avatar.avatar import Avatar, flame_params_to_torch
+from mogaface.core.avatar.avatar import Avatar, flame_params_to_torch, render_frame
 from mogaface.core.data.capture import Capture
 from mogaface.core.data.cy_check import check_cy, judge
 from mogaface.core.data.validate import validate_capture
 from mogaface.core.errors import CaptureError
 from mogaface.core.evaluate.evaluation import evaluate_run
-from mogaface.core.evaluate.protocols import render_frame
 from mogaface.core.flame.model import FlameModel
 from mogaface.core.flame.model_file import write_model_file
 from mogaface.core.flame.teeth import LIP_RING_LOWER, LIP_RING_UPPER, teeth_faces

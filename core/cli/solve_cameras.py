@@ -29,8 +29,8 @@ def run(args) -> int:
     from ..data.camera_file import write_cameras
     from ..data.capture import Capture
     from ..evaluate.camera_error import camera_summary, pose_error
-    from ..evaluate.images import ScoringCameras
     from ..flame.landmarks import IBUG_COUNT, STATIC_IBUG, read_embedding
+    from ..run.cameras import ScoringCameras
     from ..train.data import capture_head_file
     from ..train.landmark_cameras import solve_cameras, training_cameras
 

@@ -9,11 +9,11 @@ from collections.abc import Iterable
 import numpy as np
 
 from ..errors import InputError
+from ..run.cameras import ScoringCameras
 from ..run.folder import RunFolder
 from ..train.camera_delays import delayed_views
 from . import report
 from .camera_alignment import split_frames
-from .images import ScoringCameras
 from .protocols import (
     PROTOCOLS,
     DrivenParams,

@@ -167,8 +167,9 @@ def write_figure(path: pathlib.Path, run_dirs: dict[str, pathlib.Path], split: s
     (the validation frames: self-reenactment only)."""
     from PIL import Image, ImageDraw
 
+    from ..avatar.avatar import render_frame
     from ..data.target import target_image
-    from ..evaluate.protocols import protocol_frames, render_frame
+    from ..evaluate.protocols import protocol_frames
     from ..io.atomic import atomic_path
     from ..run.folder import RunFolder
 
