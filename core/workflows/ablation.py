@@ -56,12 +56,12 @@ def merge_sections(a: dict, b: dict) -> dict:
 def train_variant(capture, run_dir: pathlib.Path, name: str, preset, config_path, overrides, progress) -> None:
     """Train one variant (reusing a complete run, resuming an interrupted one)."""
     from ..train import config as config_module
-    from ..train.checkpoint import latest_checkpoint
+    from ..train.checkpoint import has_checkpoint
     from ..train.trainer import Trainer
 
     if is_complete(run_dir):
         return
-    resume = latest_checkpoint(run_dir / "checkpoints") is not None
+    resume = has_checkpoint(run_dir)
     config = config_module.resolve(preset, config_path, merge_sections(overrides or {}, LADDER[name]))
     listeners = []
     if progress:
