@@ -12,6 +12,7 @@ import os
 import bpy
 from bpy.props import IntProperty, StringProperty
 
+from ..core.run.names import AVATAR_FILE
 from .common import dependencies_ready
 from .dependencies import interpreter, worker_paths
 from .handlers.heads import is_head
@@ -85,7 +86,7 @@ class MOGAFACE_OT_improve_tracking(FollowsChildJob, bpy.types.Operator):
         if not head_or_report(self, obj) or not dependencies_ready(self, context):
             return {"CANCELLED"}
         run = bpy.path.abspath(self.run or context.scene.mogaface.run_folder)
-        if not run or not os.path.isfile(os.path.join(run, "avatar.pt")):
+        if not run or not os.path.isfile(os.path.join(run, AVATAR_FILE)):
             self.report({"ERROR"}, f"{run or 'The scene has no run folder'}: not a finished run (no avatar.pt); "
                                    "train one first")
             return {"CANCELLED"}

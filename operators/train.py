@@ -14,6 +14,7 @@ import os
 import bpy
 from bpy.props import EnumProperty, FloatProperty, IntProperty, StringProperty
 
+from ..core.run.names import AVATAR_FILE
 from .common import dependencies_ready
 from .dependencies import interpreter, top_package, worker_paths
 from .jobs import FollowsChildJob, cancel_operator, end_job, job_progress, new_job, refuse_if_busy
@@ -58,7 +59,7 @@ def finish_job(operator, progress, settings=None) -> set:
     avatar goes into the scene's Avatar field (``settings``: ``scene.mogaface``)."""
     worker = end_job(_job, progress)
     if progress.state == "done" and settings is not None and worker is not None:
-        avatar = worker.run / "avatar.pt"
+        avatar = worker.run / AVATAR_FILE
         if avatar.exists():
             settings.avatar_file = str(avatar)
     if progress.state == "done":  # what the run could not do (say, score LPIPS) is a warning, not a failure

@@ -190,6 +190,7 @@ def run(args) -> int:
 
 def _train(args, comm) -> int:
     from ..io.atomic import write_text
+    from ..run.names import CONFIG_FILE
     from ..train import config as config_module
     from ..train.checkpoint import has_checkpoint
     from ..train.rounds import ROUNDS_DIR, train_earlier_rounds
@@ -198,7 +199,7 @@ def _train(args, comm) -> int:
     if args.batch == "auto":
         args.batch = comm.world
     overrides = _overrides(args)
-    rounds_config = args.out / ROUNDS_DIR / "config.toml"  # the whole run's, while earlier rounds train
+    rounds_config = args.out / ROUNDS_DIR / CONFIG_FILE  # the whole run's, while earlier rounds train
     if args.batch_rule is not None and (args.batch is None or args.resume):
         print("error: --batch-rule goes with --batch on a new run (a resumed run's config.toml holds the schedule "
               "already divided)", file=sys.stderr)
@@ -210,7 +211,7 @@ def _train(args, comm) -> int:
             return 2
         # RUN's own settings once its (last) round has a checkpoint; before, the whole run's, from which
         # the rounds derive theirs (RUN/config.toml of a last round that never saved is derived already)
-        order = (args.out / "config.toml", rounds_config)
+        order = (args.out / CONFIG_FILE, rounds_config)
         if not has_checkpoint(args.out):
             order = order[::-1]
         saved = next((p for p in order if p.exists()), None)

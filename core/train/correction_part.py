@@ -16,9 +16,7 @@ from ..correction.posing import world_with_offsets
 from ..correction.training import CorrectionTraining
 from ..data import layout
 from ..io.npz import save_npz
-from ..run.names import MODULES_FILE
-
-CORRECTED_DIR = "flame_param_corrected"
+from ..run.names import CORRECTED_DIR, MODULES_FILE
 
 
 def build_mogaface(config, data, table, avatar) -> CorrectionTraining | None:

@@ -17,6 +17,7 @@ import pathlib
 import numpy as np
 
 from ..run.folder import is_complete
+from ..run.names import RUN_FILE
 from ..train.presets import FULL_METHOD
 
 
@@ -139,7 +140,7 @@ def score_variant(run_dir: pathlib.Path, max_frames, lpips: bool, fit_steps, spl
                "refiner": changed(REFINER_FILE), "refined_cameras": changed(REFINED_CAMERAS_FILE),
                "scoring_code": scoring_code_hash(), "split": split}
     cached = run_dir / split_name(SCORES_FILE, split)
-    if cached.exists() and cached.stat().st_mtime >= (run_dir / "run.json").stat().st_mtime:
+    if cached.exists() and cached.stat().st_mtime >= (run_dir / RUN_FILE).stat().st_mtime:
         try:
             earlier = json.loads(cached.read_text(encoding="utf-8"))
         except (OSError, ValueError):
@@ -156,7 +157,7 @@ def score_variant(run_dir: pathlib.Path, max_frames, lpips: bool, fit_steps, spl
 
 
 def _train_summary(run_dir: pathlib.Path) -> dict:
-    info = json.loads((run_dir / "run.json").read_text(encoding="utf-8"))
+    info = json.loads((run_dir / RUN_FILE).read_text(encoding="utf-8"))
     steps, wall = info.get("final_step"), info.get("wall_time_s")
     return {"steps": steps, "wall_time_s": wall, "it_s": round(steps / wall, 3) if steps and wall else None,
             "gaussians": info.get("gaussians")}
