@@ -10,31 +10,10 @@ import numpy as np
 import torch
 
 from ..data.capture import Capture, Frame
-from ..data.capture_info import INFO_FILE, capture_info
-from ..errors import CaptureError, MogafaceError
-from ..io.files import file_inside
+from ..data.capture_info import capture_background
+from ..errors import MogafaceError
 
-DEFAULT_BACKGROUND = (1.0, 1.0, 1.0)
 JOINTS = ("rotation", "neck_pose", "jaw_pose", "eyes_pose")
-
-
-def capture_background(root: pathlib.Path) -> tuple[float, float, float]:
-    """The colour the capture's images are composited on (``capture_info.json`` "background"; white)."""
-    value = capture_info(root).get("background", DEFAULT_BACKGROUND)
-    if not (isinstance(value, list | tuple) and len(value) == 3
-            and all(isinstance(v, int | float) and 0 <= v <= 1 for v in value)):
-        raise CaptureError(root / INFO_FILE, "background", f"expected three numbers in [0, 1], got {value!r}")
-    return tuple(float(v) for v in value)
-
-
-def capture_head_file(root: pathlib.Path) -> pathlib.Path:
-    """The head model file a capture names (``capture_info.json`` "model_file"), or ``head.pkl``."""
-    name = capture_info(root).get("model_file", "head.pkl")
-    path = file_inside(root, name, root / INFO_FILE, "model_file", CaptureError)
-    if not path.is_file():
-        raise CaptureError(root / INFO_FILE, "model_file",
-                           f"head model file {path} not found (pass --head FILE)")
-    return path
 
 
 def principal_point_notes(capture, head) -> list[str]:

@@ -29,6 +29,7 @@ import torch
 from ..avatar.avatar import Avatar
 from ..avatar.binding import triangle_frames
 from ..avatar.densify import DensifyStrategy
+from ..data.capture_info import capture_head_file
 from ..errors import InputError, MogafaceError
 from ..io.atomic import atomic_path, write_text
 from ..run.folder import RunFolder
@@ -40,7 +41,7 @@ from .camera_start import build_camera_delays, build_camera_offsets, load_camera
 from .checkpoint import save_checkpoint, starting_state
 from .config import TrainConfig
 from .correction_part import build_mogaface
-from .data import FrameOrder, TrainingData, capture_head_file, principal_point_notes
+from .data import FrameOrder, TrainingData, principal_point_notes
 from .distributed import Communicator
 from .events import EventLog, Listener
 from .results import RunOutputs, write_learned_cameras, written_avatar
