@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import bpy
 
+from .common import dependencies_ready
 from .dependencies import LazyModule
 from .handlers.heads import AVATAR_PATH_PROPERTY, expression_values, head_objects, is_head, pose_values, rig_of
 
@@ -22,7 +23,10 @@ def avatar_heads(scene) -> list:
 
 
 def head_with_avatar(operator, context, name: str):
-    """The named head, else the active one, else the scene's only head with an avatar; or report."""
+    """The named head, else the active one, else the scene's only head with an avatar, once the core's
+    packages import (an avatar is of no use without them); else None, reported."""
+    if not dependencies_ready(operator, context):
+        return None
     obj = bpy.data.objects.get(name) if name else context.active_object
     if not (is_head(obj) and AVATAR_PATH_PROPERTY in obj) and not name:
         heads = avatar_heads(context.scene)

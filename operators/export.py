@@ -8,7 +8,7 @@ import bpy
 from bpy.props import BoolProperty, IntProperty, StringProperty
 
 from .avatar_head import head_params, head_with_avatar
-from .common import OpensFileBrowser, dependencies_ready, run_core
+from .common import OpensFileBrowser, run_core
 from .handlers.heads import AVATAR_PATH_PROPERTY
 
 
@@ -31,8 +31,6 @@ class MOGAFACE_OT_export_ply(OpensFileBrowser, bpy.types.Operator):
     def execute(self, context):
         if not self.filepath:
             self.report({"ERROR"}, "No output file given")
-            return {"CANCELLED"}
-        if not dependencies_ready(self, context):
             return {"CANCELLED"}
         head = head_with_avatar(self, context, self.head)
         if head is None:

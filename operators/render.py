@@ -11,7 +11,7 @@ import bpy
 from bpy.props import EnumProperty, IntProperty, StringProperty
 
 from .avatar_head import camera_of, head_request, head_with_avatar
-from .common import clear_status_text, dependencies_ready, redraw_areas, run_core
+from .common import clear_status_text, redraw_areas, run_core
 from .images import show_image, show_image_soon, store_image, write_files
 from .jobs import cancel_operator
 
@@ -29,8 +29,6 @@ class _RenderBase:
         camera = context.scene.camera
         if camera is None or camera.type != "CAMERA":
             self.report({"ERROR"}, "The scene has no active camera")
-            return None
-        if not dependencies_ready(self, context):
             return None
         head = head_with_avatar(self, context, self.head)
         return None if head is None else (head, camera)
