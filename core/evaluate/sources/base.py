@@ -65,11 +65,11 @@ def input_views(capture: Capture, timestep: int, exclude_view: str | None, count
 class ImageAssistedSource:
     """What an image-assisted source (test-time fitting, the refiner) shares: the avatar, the capture
     with the cameras its input views are rendered from, the source it improves (``base``), the
-    background; and the improving itself. A frame's parameters are ``base``'s, improved by
-    :meth:`improve` from at most ``max_inputs`` other views of its timestamp (:func:`input_views`,
-    from ``input_cameras``: ids, None: any) where there are any and ``rounds`` > 0. Every set of
-    views read is recorded in :attr:`inputs` (scored view, views read), so tests can check that the
-    scored view is never one."""
+    background; and the improving itself. A frame's parameters are ``base``'s, improved by the
+    subclass's ``improve(start, frames, timestep)`` from at most ``max_inputs`` other views of its
+    timestamp (:func:`input_views`, from ``input_cameras``: ids, None: any) where there are any and
+    ``rounds`` > 0. Every set of views read is recorded in :attr:`inputs` (scored view, views
+    read), so tests can check that the scored view is never one."""
 
     uses_images = True
 
@@ -93,6 +93,3 @@ class ImageAssistedSource:
             return start
         self.inputs.append((exclude_view, [f.camera_id for f in frames]))
         return self.improve(start, frames, timestep)
-
-    def improve(self, start: dict[str, np.ndarray], frames: list[Frame], timestep: int) -> dict[str, np.ndarray]:
-        raise NotImplementedError
