@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import bpy
 
-from ..operators.handlers.head_rig import is_head
+from ..operators.handlers.heads import is_head
 from .preferences import draw_dependencies
 from .text import wrapped_label
 
@@ -215,7 +215,7 @@ class MOGAFACE_PT_avatar(_SubPanel, bpy.types.Panel):
 
 def draw_gpu_unavailable(layout, context) -> None:
     """The line saying the viewport's GPU draw cannot run here (the CPU image is drawn instead)."""
-    from ..operators.handlers.gpu_splats import software_renderer, unavailable
+    from ..operators.handlers.gpu_draw import software_renderer, unavailable
 
     reason = unavailable()
     if reason is not None:

@@ -19,7 +19,7 @@ from ..operators.export import MOGAFACE_OT_export_ply
 from ..operators.footage import MOGAFACE_OT_drive_from_footage, MOGAFACE_OT_footage_cancel, MOGAFACE_OT_track_footage
 from ..operators.gaussian_points import MOGAFACE_OT_gaussians_to_mesh
 from ..operators.handlers import viewport
-from ..operators.handlers.head_rig import update_heads_on_edit, update_heads_on_frame_change
+from ..operators.handlers.heads import update_heads_on_edit, update_heads_on_frame_change
 from ..operators.handlers.render_layers import render_avatar_layers
 from ..operators.handlers.suspend import (
     resume_after_load,

@@ -21,7 +21,7 @@ from bpy_extras.io_utils import ImportHelper
 
 from .common import dependencies_ready, run_core
 from .dependencies import FILE_MODULES, interpreter, worker_paths
-from .handlers.head_rig import is_head
+from .handlers.heads import is_head
 from .import_tracking import head_or_report, key_tracking
 from .jobs import FollowsChildJob, cancel_operator, end_job, job_progress, new_job, refuse_if_busy
 from .train import preferred_threads
@@ -64,7 +64,7 @@ def mark_lost_frames(scene, frames, label: str = LOST_MARKER) -> None:
 
 
 def lost_text(lost: list[int]) -> str:
-    from ..core.scene.axes import FRAME_OFFSET
+    from ..core.for_blender.axes import FRAME_OFFSET
 
     if not lost:
         return ""
@@ -82,7 +82,7 @@ def use_clip_fps(scene, fps: float) -> None:
 def show_movie_behind(camera_object, path: str, first_frame: int):
     """The video ``path`` as the camera's background, frame by frame: its frame ``first_frame`` on the
     timestep 0's scene frame."""
-    from ..core.scene.axes import FRAME_OFFSET
+    from ..core.for_blender.axes import FRAME_OFFSET
 
     clip = bpy.data.movieclips.load(path, check_existing=True)
     clip.frame_start = FRAME_OFFSET - int(first_frame)
@@ -136,7 +136,7 @@ class _FootageJob(ImportHelper, FollowsChildJob):
         return inputs
 
     def _start(self, context, command_for) -> set:
-        from ..core.worker import FootageWorker
+        from ..core.for_blender.worker import FootageWorker
 
         python = bpy.path.abspath(self.python) if self.python else interpreter(context)
         self.job_folder = tempfile.mkdtemp(prefix="mogaface-footage-")
@@ -176,8 +176,8 @@ class MOGAFACE_OT_track_footage(_FootageJob, bpy.types.Operator):
         inputs = self._inputs(context)
         if inputs is None:
             return {"CANCELLED"}
-        from ..core.track.drive import folder_beside
-        from ..core.worker import track_command
+        from ..core.for_blender.worker import track_command
+        from ..core.workflows.drive import folder_beside
 
         self.out = bpy.path.abspath(self.out) if self.out else str(folder_beside(inputs[0], "capture"))
         threads = preferred_threads(context)
@@ -187,8 +187,8 @@ class MOGAFACE_OT_track_footage(_FootageJob, bpy.types.Operator):
     def finished(self, context, progress) -> set:
         if not self._ended(progress):
             return {"CANCELLED"}
+        from ..core.for_blender.axes import FRAME_OFFSET
         from ..core.io.jsonfile import read_json_object
-        from ..core.scene.axes import FRAME_OFFSET
         from ..core.track.pipeline import REPORT_FILE
 
         report = run_core(self, read_json_object, os.path.join(self.out, REPORT_FILE))
@@ -245,10 +245,10 @@ class MOGAFACE_OT_drive_from_footage(_FootageJob, bpy.types.Operator):
         inputs = self._inputs(context)
         if inputs is None:
             return {"CANCELLED"}
-        from ..core.scene.head_rig import MODEL_PATH_PROPERTY
-        from ..core.track.drive import folder_beside, write_identity
-        from ..core.worker import drive_command
-        from .handlers.head_rig import pose_values, rig_of
+        from ..core.for_blender.head_rig import MODEL_PATH_PROPERTY
+        from ..core.for_blender.worker import drive_command
+        from ..core.workflows.drive import folder_beside, write_identity
+        from .handlers.heads import pose_values, rig_of
 
         rig = run_core(self, rig_of, obj)
         if rig is None:
@@ -270,9 +270,9 @@ class MOGAFACE_OT_drive_from_footage(_FootageJob, bpy.types.Operator):
     def finished(self, context, progress) -> set:
         if not self._ended(progress):
             return {"CANCELLED"}
+        from ..core.for_blender.axes import FRAME_OFFSET
         from ..core.io.jsonfile import read_json_object
-        from ..core.scene.axes import FRAME_OFFSET
-        from ..core.track.drive import REPORT_FILE
+        from ..core.workflows.drive import REPORT_FILE
 
         obj = bpy.data.objects.get(self.target)
         if not is_head(obj):

@@ -11,7 +11,7 @@ from bpy.props import BoolProperty, StringProperty
 
 from .animation import fcurve_container, id_fcurves, write_fcurve
 from .common import dependencies_ready, run_core
-from .handlers.head_rig import is_head, rig_of, update_head
+from .handlers.heads import is_head, rig_of, update_head
 
 
 def existing_keys(obj) -> int:
@@ -70,7 +70,7 @@ def key_tracking(operator, context, obj, folder: str, tolerance: float = 0.0) ->
     """Key head ``obj``'s expressions and pose from a ``flame_param`` folder, one key per timestep
     (fewer with a ``tolerance``: the keys the curve needs to stay within it); what goes wrong is
     reported through ``operator``. The scene's Tracking field becomes ``folder``."""
-    from ..core.scene.tracking import tracking_channels
+    from ..core.for_blender.tracking import tracking_channels
 
     replaced = existing_keys(obj)
     key = obj.data.shape_keys

@@ -69,7 +69,7 @@ mkdir -p "$work/dist" "$work/images" "$pip_cache"
 say "the pins resolve to binary wheels for Python 3.11 and 3.13"
 for version in 3.11 3.13; do
     mapfile -t pins < <("$python" -c "
-from mogaface.core import dependencies as d
+from mogaface.core.for_blender import dependencies as d
 print(*d.requirements(tuple(map(int, '$version'.split('.'))), has_numpy=False), sep='\n')")
     "$python" -m pip install --quiet --dry-run --no-deps --ignore-installed --target "$work/resolve" \
         --python-version "$version" --only-binary=:all: --platform manylinux_2_28_x86_64 --platform manylinux_2_27_x86_64 \

@@ -188,12 +188,13 @@ def build_scene(args, log=print) -> dict:
         _call(ops.train, capture=str(args.capture.resolve()), run=str(run), preset=args.preset, steps=args.steps,
               resume="NEW", python=args.python or "", camera_rounds=args.camera_rounds)
         log(f"[blend] trained into {run}")
-    head = run / "head.pkl"
+    names = importlib.import_module(f"{mogaface.__name__}.core.run.names")
+    head = run / f"{names.HEAD_STEM}.pkl"
     if not head.exists():
-        head = run / "head.npz"
-    corrected = run / "flame_param_corrected"  # a MoGaFace run's improved tracking (same as flame_param)
-    tracking = (args.tracking or (corrected if corrected.is_dir() else run / "flame_param")).resolve()
-    identity = sorted((run / "flame_param").glob("*.npz"))  # the avatar's own identity
+        head = run / f"{names.HEAD_STEM}.npz"
+    corrected = run / names.CORRECTED_DIR  # a MoGaFace run's improved tracking (same as flame_param)
+    tracking = (args.tracking or (corrected if corrected.is_dir() else run / names.FLAME_PARAM_DIR)).resolve()
+    identity = sorted((run / names.FLAME_PARAM_DIR).glob("*.npz"))  # the avatar's own identity
     _call(ops.import_head, filepath=str(head), shape_file=str(identity[0]) if identity else "")
     head_object = bpy.context.active_object
     scene = bpy.context.scene

@@ -41,10 +41,8 @@ from mogaface.core.data.capture import Capture  # noqa: E402
 from mogaface.core.data.writer import CaptureWriter  # noqa: E402
 from mogaface.core.flame.model import FlameModel  # noqa: E402
 from mogaface.core.flame.model_file import write_model_file  # noqa: E402
-from mogaface.core.io.npz import save_npz  # noqa: E402
-from mogaface.core.metrics import lpips_weights  # noqa: E402
-from mogaface.core.scene.axes import blender_to_flame, flame_to_blender  # noqa: E402
-from mogaface.core.scene.head_rig import (  # noqa: E402
+from mogaface.core.for_blender.axes import blender_to_flame, flame_to_blender  # noqa: E402
+from mogaface.core.for_blender.head_rig import (  # noqa: E402
     AVATAR_PATH_PROPERTY,
     MODEL_PATH_PROPERTY,
     POSE_KEY_NAME,
@@ -52,6 +50,8 @@ from mogaface.core.scene.head_rig import (  # noqa: E402
     HeadRig,
     load_head_model,
 )
+from mogaface.core.io.npz import save_npz  # noqa: E402
+from mogaface.core.metrics import lpips_weights  # noqa: E402
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 MODULE = "bl_ext.user_default.mogaface"
@@ -180,7 +180,7 @@ def test_installing_registers_the_operators_panels_settings_and_handler(scenario
     assert prefs.python_path == "" and prefs.threads == 0  # empty: Blender's own Python
     assert prefs.torch_index == "https://download.pytorch.org/whl/cpu"
     assert bpy.types.MOGAFACE_PT_main.bl_category == "MoGaFace"
-    head_rig = importlib.import_module(MODULE + ".operators.handlers.head_rig")
+    head_rig = importlib.import_module(MODULE + ".operators.handlers.heads")
     assert (head_rig.MODEL_PATH_PROPERTY, head_rig.POSE_KEY_NAME, head_rig.AVATAR_PATH_PROPERTY) \
         == (MODEL_PATH_PROPERTY, POSE_KEY_NAME, AVATAR_PATH_PROPERTY)
 
@@ -608,7 +608,7 @@ def test_the_train_operator_takes_its_interpreter_from_its_python_property(scena
 
 
 def test_the_train_operator_asks_for_the_scenes_camera_rounds(scenario, tmp_path, monkeypatch):
-    worker = importlib.import_module(MODULE + ".core.worker")
+    worker = importlib.import_module(MODULE + ".core.for_blender.worker")
     started = []
 
     def refuse(self):

@@ -12,8 +12,8 @@ import bpy  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
-from mogaface.core.scene.head_rig import POSE_PROPERTIES  # noqa: E402
-from mogaface.core.scene.tracking import read_tracking  # noqa: E402
+from mogaface.core.for_blender.head_rig import POSE_PROPERTIES  # noqa: E402
+from mogaface.core.for_blender.tracking import read_tracking  # noqa: E402
 
 MODULE = addon_test.MODULE
 
@@ -117,7 +117,7 @@ def test_cancel_stops_the_tracking_child_and_leaves_no_capture(tracked, tmp_path
     has no split file (no reader takes it; Track Footage on the same folder resumes from its detections)."""
     import time
 
-    from mogaface.core.worker import FootageWorker, track_command
+    from mogaface.core.for_blender.worker import FootageWorker, track_command
 
     out = tmp_path / "capture"
     worker = FootageWorker(track_command(None, [tracked["clip"]], out, tmp_path, size=112, fit_steps=5000), tmp_path)

@@ -8,8 +8,7 @@ import pytest
 
 from mogaface.core.errors import InputError
 from mogaface.core.io.npz import load_npz, save_npz
-from mogaface.core.scene.tracking import thin_channel, thinned
-from mogaface.core.track.drive import Identity, drive_clip, put_on_rest, retime
+from mogaface.core.workflows.drive import Identity, drive_clip, put_on_rest, retime, thin_channel, thinned
 
 
 def test_retiming_keeps_the_span_and_samples_the_motion_linearly():

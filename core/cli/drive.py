@@ -1,7 +1,7 @@
 """``drive CLIP --avatar RUN_OR_CAPTURE --out FOLDER``: a performance clip drives an avatar. The
 clip is tracked with the avatar's head shape held fixed; its expression, jaw, eyes and head motion
 are written as ``flame_param`` files (``render --params`` and Blender's Import Tracking read them),
-retimed to ``--to-fps``, thinned within ``--tolerance`` (:mod:`..track.drive`)."""
+retimed to ``--to-fps``, thinned within ``--tolerance`` (:mod:`..workflows.drive`)."""
 
 from __future__ import annotations
 
@@ -34,7 +34,7 @@ def add_arguments(parser) -> None:
 def run(args) -> int:
     from ..errors import InputError
     from ..track.decode import selection_from_arguments
-    from ..track.drive import DriveSettings, Identity, drive_clip
+    from ..workflows.drive import DriveSettings, Identity, drive_clip
     from .track import progress_reporter
 
     if args.tolerance < 0 or (args.to_fps is not None and args.to_fps <= 0):

@@ -504,14 +504,14 @@ def core_render(head, camera, frame, transparent):
     avatar_head = module("operators.avatar_head")
     request = avatar_head.head_request(scene, head, avatar_head.camera_of(scene, camera, head), frame,
                                        transparent=transparent, keyed=True)
-    return module("core.scene.render").render(request)
+    return module("core.for_blender.render").render(request)
 
 
 def render_frame_pixels(head, camera):
     """Render Frame's image saved through the view transform: under Standard the core render."""
     scene = bpy.context.scene
     frame = scene.frame_current
-    image = bpy.data.images[module("core.scene.render").render_image_name(camera.name, frame)]
+    image = bpy.data.images[module("core.for_blender.render").render_image_name(camera.name, frame)]
     core = core_render(head, camera, frame, transparent=False)
     mask = core.alpha > 1 / 255
     check(scene.view_settings.view_transform == "Standard", "Import Capture did not set Standard")
@@ -604,7 +604,7 @@ def drive_from_footage_stages(head):
                                                      target=head.name, tolerance=0.001, size=160, fit_steps=60)
         check(result == {"RUNNING_MODAL"}, f"drive from footage gave {result}")
     yield from follow_footage_job("drive from footage", "12-drive-from-footage")
-    performance = module("core.scene.tracking").read_tracking(out)
+    performance = module("core.for_blender.tracking").read_tracking(out)
     n_expr = performance.params["expr"].shape[1]
     worst = 0.0
     for index, frame in enumerate(performance.frames):
@@ -612,7 +612,7 @@ def drive_from_footage_stages(head):
         keys = head.data.shape_keys.key_blocks
         worst = max(worst, float(np.abs(np.array([keys[i + 1].value for i in range(n_expr)])
                                         - performance.params["expr"][index]).max()))
-        for name, (prop, _) in module("core.scene.head_rig").POSE_PROPERTIES.items():
+        for name, (prop, _) in module("core.for_blender.head_rig").POSE_PROPERTIES.items():
             worst = max(worst, float(np.abs(np.array(head[prop]) - performance.params[name][index]).max()))
     fps = scene.render.fps / scene.render.fps_base
     RESULTS["footage"]["drive"] = {"frames": len(performance.frames), "scene_fps": fps, "keys_worst_error": worst}
@@ -625,7 +625,7 @@ def drive_from_footage_stages(head):
         scene.frame_set(frame)
         with override():
             check(bpy.ops.mogaface.render_frame(head=head.name) == {"FINISHED"}, "render frame of the performance")
-        image = bpy.data.images[module("core.scene.render").render_image_name(camera.name, frame)]
+        image = bpy.data.images[module("core.for_blender.render").render_image_name(camera.name, frame)]
         core = core_render(head, camera, frame, transparent=False)
         got = saved_pixels(image, f"drive-frame-{frame}")[..., :3]
         compare(f"Drive from Footage frame {frame}", got, core.rgb, core.alpha > 1 / 255)
@@ -668,7 +668,7 @@ def track_footage_stages(avatar_head):
     yield from follow_footage_job("track footage", "13-tracking-footage")
     report = json.loads((out / "tracking.json").read_text())
     head, camera = bpy.context.view_layer.objects.active, scene.camera
-    check(module("operators.handlers.head_rig").is_head(head), "Track Footage left no head active")
+    check(module("operators.handlers.heads").is_head(head), "Track Footage left no head active")
     background = camera.data.background_images[0]
     check(background.source == "MOVIE_CLIP" and background.clip is not None, "the footage is not behind the camera")
     capture = module("core.data.capture").Capture.open(out)
@@ -681,7 +681,7 @@ def track_footage_stages(avatar_head):
     points = module("core.flame.landmarks").LandmarkEmbedding(embedding.faces[at], embedding.barycentric[at],
                                                               embedding.ibug[at])
     detected = module("core.data.landmarks").read_landmarks(out, capture.cameras, len(capture.timesteps))["cam00"]
-    model = module("core.scene.head_rig").load_head_model(head["mogaface_model_path"])
+    model = module("core.for_blender.head_rig").load_head_model(head["mogaface_model_path"])
     width, height = scene.render.resolution_x, scene.render.resolution_y
     errors = {"blender_vs_core": [], "blender_vs_detected": [], "core_vs_detected": []}
     for t in sorted({0, len(capture.timesteps) // 2, len(capture.timesteps) - 1}):
@@ -759,7 +759,7 @@ def viewport_pixels(head, viewport):
     yield from wait_until(full_size, 300, "the still viewport at the region's size")
     request, _ = viewport.viewport_request(head, np.array(region_3d.view_matrix), np.array(region_3d.window_matrix),
                                            (region.width, region.height), bpy.context.scene.frame_current)
-    core = module("core.scene.render").render(request)
+    core = module("core.for_blender.render").render(request)
     alpha = np.where(core.alpha >= viewport.OPAQUE_ALPHA, 1.0, core.alpha)[..., None]
     straight = np.divide(core.rgb, core.alpha[..., None], out=np.zeros_like(core.rgb), where=core.alpha[..., None] > 0)
     RESULTS["viewport_size"] = [region.width, region.height]
@@ -838,9 +838,9 @@ def gpu_draw_pixels(head, viewport):
     its frames per second at 30k and 100k Gaussians."""
     import numpy as np
 
-    gpu_splats = module("operators.handlers.gpu_splats")
-    core_gpu = module("core.scene.gpu_splats")
-    render = module("core.scene.render")
+    gpu_splats = module("operators.handlers.gpu_draw")
+    core_gpu = module("core.for_blender.splat_buffers")
+    render = module("core.for_blender.render")
     check(gpu_splats.program() is not None, f"the GPU draw cannot run: {gpu_splats.unavailable()}")
     _, area, _ = window_and_view()
     region_3d = area.spaces.active.region_3d
@@ -884,7 +884,7 @@ def live_gpu_pixels(head, viewport):
     yield 1.0  # the avatar drawn again before the screenshot below
     request, _ = viewport.viewport_request(head, np.array(region_3d.view_matrix), np.array(region_3d.window_matrix),
                                            (region.width, region.height), bpy.context.scene.frame_current)
-    core = module("core.scene.render").render(request)
+    core = module("core.for_blender.render").render(request)
     alpha = core.alpha[..., None]
     straight = np.divide(core.rgb, alpha, out=np.zeros_like(core.rgb), where=alpha > 0)
     expected = over(straight, alpha, behind)
@@ -903,9 +903,9 @@ class Profile:
     upload); what is left of a block is Blender's own redraw and the GL work it waits for."""
 
     def __init__(self):
-        gpu_splats = module("operators.handlers.gpu_splats")
+        gpu_splats = module("operators.handlers.gpu_draw")
         viewport = module("operators.handlers.viewport")
-        core_gpu = module("core.scene.gpu_splats")
+        core_gpu = module("core.for_blender.splat_buffers")
         self.targets = [(viewport, "draw_head", "draw handler, in all"),
                         (viewport, "update_view", "CPU image: request"),
                         (viewport, "textures", "CPU image: upload"),
@@ -913,7 +913,7 @@ class Profile:
                         (gpu_splats.GpuSplats, "draw", "GPU draw: sort, upload, draw"),
                         (core_gpu.SplatOrder, "update", "GPU draw: sort and colours"),
                         (gpu_splats.Posing, "latest", "GPU draw: posing hand-over"),
-                        (module("operators.handlers.head_rig"), "_update_heads", "head meshes re-posed")]
+                        (module("operators.handlers.heads"), "_update_heads", "head meshes re-posed")]
         self.seconds, self.calls, self.saved = {}, {}, []
 
     def __enter__(self):
@@ -1001,7 +1001,7 @@ def scrub_blocks(head, viewport):
     scene = bpy.context.scene
     frames = list(range(scene.frame_start, min(scene.frame_end, scene.frame_start + 11) + 1))
     idle = RESULTS.get("load_avatar", {}).get("idle_longest_block_s", 0.0)
-    RESULTS["software_opengl"] = module("operators.handlers.gpu_splats").software_renderer()
+    RESULTS["software_opengl"] = module("operators.handlers.gpu_draw").software_renderer()
     for mode in ("BOTH", "GPU"):
         setattr(head, viewport.DRAW_PROPERTY, mode)
         changes = [lambda frame=frame: scene.frame_set(frame) for frame in frames + frames[::-1]]

@@ -42,8 +42,8 @@ class Identity:
         """A run folder, a capture folder, or an ``.npz`` with ``shape`` (then ``head_file`` is needed;
         its ``rotation``/``neck_pose``/``translation``, if any, are the rest pose)."""
         from ..data.capture import Capture
+        from ..data.capture_info import capture_head_file
         from ..run.folder import RunFolder
-        from ..train.data import capture_head_file
 
         path = pathlib.Path(path)
         if path.is_file():
@@ -146,9 +146,8 @@ def drive_clip(clip, identity: Identity, out, settings: DriveSettings = DriveSet
     ``capture``: keep the tracked capture there (default: a temporary folder, removed).
     ``progress(stage, done, total)`` as :func:`~.pipeline.track_footage` calls it."""
     from ..io.atomic import check_output_target
-    from ..scene.tracking import read_tracking
-    from .fit import FitSettings
-    from .pipeline import TrackSettings, track_footage
+    from ..track.fit import FitSettings
+    from ..track.pipeline import TrackSettings, track_footage
 
     out = pathlib.Path(out)
     check_output_target(out, folder=True)
@@ -160,7 +159,7 @@ def drive_clip(clip, identity: Identity, out, settings: DriveSettings = DriveSet
         track = TrackSettings(size=settings.size, threads=settings.threads, head_file=identity.head_file,
                               fit=FitSettings(steps=settings.fit_steps, shape=identity.shape))
         report = track_footage(clip, tracked, track, selection, progress)
-        performance = read_tracking(tracked / "flame_param").params
+        performance = _tracked_params(tracked, report["frames"])
         clip_fps = float(report.get("fps") or 0) or (settings.fps or 30.0)
         result = performance_frames(performance, report["lost_frames"], clip_fps, identity, settings)
         staged = pathlib.Path(work.name) / "flame_param"
@@ -179,12 +178,59 @@ def drive_clip(clip, identity: Identity, out, settings: DriveSettings = DriveSet
         work.cleanup()
 
 
+def thin_channel(values: np.ndarray, tolerance: float, at=None) -> np.ndarray:
+    """Indices of the keys of one channel ``(T,)`` (at frames ``at``, default 0…T-1) to keep so that
+    linear interpolation between them stays within ``tolerance`` of every value
+    (Ramer-Douglas-Peucker); the ends are always kept. Thinned keys play a performance back
+    within the tolerance, and a curve that holds still keeps two keys instead of one per frame."""
+    values = np.asarray(values, np.float64)
+    at = np.arange(len(values), dtype=np.float64) if at is None else np.asarray(at, np.float64)
+    count = len(values)
+    if count <= 2 or tolerance <= 0:
+        return np.arange(count)
+    keep = np.zeros(count, bool)
+    keep[[0, -1]] = True
+    stack = [(0, count - 1)]
+    while stack:
+        low, high = stack.pop()
+        if high - low < 2:
+            continue
+        inside = np.arange(low + 1, high)
+        line = values[low] + (values[high] - values[low]) * (at[inside] - at[low]) / (at[high] - at[low])
+        error = np.abs(values[inside] - line)
+        worst = int(np.argmax(error))
+        if error[worst] > tolerance:
+            middle = int(inside[worst])
+            keep[middle] = True
+            stack += [(low, middle), (middle, high)]
+    return np.nonzero(keep)[0]
+
+
+def thinned(values: np.ndarray, tolerance: float) -> tuple[np.ndarray, int]:
+    """``values (T,n)`` as their thinned keys play them back (linear between kept keys), and the keys kept."""
+    values = np.asarray(values, np.float64).reshape(len(values), -1)
+    out, keys = np.empty_like(values), 0
+    steps = np.arange(len(values))
+    for i in range(values.shape[1]):
+        kept = thin_channel(values[:, i], tolerance)
+        out[:, i] = np.interp(steps, kept, values[kept, i])
+        keys += len(kept)
+    return out, keys
+
+
+def _tracked_params(capture: pathlib.Path, frames: int) -> dict[str, np.ndarray]:
+    """The channels of a tracked capture's ``flame_param`` files, ``(T, n)`` each."""
+    from ..data import layout
+    from ..run.folder import load_flame_file
+
+    files = [load_flame_file(capture / layout.flame_param_path(t)) for t in range(frames)]
+    return {name: np.stack([np.asarray(f[name], np.float64).reshape(-1) for f in files]) for name in CHANNELS}
+
+
 def performance_frames(performance: dict, lost: list[int], clip_fps: float, identity: Identity,
                        settings: DriveSettings) -> dict:
     """A tracked performance (``(T,n)`` per channel at ``clip_fps``) as the frames the avatar plays:
     put on its rest pose, retimed, thinned; with what ``drive.json`` says of it."""
-    from ..scene.tracking import thinned
-
     frames = len(performance["expr"])
     seen = np.ones(frames, bool)
     seen[[t for t in lost if t < frames]] = False

@@ -10,6 +10,7 @@ import re
 import numpy as np
 
 from ..errors import InputError
+from ..workflows.drive import thin_channel
 from .axes import FRAME_OFFSET
 from .head_rig import EXPRESSION_SLIDER_RANGE, POSE_PROPERTIES, fit_components
 
@@ -90,46 +91,6 @@ def keyframe_columns(frames, values, tolerance: float = 0.0) -> list[np.ndarray]
         columns.append(np.ascontiguousarray(np.stack([frames[kept], values[kept, i]], axis=1),
                                             dtype=np.float32).reshape(-1))
     return columns
-
-
-def thin_channel(values: np.ndarray, tolerance: float, at=None) -> np.ndarray:
-    """Indices of the keys of one channel ``(T,)`` (at frames ``at``, default 0…T-1) to keep so that
-    linear interpolation between them stays within ``tolerance`` of every value
-    (Ramer-Douglas-Peucker); the ends are always kept. Thinned keys play a performance back
-    within the tolerance, and a curve that holds still keeps two keys instead of one per frame."""
-    values = np.asarray(values, np.float64)
-    at = np.arange(len(values), dtype=np.float64) if at is None else np.asarray(at, np.float64)
-    count = len(values)
-    if count <= 2 or tolerance <= 0:
-        return np.arange(count)
-    keep = np.zeros(count, bool)
-    keep[[0, -1]] = True
-    stack = [(0, count - 1)]
-    while stack:
-        low, high = stack.pop()
-        if high - low < 2:
-            continue
-        inside = np.arange(low + 1, high)
-        line = values[low] + (values[high] - values[low]) * (at[inside] - at[low]) / (at[high] - at[low])
-        error = np.abs(values[inside] - line)
-        worst = int(np.argmax(error))
-        if error[worst] > tolerance:
-            middle = int(inside[worst])
-            keep[middle] = True
-            stack += [(low, middle), (middle, high)]
-    return np.nonzero(keep)[0]
-
-
-def thinned(values: np.ndarray, tolerance: float) -> tuple[np.ndarray, int]:
-    """``values (T,n)`` as their thinned keys play them back (linear between kept keys), and the keys kept."""
-    values = np.asarray(values, np.float64).reshape(len(values), -1)
-    out, keys = np.empty_like(values), 0
-    steps = np.arange(len(values))
-    for i in range(values.shape[1]):
-        kept = thin_channel(values[:, i], tolerance)
-        out[:, i] = np.interp(steps, kept, values[kept, i])
-        keys += len(kept)
-    return out, keys
 
 
 def expression_keyframes(tracking: Tracking, n_expr: int) -> tuple[np.ndarray, str | None]:

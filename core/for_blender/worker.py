@@ -24,8 +24,8 @@ import sys
 import threading
 import time
 
-from .errors import InputError
-from .run import names as run_names
+from ..errors import InputError
+from ..run import names as run_names
 
 #: The package's import name; the child runs ``python -m mogaface train``.
 PACKAGE = "mogaface"
@@ -100,7 +100,7 @@ runpy.run_module(spec["name"], run_name="__main__", alter_sys=True)
 
 def package_root() -> pathlib.Path:
     """The folder of this package (an installed extension's folder, or the checkout)."""
-    return pathlib.Path(__file__).resolve().parents[1]
+    return pathlib.Path(__file__).resolve().parents[2]
 
 
 def worker_command(python: str | None, arguments, paths=()) -> list[str]:
