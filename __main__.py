@@ -21,7 +21,7 @@ signal.signal(signal.SIGINT, signal.default_int_handler)
 
 # ``python -m`` puts the working directory first on sys.path. This package is imported by now,
 # so nothing else may come from there (a stray numpy.py beside a capture would shadow numpy).
-# Workers run with -I instead (core/worker.py), where the entry is absent.
+# Workers run with -I instead (core/for_blender/worker.py), where the entry is absent.
 if sys.path and sys.path[0] in ("", os.getcwd()) and not (sys.flags.isolated or getattr(sys.flags, "safe_path", 0)):
     del sys.path[0]
 

@@ -39,15 +39,15 @@ def train_one(capture: pathlib.Path, run: pathlib.Path, batch: int, rule: str, s
               frames: int, threads: int) -> dict:
     """Train (or reuse) one run; its scores at the held-out camera and what it cost."""
     from mogaface.core.run.folder import is_complete
-    from mogaface.core.run.names import METRICS_TRAIN_END_FILE
+    from mogaface.core.run.names import CONFIG_FILE, METRICS_TRAIN_END_FILE, RUN_FILE
     from mogaface.core.train import config as config_module
     from mogaface.core.train.trainer import Trainer
 
     base = config_module.resolve(overrides={"train": {"steps": images, "threads": threads, "seed": seed},
                                             "eval": {"max_frames": frames}})
     config = config_module.for_batch(base, batch, rule)
-    info, metrics = run / "run.json", run / METRICS_TRAIN_END_FILE
-    same = (run / "config.toml").is_file() and (run / "config.toml").read_text() == config_module.to_toml(config)
+    info, metrics = run / RUN_FILE, run / METRICS_TRAIN_END_FILE
+    same = (run / CONFIG_FILE).is_file() and (run / CONFIG_FILE).read_text() == config_module.to_toml(config)
     if not (same and metrics.is_file() and is_complete(run)):
         import shutil
 

@@ -91,7 +91,7 @@ def _render_trial(width, height, n, threads, seed):
 
 def _train_trial(threads):
     from mogaface.core.data.generator import CaptureSettings, make_capture
-    from mogaface.core.run.names import EVENTS_FILE
+    from mogaface.core.run.names import CHECKPOINT_DIR, EVENTS_FILE
     from mogaface.core.train import config as C
 
     with tempfile.TemporaryDirectory() as folder:
@@ -120,7 +120,7 @@ def _train_trial(threads):
         finally:
             if proc.poll() is None:
                 proc.kill()
-        checkpoints = sorted(os.listdir(os.path.join(out, "checkpoints")))
+        checkpoints = sorted(os.listdir(os.path.join(out, CHECKPOINT_DIR)))
         return {"sigint_to_exit_s": round(latency, 3), "returncode": proc.returncode,
                 "checkpoints": checkpoints}
 

@@ -9,7 +9,7 @@ fine-tuning, and ``full_prior``, the full method of the presets) trains from the
 for ``--minutes`` of training time (``train.max_minutes``) on the machine's cores. Every
 :data:`EVERY` minutes of training time, with the training clock stopped, the held-out camera is
 scored on the same evenly spaced training timesteps (the novel view: PSNR, SSIM, LPIPS), drawn as
-``render`` draws the run (the MoGaFace modules included, :func:`..core.train.results.current_avatar`).
+``render`` draws the run (the MoGaFace modules included, :meth:`..core.train.trainer.Trainer.current_avatar`).
 
 ``--ranks N`` trains each variant data-parallel instead: N torchrun ranks on this machine, the
 ``--threads`` shared among them, N images a step under the square-root rule
@@ -90,11 +90,10 @@ def _scored_trainer(every_s: float, frames: int):
         def score(self) -> None:
             from mogaface.core.train.config import EvalSection
             from mogaface.core.train.quick_eval import evaluate_val
-            from mogaface.core.train.results import current_avatar
 
             while self.next_score <= self.elapsed:
                 self.next_score += every_s
-            table, avatar = current_avatar(self)
+            table, avatar = self.current_avatar()
             metrics = evaluate_val(avatar, self.data, table, EvalSection(max_frames=frames, lpips=True))
             self.curve.append({"minutes": round(self.elapsed / 60, 3), "step": self.step,
                                "gaussians": len(self.avatar.gaussians),

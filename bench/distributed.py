@@ -27,7 +27,7 @@ BATCH = 2
 
 
 def _settings(variant: str, threads: int) -> dict:
-    from mogaface.core.train.config import FLAME_FINETUNE, FULL_METHOD
+    from mogaface.core.train.presets import FLAME_FINETUNE, FULL_METHOD
 
     extra = {"mogaface": {**FULL_METHOD, "encoder_views": 8}, "flame": FLAME_FINETUNE} if variant == "mogaface" else {}
     return {"train": {"steps": 100000, "threads": threads, "checkpoint_every": 0, "batch": BATCH},
@@ -39,7 +39,7 @@ def worker(capture: str, run: str, variant: str, threads: int, steps: int, out: 
     """One rank (or the single process): time ``steps`` steps after a warm-up; rank 0 writes JSON."""
     import torch
 
-    from mogaface.bench.train import _grow
+    from mogaface.bench.grow import grow
     from mogaface.core.train import config as config_module
     from mogaface.core.train.distributed import communicator_from_environment
     from mogaface.core.train.trainer import Trainer
@@ -47,7 +47,7 @@ def worker(capture: str, run: str, variant: str, threads: int, steps: int, out: 
     comm = communicator_from_environment()
     try:
         trainer = Trainer(capture, run, config_module.resolve(overrides=_settings(variant, threads)), comm=comm)
-        _grow(trainer, 3)
+        grow(trainer, 3)
         with torch.no_grad():
             trainer.avatar.gaussians.opacity_logit.fill_(2.0)
         for _ in range(3):

@@ -58,17 +58,17 @@ def _instrument(watch: Stopwatch) -> list:
     from mogaface.core.avatar import avatar as avatar_module
     from mogaface.core.avatar.densify import DensifyStrategy
     from mogaface.core.avatar.gaussians import BoundGaussians
-    from mogaface.core.mogaface.model import MoGaFace
-    from mogaface.core.mogaface.training import CorrectionTraining
+    from mogaface.core.correction.model import MoGaFace
+    from mogaface.core.correction.training import CorrectionTraining
     from mogaface.core.splat import api
     from mogaface.core.splat.function import Project, Rasterize
-    from mogaface.core.train import data, losses, mogaface_part, training_view
+    from mogaface.core.train import correction_part, data, losses, training_view
 
     undo = [
         watch.wrap(data.TrainingData, "target", "image loading"),
         watch.wrap(avatar_module.Avatar, "posed_vertices", "FLAME"),
         watch.wrap(BoundGaussians, "world", "binding"),
-        watch.wrap(mogaface_part, "world_with_offsets", "binding"),
+        watch.wrap(correction_part, "world_with_offsets", "binding"),
         watch.wrap(CorrectionTraining, "step", "MoGaFace correction (encoder, fusion, head, bank)"),
         watch.wrap(MoGaFace, "texture_offsets", "MoGaFace texture attention"),
         watch.wrap(api, "sh_to_rgb", "render: SH colours"),
@@ -194,7 +194,8 @@ def _scene(folder: str, scale: str):
 def run(threads: int = 2, quick: bool = False, scale: str = "small") -> dict:
     import torch
 
-    from mogaface.bench.train import _grow, _variants
+    from mogaface.bench.grow import grow
+    from mogaface.bench.train import _variants
     from mogaface.bench.train_real import HEIGHT, TARGET_GAUSSIANS, WIDTH
     from mogaface.core.train import config as config_module
     from mogaface.core.train.trainer import Trainer
@@ -210,7 +211,7 @@ def run(threads: int = 2, quick: bool = False, scale: str = "small") -> dict:
                 "densify": {"start": 100000, "stop": 100000, "opacity_reset_interval": 0},
                 "eval": {"at_end": False}, **settings})
             trainer = Trainer(capture, os.path.join(folder, variant), config)
-            _grow(trainer, factor or max(1, round(TARGET_GAUSSIANS / len(trainer.avatar.gaussians))))
+            grow(trainer, factor or max(1, round(TARGET_GAUSSIANS / len(trainer.avatar.gaussians))))
             with torch.no_grad():
                 trainer.avatar.gaussians.opacity_logit.fill_(2.0)
             for _ in range(3):

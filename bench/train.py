@@ -28,24 +28,9 @@ VIEWS = 10  # 9 training cameras: 8 other views for the encoder, the held-out on
 
 def _variants() -> dict:
     """Settings over the defaults; "mogaface" is the full method as its preset trains it."""
-    from mogaface.core.train.config import FLAME_FINETUNE, FULL_METHOD
+    from mogaface.core.train.presets import FLAME_FINETUNE, FULL_METHOD
 
     return {"freeze": {}, "mogaface": {"mogaface": {**FULL_METHOD, "encoder_views": 8}, "flame": FLAME_FINETUNE}}
-
-
-def _grow(trainer, factor, seed=0):
-    """Give every Gaussian ``factor - 1`` jittered copies (same triangle), as densification would."""
-    import torch
-
-    from mogaface.core.avatar.densify import edit_rows
-
-    g = trainer.avatar.gaussians
-    generator = torch.Generator().manual_seed(seed)
-    copies = {name: t.detach().repeat(factor - 1, *[1] * (t.dim() - 1)) for name, t in g.tensors().items()}
-    copies["local_position"] = copies["local_position"] + 0.3 * torch.randn(
-        copies["local_position"].shape, generator=generator)
-    edit_rows(g, trainer.optimizer, None, copies)
-    trainer.strategy._reset_statistics(len(g))
 
 
 def _time_steps(trainer, warmup, steps):
@@ -68,6 +53,8 @@ def run(threads: int = 2, quick: bool = False, scale: str = "small") -> dict:
     from mogaface.core.train import config as config_module
     from mogaface.core.train.trainer import Trainer
 
+    from .grow import grow
+
     size = 256
     steps = 10 if quick else 40
     factors = (1,) if quick else (1, 3)
@@ -85,7 +72,7 @@ def run(threads: int = 2, quick: bool = False, scale: str = "small") -> dict:
             })
             trainer = Trainer(capture, os.path.join(folder, f"run{factor}_{variant}"), config)
             if factor > 1:
-                _grow(trainer, factor)
+                grow(trainer, factor)
             # Warm up (numba cache, first images) with opacities raised as a trained avatar has them.
             import torch
 

@@ -90,9 +90,9 @@ def worker(capture: str, run: str, threads: int, steps: int, out: str) -> None:
     """Time ``steps`` full-method steps at about 100k Gaussians; write the figures as JSON."""
     import torch
 
-    from mogaface.bench.train import _grow
+    from mogaface.bench.grow import grow
     from mogaface.core.train import config as config_module
-    from mogaface.core.train.config import FLAME_FINETUNE, FULL_METHOD
+    from mogaface.core.train.presets import FLAME_FINETUNE, FULL_METHOD
     from mogaface.core.train.trainer import Trainer
 
     config = config_module.resolve(overrides={
@@ -100,7 +100,7 @@ def worker(capture: str, run: str, threads: int, steps: int, out: str) -> None:
         "densify": {"start": 100000, "stop": 100000, "opacity_reset_interval": 0},
         "eval": {"at_end": False}, "mogaface": {**FULL_METHOD, "encoder_views": 8}, "flame": FLAME_FINETUNE})
     trainer = Trainer(capture, run, config)
-    _grow(trainer, max(1, round(TARGET_GAUSSIANS / len(trainer.avatar.gaussians))))
+    grow(trainer, max(1, round(TARGET_GAUSSIANS / len(trainer.avatar.gaussians))))
     with torch.no_grad():
         trainer.avatar.gaussians.opacity_logit.fill_(2.0)
     trainer.train_step()  # warm-up: numba cache, first images

@@ -73,8 +73,9 @@ def run(threads: int = 2, quick: bool = False, avatar: str | None = None) -> dic
     import numpy as np
     import torch
 
-    from mogaface.core.scene.avatar import avatar_location, load_avatar, render_avatar
-    from mogaface.core.scene.render import RenderRequest, depth_buffer_values, render, view_camera
+    from mogaface.core.avatar.avatar import render_frame
+    from mogaface.core.for_blender.avatar import avatar_location, load_avatar
+    from mogaface.core.for_blender.render import RenderRequest, depth_buffer_values, render, view_camera
 
     torch.set_num_threads(threads)
     try:
@@ -106,11 +107,11 @@ def run(threads: int = 2, quick: bool = False, avatar: str | None = None) -> dic
 
         warm = viewport_frame()  # numba kernels load or compile
         camera = view_camera(view, projection, np.eye(4), size, size).camera
-        from mogaface.core.scene.render import fitted_params
+        from mogaface.core.for_blender.render import fitted_params
 
         params = fitted_params(values, model)
         fps, best = _median_fps(viewport_frame, repeats)
-        ref_fps, ref_best = _median_fps(lambda: render_avatar(model, params, camera, (1, 1, 1)), repeats)
+        ref_fps, ref_best = _median_fps(lambda: render_frame(model, params, camera, (1, 1, 1)), repeats)
         results.append({"size": size, "viewport_fps": fps, "viewport_fps_best": best,
                         "render_frame_fps": ref_fps, "render_frame_fps_best": ref_best,
                         "viewport_over_render_frame_time": round(ref_fps / fps, 3),
@@ -142,27 +143,27 @@ def _gpu_path(path: str, values: dict, repeats: int, quick: bool) -> dict:
     check (tests/real_blender/ui_check.py) measures it."""
     import numpy as np
 
-    from mogaface.core.scene import gpu_splats
-    from mogaface.core.scene.render import view_camera
+    from mogaface.core.for_blender import splat_buffers
+    from mogaface.core.for_blender.render import view_camera
 
     def pose(jaw):
-        gpu_splats._pose_cache.clear()
-        return gpu_splats.posed_splats(path, {**values, "jaw_pose": np.array([jaw, 0.0, 0.0])})
+        splat_buffers._pose_cache.clear()
+        return splat_buffers.posed_splats(path, {**values, "jaw_pose": np.array([jaw, 0.0, 0.0])})
 
     splats = pose(0.1)
     pose_fps, _ = _median_fps(lambda: pose(0.1), repeats)
-    cached_fps, _ = _median_fps(lambda: gpu_splats.posed_splats(path, {**values, "jaw_pose": np.array([0.1, 0, 0])}),
+    cached_fps, _ = _median_fps(lambda: splat_buffers.posed_splats(path, {**values, "jaw_pose": np.array([0.1, 0, 0])}),
                                 repeats)
     view, projection = _view_matrices(512, 512)
     camera = view_camera(view, projection, np.eye(4), 512, 512).camera
     per_view = []
     for count in ([30000] if quick else [30000, 100000]):
         reps = -(-count // len(splats.opacities))
-        many = gpu_splats.PosedSplats(
+        many = splat_buffers.PosedSplats(
             np.tile(splats.means, (reps, 1))[:count], np.tile(splats.covariances, (reps, 1))[:count],
             np.tile(splats.opacities, reps)[:count],
             np.tile(splats.colors, (reps,) + (1,) * (splats.colors.ndim - 1))[:count], "bench")
-        order, frame = gpu_splats.SplatOrder(), iter(range(10 ** 6))
+        order, frame = splat_buffers.SplatOrder(), iter(range(10 ** 6))
         fps, best = _median_fps(lambda: order.update(many, camera.w2c, next(frame)), repeats)
         per_view.append({"gaussians": count, "sort_colour_pack_fps": fps, "sort_colour_pack_fps_best": best,
                          "sh_coefficients": int(splats.colors.shape[1]) if splats.colors.ndim == 3 else 1})

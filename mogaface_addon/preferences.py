@@ -9,7 +9,7 @@ from ..operators.dependencies import missing_modules, top_package
 from ..operators.install_dependencies import last_install_progress
 from .text import wrapped_label
 
-#: The CPU-only torch build's index (the same as core.dependencies.DEFAULT_TORCH_INDEX, here so
+#: The CPU-only torch build's index (the same as core.for_blender.dependencies.DEFAULT_TORCH_INDEX, here so
 #: that registering never imports the core).
 DEFAULT_TORCH_INDEX = "https://download.pytorch.org/whl/cpu"
 

@@ -57,3 +57,12 @@ class MoGaFaceSceneSettings(bpy.types.PropertyGroup):
     viewport_navigate_resolution: IntProperty(
         name="While Navigating", default=160, min=32, max=4096,
         description="Longest side in pixels of the avatar while the view moves (faster)")
+    footage_clip: StringProperty(
+        name="Movie Clip", description="A Movie Clip of this file to track or drive from (empty: pick a file)")
+    drive_tolerance: FloatProperty(
+        name="Tolerance", default=0.001, min=0.0, soft_max=0.1, precision=4,
+        description="Drive from Footage drops keys that linear interpolation gives within this (radians, metres, "
+                    "expression units; 0: a key every frame)")
+    drive_keep_head_still: BoolProperty(
+        name="Keep Head Still", default=False,
+        description="Drive from Footage keys only the face (expression, jaw, eyes): the head keeps its pose")

@@ -16,9 +16,10 @@ from ..operators.common import stop_background_threads
 from ..operators.compositor import MOGAFACE_OT_setup_render_layer
 from ..operators.dependencies import add_site_packages, remove_site_packages
 from ..operators.export import MOGAFACE_OT_export_ply
+from ..operators.footage import MOGAFACE_OT_drive_from_footage, MOGAFACE_OT_footage_cancel, MOGAFACE_OT_track_footage
 from ..operators.gaussian_points import MOGAFACE_OT_gaussians_to_mesh
 from ..operators.handlers import viewport
-from ..operators.handlers.head_rig import update_heads_on_edit, update_heads_on_frame_change
+from ..operators.handlers.heads import update_heads_on_edit, update_heads_on_frame_change
 from ..operators.handlers.render_layers import render_avatar_layers
 from ..operators.handlers.suspend import (
     resume_after_load,
@@ -55,6 +56,9 @@ CLASSES: list = [
     MOGAFACE_OT_use_capture_camera,
     MOGAFACE_OT_import_head,
     MOGAFACE_OT_import_tracking,
+    MOGAFACE_OT_track_footage,
+    MOGAFACE_OT_drive_from_footage,
+    MOGAFACE_OT_footage_cancel,
     MOGAFACE_OT_improve_tracking,
     MOGAFACE_OT_improve_tracking_cancel,
     MOGAFACE_OT_train,

@@ -2,15 +2,16 @@
 (identity, expression values and pose, keyframes included), its camera, its render request.
 
 Every place the avatar appears (Render Frame/Animation, the viewport, the F12 layer, PLY export,
-Gaussians to Mesh) reads the head through these; the maths is the core's (``core.scene``).
+Gaussians to Mesh) reads the head through these; the maths is the core's (``core.for_blender``).
 """
 
 from __future__ import annotations
 
 import bpy
 
+from .common import dependencies_ready
 from .dependencies import LazyModule
-from .handlers.head_rig import AVATAR_PATH_PROPERTY, expression_values, head_objects, is_head, pose_values, rig_of
+from .handlers.heads import AVATAR_PATH_PROPERTY, expression_values, head_objects, is_head, pose_values, rig_of
 
 np = LazyModule("numpy")  # imported on first use: registering needs no numpy
 
@@ -22,7 +23,10 @@ def avatar_heads(scene) -> list:
 
 
 def head_with_avatar(operator, context, name: str):
-    """The named head, else the active one, else the scene's only head with an avatar; or report."""
+    """The named head, else the active one, else the scene's only head with an avatar, once the core's
+    packages import (an avatar is of no use without them); else None, reported."""
+    if not dependencies_ready(operator, context):
+        return None
     obj = bpy.data.objects.get(name) if name else context.active_object
     if not (is_head(obj) and AVATAR_PATH_PROPERTY in obj) and not name:
         heads = avatar_heads(context.scene)
@@ -36,7 +40,7 @@ def head_with_avatar(operator, context, name: str):
 
 def camera_of(scene, camera_obj, head):
     """The OpenCV camera of a Blender camera object, relative to the head object's placement."""
-    from ..core.scene.cameras import opencv_camera
+    from ..core.for_blender.cameras import opencv_camera
 
     data = camera_obj.data
     render = scene.render
@@ -54,7 +58,7 @@ def head_values(head, frame: float | None = None) -> dict:
     ``frame=None``: as shown now (after ``frame_set``). A frame number: what its keyframes give
     at that frame (F-curves evaluated, the timeline untouched), as renders of other frames need.
     """
-    from ..core.scene.head_rig import SHAPE_PROPERTY, STATIC_OFFSET_PROPERTY
+    from ..core.for_blender.head_rig import SHAPE_PROPERTY, STATIC_OFFSET_PROPERTY
 
     n_expr = rig_of(head).model.n_expr
     values = {"shape": np.asarray(head.get(SHAPE_PROPERTY, []), np.float64),
@@ -69,7 +73,7 @@ def head_values(head, frame: float | None = None) -> dict:
 
 def _apply_fcurves(head, frame: float, values: dict, n_expr: int) -> None:
     """Overwrite ``values`` with the head's F-curves (expression keys, pose properties) at ``frame``."""
-    from ..core.scene.head_rig import POSE_PROPERTIES
+    from ..core.for_blender.head_rig import POSE_PROPERTIES
     from .animation import id_fcurves
 
     by_property = {prop: name for name, (prop, _) in POSE_PROPERTIES.items()}
@@ -88,7 +92,7 @@ def _apply_fcurves(head, frame: float, values: dict, n_expr: int) -> None:
 
 def head_params(head, avatar) -> dict:
     """The head's FLAME parameters as it is shown now (after ``frame_set``), fitted to the avatar."""
-    from ..core.scene.render import fitted_params
+    from ..core.for_blender.render import fitted_params
 
     return fitted_params(head_values(head), avatar)
 
@@ -96,7 +100,7 @@ def head_params(head, avatar) -> dict:
 def head_request(scene, head, camera, frame: int, transparent: bool = False, keyed: bool = False):
     """The render request of the head's avatar seen by ``camera`` (a core Camera): as shown now,
     or with ``keyed`` as its keyframes give at ``frame``."""
-    from ..core.scene.render import RenderRequest
+    from ..core.for_blender.render import RenderRequest
 
     background = None if transparent else tuple(head.get(BACKGROUND_PROPERTY, (1.0, 1.0, 1.0)))
     scale = float(np.cbrt(abs(np.linalg.det(np.array(head.matrix_world)[:3, :3])))) or 1.0
@@ -106,7 +110,7 @@ def head_request(scene, head, camera, frame: int, transparent: bool = False, key
 
 def render_head(context, head, camera_obj, frame: int):
     """Render the head's avatar at ``frame`` from ``camera_obj``: the core's ``RenderResult``."""
-    from ..core.scene.render import render
+    from ..core.for_blender.render import render
 
     scene = context.scene
     scene.frame_set(frame)

@@ -2,7 +2,7 @@
 
 ``mogaface.setup_render_layer`` sets up the compositor once: per head with an avatar, two
 Image nodes (the avatar layer's RGBA, scene-linear premultiplied from
-:func:`core.scene.render.blender_rgba`, and its depth), an Alpha Over node that lays the layer
+:func:`core.for_blender.render.blender_rgba`, and its depth), an Alpha Over node that lays the layer
 over the render (premultiplied: ``avatar + (1 - alpha) · render``) and a Z Combine node that
 takes that blend where the avatar is nearer than the render layer's Depth pass and the render
 elsewhere; the result goes to the compositor's output. (Z Combine's own "Use Alpha" mixes with

@@ -8,8 +8,8 @@ import bpy
 from bpy.props import BoolProperty, IntProperty, StringProperty
 
 from .avatar_head import head_params, head_with_avatar
-from .common import OpensFileBrowser, dependencies_ready, run_core
-from .handlers.head_rig import AVATAR_PATH_PROPERTY
+from .common import OpensFileBrowser, run_core
+from .handlers.heads import AVATAR_PATH_PROPERTY
 
 
 class MOGAFACE_OT_export_ply(OpensFileBrowser, bpy.types.Operator):
@@ -32,13 +32,11 @@ class MOGAFACE_OT_export_ply(OpensFileBrowser, bpy.types.Operator):
         if not self.filepath:
             self.report({"ERROR"}, "No output file given")
             return {"CANCELLED"}
-        if not dependencies_ready(self, context):
-            return {"CANCELLED"}
         head = head_with_avatar(self, context, self.head)
         if head is None:
             return {"CANCELLED"}
         from ..core.avatar.export import export_world_ply
-        from ..core.scene.avatar import load_avatar
+        from ..core.for_blender.avatar import load_avatar
 
         scene = context.scene
         path = bpy.path.abspath(self.filepath)

@@ -11,7 +11,7 @@ from __future__ import annotations
 import bpy
 from bpy.props import BoolProperty, IntProperty, StringProperty
 
-from .common import dependencies_ready, run_core
+from .common import run_core
 from .dependencies import LazyModule
 
 np = LazyModule("numpy")  # imported on first use: registering needs no numpy
@@ -59,11 +59,9 @@ class MOGAFACE_OT_gaussians_to_mesh(bpy.types.Operator):
     frame_end: IntProperty(name="End", default=0, description="Last frame (0: the scene's)")
 
     def execute(self, context):
-        from ..core.scene.points import gaussian_points
+        from ..core.for_blender.points import gaussian_points
         from .avatar_head import head_values, head_with_avatar
 
-        if not dependencies_ready(self, context):
-            return {"CANCELLED"}
         head = head_with_avatar(self, context, self.head)
         if head is None:
             return {"CANCELLED"}

@@ -22,10 +22,10 @@ def blender_pixels(rgba) -> np.ndarray:
 def store_image(name: str, result):
     """Write a render into the float image datablock ``name`` (packed into the .blend).
 
-    Its pixels are :func:`core.scene.render.blender_rgba`'s: scene-linear, premultiplied, as
+    Its pixels are :func:`core.for_blender.render.blender_rgba`'s: scene-linear, premultiplied, as
     Blender's float buffers hold them, so the view transform "Standard" shows the core's sRGB.
     """
-    from ..core.scene.render import blender_rgba
+    from ..core.for_blender.render import blender_rgba
 
     rgba = blender_rgba(result)
     height, width = rgba.shape[:2]
@@ -105,11 +105,11 @@ def show_image_soon(image_name: str) -> None:
 
 
 def write_files(folder: str, stem: str, result, file_format: str) -> list[str]:
-    """Save a render, atomically, through the core: EXR holds :func:`core.scene.render.blender_rgba`
+    """Save a render, atomically, through the core: EXR holds :func:`core.for_blender.render.blender_rgba`
     (scene-linear, premultiplied, as Blender writes EXR); PNG the same pixels as 8-bit sRGB with
     straight alpha, i.e. the core's own sRGB colours (what "Standard" shows)."""
+    from ..core.for_blender.render import blender_rgba, srgb_from_blender
     from ..core.io.image import write_exr, write_png
-    from ..core.scene.render import blender_rgba, srgb_from_blender
 
     rgba = blender_rgba(result)
     folder = bpy.path.abspath(folder)

@@ -92,7 +92,7 @@ def build_camera(settings, collection, existing=None):
 def subject_points(centre) -> list[tuple]:
     """A box the size of a head around ``centre``: what a view framing the subject shows (the
     cameras, metres away, stay reachable with View All)."""
-    from ..core.scene.cameras import HEAD_RADIUS
+    from ..core.for_blender.cameras import HEAD_RADIUS
 
     return [tuple(c + HEAD_RADIUS * sign * (axis == i) for i, c in enumerate(centre))
             for axis in range(3) for sign in (-1, 1)]
@@ -113,7 +113,7 @@ def frame_views(context, points) -> None:
     """Point every perspective 3D view of the open windows at ``points`` (a head-sized box around
     where the capture's cameras look), as View Selected would, without changing the selection.
     Nothing happens without a window (background mode)."""
-    from ..core.scene.render import view_framing
+    from ..core.for_blender.render import view_framing
 
     for window in getattr(context.window_manager, "windows", ()):
         for area in window.screen.areas:
@@ -160,7 +160,7 @@ class MOGAFACE_OT_import_capture(OpensFileBrowser, bpy.types.Operator):
         if os.path.isfile(folder):  # a file of the capture was picked: use its folder
             folder = os.path.dirname(folder)
         refined = bpy.path.abspath(self.refined_cameras) if self.refined_cameras else None
-        from ..core.scene.cameras import capture_scene
+        from ..core.for_blender.cameras import capture_scene
 
         description = run_core(self, capture_scene, folder, refined)
         if description is None:

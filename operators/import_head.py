@@ -7,7 +7,7 @@ from bpy.props import StringProperty
 
 from .common import OpensFileBrowser, dependencies_ready, run_core
 from .dependencies import FILE_MODULES, LazyModule
-from .handlers.head_rig import MODEL_PATH_PROPERTY, POSE_KEY_NAME
+from .handlers.heads import MODEL_PATH_PROPERTY, POSE_KEY_NAME
 
 np = LazyModule("numpy")  # imported on first use: registering needs no numpy
 
@@ -49,7 +49,7 @@ def build_material(name: str, head):
 
 def add_pose_properties(obj) -> None:
     """The pose as animatable custom vectors on the object (FLAME axis-angle, translation in m)."""
-    from ..core.scene.head_rig import POSE_PROPERTIES
+    from ..core.for_blender.head_rig import POSE_PROPERTIES
 
     for name, (prop, size) in POSE_PROPERTIES.items():
         obj[prop] = [0.0] * size
@@ -59,7 +59,7 @@ def add_pose_properties(obj) -> None:
 
 def build_head(context, head):
     """The head object: mesh, material, shape keys (basis, expressions, pose) and properties."""
-    from ..core.scene.head_rig import EXPRESSION_SLIDER_RANGE, SHAPE_PROPERTY, STATIC_OFFSET_PROPERTY
+    from ..core.for_blender.head_rig import EXPRESSION_SLIDER_RANGE, SHAPE_PROPERTY, STATIC_OFFSET_PROPERTY
 
     mesh = build_mesh(head.name, head)
     if head.texture_pixels is not None:
@@ -106,7 +106,7 @@ class MOGAFACE_OT_import_head(OpensFileBrowser, bpy.types.Operator):
         if not dependencies_ready(self, context, needs=FILE_MODULES):
             return {"CANCELLED"}
         shape_file = bpy.path.abspath(self.shape_file) if self.shape_file else None
-        from ..core.scene.head_rig import head_import
+        from ..core.for_blender.head_rig import head_import
 
         head = run_core(self, head_import, bpy.path.abspath(self.filepath), shape_file)
         if head is None:

@@ -11,7 +11,7 @@ from bpy.props import BoolProperty, StringProperty
 
 from .animation import fcurve_container, id_fcurves, write_fcurve
 from .common import dependencies_ready, run_core
-from .handlers.head_rig import is_head, rig_of, update_head
+from .handlers.heads import is_head, rig_of, update_head
 
 
 def existing_keys(obj) -> int:
@@ -66,10 +66,11 @@ def head_or_report(operator, obj) -> bool:
     return False
 
 
-def key_tracking(operator, context, obj, folder: str) -> bool:
-    """Key head ``obj``'s expressions and pose from a ``flame_param`` folder, one key per timestep;
-    what goes wrong is reported through ``operator``. The scene's Tracking field becomes ``folder``."""
-    from ..core.scene.tracking import tracking_channels
+def key_tracking(operator, context, obj, folder: str, tolerance: float = 0.0) -> bool:
+    """Key head ``obj``'s expressions and pose from a ``flame_param`` folder, one key per timestep
+    (fewer with a ``tolerance``: the keys the curve needs to stay within it); what goes wrong is
+    reported through ``operator``. The scene's Tracking field becomes ``folder``."""
+    from ..core.for_blender.tracking import tracking_channels
 
     replaced = existing_keys(obj)
     key = obj.data.shape_keys
@@ -77,7 +78,7 @@ def key_tracking(operator, context, obj, folder: str) -> bool:
     if rig is None:
         return False
     n_expr = rig.model.n_expr  # expression keys are key blocks 1…n_expr, after Basis
-    channels = run_core(operator, tracking_channels, folder, n_expr)
+    channels = run_core(operator, tracking_channels, folder, n_expr, tolerance)
     if channels is None:
         return False
     container = fcurve_container(obj, f"{obj.name} MoGaFace pose")

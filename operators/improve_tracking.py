@@ -12,9 +12,10 @@ import os
 import bpy
 from bpy.props import IntProperty, StringProperty
 
+from ..core.run.names import AVATAR_FILE
 from .common import dependencies_ready
 from .dependencies import interpreter, worker_paths
-from .handlers.head_rig import is_head
+from .handlers.heads import is_head
 from .import_tracking import existing_keys, head_or_report, key_tracking
 from .jobs import FollowsChildJob, cancel_operator, end_job, job_progress, new_job, refuse_if_busy
 from .train import preferred_threads
@@ -85,11 +86,11 @@ class MOGAFACE_OT_improve_tracking(FollowsChildJob, bpy.types.Operator):
         if not head_or_report(self, obj) or not dependencies_ready(self, context):
             return {"CANCELLED"}
         run = bpy.path.abspath(self.run or context.scene.mogaface.run_folder)
-        if not run or not os.path.isfile(os.path.join(run, "avatar.pt")):
+        if not run or not os.path.isfile(os.path.join(run, AVATAR_FILE)):
             self.report({"ERROR"}, f"{run or 'The scene has no run folder'}: not a finished run (no avatar.pt); "
                                    "train one first")
             return {"CANCELLED"}
-        from ..core.worker import RefineTrackingWorker, refine_tracking_command
+        from ..core.for_blender.worker import RefineTrackingWorker, refine_tracking_command
 
         python = bpy.path.abspath(self.python) if self.python else interpreter(context)
         out = bpy.path.abspath(self.out) if self.out else None

@@ -1,6 +1,6 @@
 """``mogaface.install_dependencies`` and its Cancel: the core's packages, installed in the background.
 
-The core's :class:`~mogaface.core.dependencies.InstallJob` runs pip in a background thread; in
+The core's :class:`~mogaface.core.for_blender.dependencies.InstallJob` runs pip in a background thread; in
 the UI a modal operator polls it from a timer (Blender stays responsive, the panel shows the
 progress and a Cancel button); in background mode the same poll runs in a loop. Packages go
 into the extension's user folder, which Blender deletes when the extension is removed.
@@ -60,8 +60,8 @@ class MOGAFACE_OT_install_dependencies(bpy.types.Operator):
         if target is None:
             self.report({"ERROR"}, "Only an installed extension has a user folder to install into")
             return {"CANCELLED"}
-        from ..core.dependencies import DEFAULT_TORCH_INDEX, InstallJob
-        from ..core.worker import worker_environment
+        from ..core.for_blender.dependencies import DEFAULT_TORCH_INDEX, InstallJob
+        from ..core.for_blender.worker import worker_environment
 
         python = dependencies.interpreter(context)
         index = dependencies.preference(context, "torch_index", DEFAULT_TORCH_INDEX)

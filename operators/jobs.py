@@ -141,7 +141,7 @@ class RenderJob:
     """
 
     def __init__(self, frames, make_request, on_result, render=None):
-        from ..core.scene.render import render as core_render
+        from ..core.for_blender.render import render as core_render
 
         self.frames = list(frames)
         self.done = 0

@@ -13,12 +13,12 @@ from bpy.props import StringProperty
 
 from .avatar_head import BACKGROUND_PROPERTY
 from .common import OpensFileBrowser, clear_status_text, dependencies_ready, redraw_areas, run_core
-from .handlers.head_rig import AVATAR_PATH_PROPERTY, is_head
+from .handlers.heads import AVATAR_PATH_PROPERTY, is_head
 
 
 def _located_avatar(path: str):
     """The avatar file, its training background and the loaded avatar (thread-safe core work)."""
-    from ..core.scene.avatar import avatar_location, load_avatar
+    from ..core.for_blender.avatar import avatar_location, load_avatar
     from .dependencies import preload_native_libraries
 
     preload_native_libraries()  # the first load imports torch: its libraries, without the GIL

@@ -11,7 +11,7 @@ import bpy
 from bpy.props import EnumProperty, IntProperty, StringProperty
 
 from .avatar_head import camera_of, head_request, head_with_avatar
-from .common import clear_status_text, dependencies_ready, redraw_areas, run_core
+from .common import clear_status_text, redraw_areas, run_core
 from .images import show_image, show_image_soon, store_image, write_files
 from .jobs import cancel_operator
 
@@ -30,8 +30,6 @@ class _RenderBase:
         if camera is None or camera.type != "CAMERA":
             self.report({"ERROR"}, "The scene has no active camera")
             return None
-        if not dependencies_ready(self, context):
-            return None
         head = head_with_avatar(self, context, self.head)
         return None if head is None else (head, camera)
 
@@ -43,7 +41,7 @@ class _RenderBase:
 
     def _store(self, camera, result):
         """Put a finished render into its image (and files); returns the image or None."""
-        from ..core.scene.render import render_image_name
+        from ..core.for_blender.render import render_image_name
 
         frame = result.request.frame
         image = store_image(render_image_name(camera.name, frame), result)
@@ -55,7 +53,7 @@ class _RenderBase:
         return image
 
     def _render(self, context, head, camera, frame: int):
-        from ..core.scene.render import render
+        from ..core.for_blender.render import render
 
         result = run_core(self, lambda: render(self._request(context, head, camera, frame)))
         return None if result is None else self._store(camera, result)

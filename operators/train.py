@@ -1,7 +1,7 @@
 """``mogaface.train`` and ``mogaface.train_cancel``: training in a separate process.
 
 The child is ``python -m mogaface train`` with the interpreter from the preferences; its
-progress is read by the core's :class:`~mogaface.core.worker.TrainWorker`. In the UI a modal
+progress is read by the core's :class:`~mogaface.core.for_blender.worker.TrainWorker`. In the UI a modal
 operator polls it from a timer (Blender never blocks); in background mode, where timers and
 modal operators never run, the same poll runs in a blocking loop. Cancel sends SIGINT, and the
 trainer writes a checkpoint before it exits.
@@ -14,11 +14,12 @@ import os
 import bpy
 from bpy.props import EnumProperty, FloatProperty, IntProperty, StringProperty
 
+from ..core.run.names import AVATAR_FILE
 from .common import dependencies_ready
 from .dependencies import interpreter, top_package, worker_paths
 from .jobs import FollowsChildJob, cancel_operator, end_job, job_progress, new_job, refuse_if_busy
 
-#: Training presets (core.train.config.PRESETS) offered in the UI, with a one-line description each.
+#: Training presets (core.train.presets.PRESETS) offered in the UI, with a one-line description each.
 PRESET_ITEMS = (
     ("quick", "Quick", "Smoke run: 200 steps, a minute or two"),
     ("demo", "Demo", "1000 steps, a few minutes: a recognisable avatar"),
@@ -58,7 +59,7 @@ def finish_job(operator, progress, settings=None) -> set:
     avatar goes into the scene's Avatar field (``settings``: ``scene.mogaface``)."""
     worker = end_job(_job, progress)
     if progress.state == "done" and settings is not None and worker is not None:
-        avatar = worker.run / "avatar.pt"
+        avatar = worker.run / AVATAR_FILE
         if avatar.exists():
             settings.avatar_file = str(avatar)
     if progress.state == "done":  # what the run could not do (say, score LPIPS) is a warning, not a failure
@@ -102,8 +103,8 @@ class MOGAFACE_OT_train(FollowsChildJob, bpy.types.Operator):
             return None
         if not dependencies_ready(self, context):
             return None
-        from ..core.launcher import launcher_arguments
-        from ..core.worker import TrainWorker, train_command
+        from ..core.for_blender.launcher import launcher_arguments
+        from ..core.for_blender.worker import TrainWorker, train_command
 
         settings = context.scene.mogaface
         capture = bpy.path.abspath(self.capture or settings.capture_folder)
@@ -125,7 +126,7 @@ class MOGAFACE_OT_train(FollowsChildJob, bpy.types.Operator):
             centres_measured=settings.camera_centres_measured, camera_delays=settings.camera_delays,
             minutes=self.minutes, paths=worker_paths(python), extra=launcher_arguments(launcher, resume),
         )
-        from ..core.launcher import with_launcher
+        from ..core.for_blender.launcher import with_launcher
 
         command = with_launcher(command, launcher)
         os.makedirs(run, exist_ok=True)

@@ -15,7 +15,11 @@
 # viewport and in F12; the pixels of each place read back against the core render, one line each
 # ("pixels PLACE: X dB against the core render"; below 35 dB under Standard fails), with
 # screenshots under AgX and Standard; disable the extension (F12 without the avatar, the head a
-# mesh again, no threads left) and enable it again; headless: scripts/mogaface_blend.py with
+# mesh again, no threads left) and enable it again; Drive from Footage on the trained avatar with
+# another subject's clip (the keys equal the tracker's parameters, two rendered frames each the core
+# render of its keys) and Track Footage of a phone clip (the movie behind the camera, the head's
+# landmarks read back from Blender against the tracker's fit, its F12 silhouette against the
+# person's mask, the interface timed while each child runs); headless: scripts/mogaface_blend.py with
 # --factory-startup, with a .blend, and training with the demo preset (scored with LPIPS); then
 # disable and remove the extension (its user folder must be gone).
 #
@@ -65,7 +69,7 @@ mkdir -p "$work/dist" "$work/images" "$pip_cache"
 say "the pins resolve to binary wheels for Python 3.11 and 3.13"
 for version in 3.11 3.13; do
     mapfile -t pins < <("$python" -c "
-from mogaface.core import dependencies as d
+from mogaface.core.for_blender import dependencies as d
 print(*d.requirements(tuple(map(int, '$version'.split('.'))), has_numpy=False), sep='\n')")
     "$python" -m pip install --quiet --dry-run --no-deps --ignore-installed --target "$work/resolve" \
         --python-version "$version" --only-binary=:all: --platform manylinux_2_28_x86_64 --platform manylinux_2_27_x86_64 \
@@ -75,6 +79,11 @@ done
 say "fixtures: a small capture and a head"
 "$python" -m mogaface make-capture "$work/capture" --views 3 --timesteps 16 --size 48 --quiet
 "$python" -m mogaface make-head "$work/head.npz"
+say "fixtures: a phone clip to track and another subject's performance to drive an avatar with"
+"$python" -m mogaface make-footage "$work/footage" --size 144x256 --seconds 0.5 --supersample 1 --novel-views 0 \
+    --seed 3 --quiet
+"$python" -m mogaface make-footage "$work/performance-clip" --kind fixed --subject 1 --size 144x256 --seconds 0.6 \
+    --supersample 1 --novel-views 0 --seed 5 --quiet
 
 # Everything below runs inside the chroot: /src is this checkout (read-only), /work the work folder.
 cat > "$work/steps.sh" <<EOF
@@ -89,7 +98,8 @@ say "the extension in a window: dependencies, import, train, render, export"
 xvfb-run -a -s "-screen 0 1600x1000x24" blender --enable-event-simulate --python /src/tests/real_blender/ui_check.py -- \
     '{"work": "/work", "images": "/work/images", "capture": "/work/capture", "head": "/work/head.npz",
       "torch_index": "$torch_index", "system_torch": $([ "$system_torch" = yes ] && echo true || echo false),
-      "steps": 150}'
+      "steps": 300, "footage": "/work/footage/footage/clip.mp4",
+      "performance": "/work/performance-clip/footage/clip.mp4"}'
 python3 -c "import json, sys; r = json.load(open('/work/results.json')); print(json.dumps(r, indent=1)); sys.exit(0 if r.get('ok') else 1)"
 say "headless: --factory-startup, then a .blend"
 blender -b --factory-startup --python /src/scripts/mogaface_blend.py -- /work/capture --run /work/run \

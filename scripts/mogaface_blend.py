@@ -7,11 +7,18 @@ Runs the same with the Blender binary and with the ``bpy`` module:
     blender -b SCENE.blend --python scripts/mogaface_blend.py -- …         (built into SCENE's content)
     python scripts/mogaface_blend.py CAPTURE --run RUN --blend OUT.blend [options]
 
-Steps: install what this Blender lacks (``--install-dependencies``); import the capture's cameras;
-train into RUN (``--train``; otherwise RUN must hold a
+From the artist's own clip, and a performance on another avatar:
+
+    blender -b --python scripts/mogaface_blend.py -- CAPTURE --footage CLIP.mp4 --train --run RUN --blend OUT.blend
+    blender -b --python scripts/mogaface_blend.py -- CAPTURE --run OTHER_RUN --drive PERFORMANCE.mp4 --blend OUT.blend
+
+Steps: install what this Blender lacks (``--install-dependencies``); track ``--footage`` (a video,
+photos or a photo folder) into CAPTURE as Track Footage does (camera, tracked head, the footage
+behind it), else import the capture's cameras; train into RUN (``--train``; otherwise RUN must hold a
 trained avatar); import the avatar's head with the run's identity; key its expressions and pose
 from the run's corrected tracking (``RUN/flame_param_corrected`` of a MoGaFace run, else
-``RUN/flame_param``; or ``--tracking``); link the avatar; render
+``RUN/flame_param``; or ``--tracking``), or from a performance clip (``--drive``, as Drive from
+Footage does: tracked with the head's shape held fixed, at the scene's frame rate); link the avatar; render
 a frame range from one capture camera into image datablocks (and files with ``--render-dir``);
 save the ``.blend`` with the images packed. Exit code 0 on success, 1 on any reported error.
 """
@@ -68,6 +75,22 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--tracking", type=pathlib.Path,
                         help="flame_param folder to key on the head (default: the run's corrected tracking, "
                         "RUN/flame_param_corrected or RUN/flame_param)")
+    parser.add_argument("--footage", type=pathlib.Path, nargs="+", metavar="CLIP",
+                        help="first track this video (or these photos, or a photo folder) into CAPTURE (a new or "
+                        "empty folder), as the panel's Track Footage does")
+    parser.add_argument("--track-size", type=int, default=512, help="longer side of the tracked frames (default 512)")
+    parser.add_argument("--fit-steps", type=int, default=200, help="iterations of the tracker's fit (default 200)")
+    parser.add_argument("--drive", type=pathlib.Path, metavar="CLIP",
+                        help="a performance clip that drives the avatar's head instead of the run's tracking, as "
+                        "Drive from Footage does (tracked with the head's shape held fixed)")
+    parser.add_argument("--drive-out", type=pathlib.Path,
+                        help="where the performance's flame_param files go (default: beside the clip)")
+    parser.add_argument("--fps", type=float, help="the scene's frame rate: the performance is retimed to it "
+                        "(default: the scene's, 24; a tracked clip sets its own)")
+    parser.add_argument("--tolerance", type=float, default=0.001,
+                        help="keys of the performance within this of the curve are dropped (default 0.001)")
+    parser.add_argument("--keep-head-still", action="store_true",
+                        help="the performance moves only the face: the head keeps its pose")
     parser.add_argument("--camera", help="capture camera id to render from (default: the capture's val camera, "
                         "else its first)")
     parser.add_argument("--frames", type=int, nargs=2, metavar=("START", "END"),
@@ -145,8 +168,16 @@ def build_scene(args, log=print) -> dict:
         _call(ops.install_dependencies)
         log("[blend] installed the dependencies")
     run = args.run.resolve()
-    _call(ops.import_capture, filepath=str(args.capture.resolve()))
-    log(f"[blend] imported the capture's cameras from {args.capture}")
+    if args.footage:
+        paths = [path.resolve() for path in args.footage]
+        files = {"filepath": str(paths[0])} if len(paths) == 1 else {
+            "directory": str(paths[0].parent), "files": [{"name": path.name} for path in paths]}
+        _call(ops.track_footage, out=str(args.capture.resolve()), size=args.track_size, fit_steps=args.fit_steps,
+              **files)
+        log(f"[blend] tracked {len(paths)} input(s) into {args.capture}: camera, tracked head and footage imported")
+    else:
+        _call(ops.import_capture, filepath=str(args.capture.resolve()))
+        log(f"[blend] imported the capture's cameras from {args.capture}")
     if args.train:
         addon = bpy.context.preferences.addons.get(mogaface.__name__)
         if addon is not None and args.launcher:
@@ -157,18 +188,27 @@ def build_scene(args, log=print) -> dict:
         _call(ops.train, capture=str(args.capture.resolve()), run=str(run), preset=args.preset, steps=args.steps,
               resume="NEW", python=args.python or "", camera_rounds=args.camera_rounds)
         log(f"[blend] trained into {run}")
-    head = run / "head.pkl"
+    names = importlib.import_module(f"{mogaface.__name__}.core.run.names")
+    head = run / f"{names.HEAD_STEM}.pkl"
     if not head.exists():
-        head = run / "head.npz"
-    corrected = run / "flame_param_corrected"  # a MoGaFace run's improved tracking (same as flame_param)
-    tracking = (args.tracking or (corrected if corrected.is_dir() else run / "flame_param")).resolve()
-    identity = sorted((run / "flame_param").glob("*.npz"))  # the avatar's own identity
+        head = run / f"{names.HEAD_STEM}.npz"
+    corrected = run / names.CORRECTED_DIR  # a MoGaFace run's improved tracking (same as flame_param)
+    tracking = (args.tracking or (corrected if corrected.is_dir() else run / names.FLAME_PARAM_DIR)).resolve()
+    identity = sorted((run / names.FLAME_PARAM_DIR).glob("*.npz"))  # the avatar's own identity
     _call(ops.import_head, filepath=str(head), shape_file=str(identity[0]) if identity else "")
     head_object = bpy.context.active_object
+    scene = bpy.context.scene
     _call(ops.import_tracking, directory=str(tracking), target=head_object.name)
+    if args.drive:  # the performance is put on the pose the avatar shows at its first tracked frame
+        scene.frame_set(scene.frame_start)
+        if args.fps:
+            scene.render.fps, scene.render.fps_base = max(1, round(args.fps)), max(1, round(args.fps)) / args.fps
+        _call(ops.drive_from_footage, filepath=str(args.drive.resolve()), target=head_object.name,
+              out=str(args.drive_out.resolve()) if args.drive_out else "", tolerance=args.tolerance,
+              keep_head_still=args.keep_head_still, size=args.track_size, fit_steps=args.fit_steps)
+        tracking = pathlib.Path(scene.mogaface.tracking_folder)
     _call(ops.load_avatar, filepath=str(run), target=head_object.name)
     log(f"[blend] head {head_object.name!r} keyed from {tracking}, avatar linked")
-    scene = bpy.context.scene
     camera_id = args.camera or _default_camera(args.capture)
     camera = next((o for o in scene.objects if o.get("mogaface_camera_id") == camera_id), None)
     if camera is None:
@@ -188,7 +228,7 @@ def build_scene(args, log=print) -> dict:
     os.replace(tmp, blend)
     log(f"[blend] saved {blend} in {time.monotonic() - start:.1f} s")
     return {"blend": str(blend), "camera": camera.name, "frames": [first, last], "images": images,
-            "head": head_object.name}
+            "head": head_object.name, "tracking": str(tracking)}
 
 
 def main(argv=None) -> int:

@@ -41,10 +41,8 @@ from mogaface.core.data.capture import Capture  # noqa: E402
 from mogaface.core.data.writer import CaptureWriter  # noqa: E402
 from mogaface.core.flame.model import FlameModel  # noqa: E402
 from mogaface.core.flame.model_file import write_model_file  # noqa: E402
-from mogaface.core.io.npz import save_npz  # noqa: E402
-from mogaface.core.metrics import lpips_weights  # noqa: E402
-from mogaface.core.scene.axes import blender_to_flame, flame_to_blender  # noqa: E402
-from mogaface.core.scene.head_rig import (  # noqa: E402
+from mogaface.core.for_blender.axes import blender_to_flame, flame_to_blender  # noqa: E402
+from mogaface.core.for_blender.head_rig import (  # noqa: E402
     AVATAR_PATH_PROPERTY,
     MODEL_PATH_PROPERTY,
     POSE_KEY_NAME,
@@ -52,12 +50,15 @@ from mogaface.core.scene.head_rig import (  # noqa: E402
     HeadRig,
     load_head_model,
 )
+from mogaface.core.io.npz import save_npz  # noqa: E402
+from mogaface.core.metrics import lpips_weights  # noqa: E402
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 MODULE = "bl_ext.user_default.mogaface"
 CLASS_NAMES = (
     "MOGAFACE_OT_import_capture", "MOGAFACE_OT_use_capture_camera", "MOGAFACE_OT_import_head",
     "MOGAFACE_OT_import_tracking", "MOGAFACE_OT_improve_tracking", "MOGAFACE_OT_improve_tracking_cancel",
+    "MOGAFACE_OT_track_footage", "MOGAFACE_OT_drive_from_footage", "MOGAFACE_OT_footage_cancel",
     "MOGAFACE_OT_train", "MOGAFACE_OT_train_cancel", "MOGAFACE_OT_load_avatar",
     "MOGAFACE_OT_render_frame", "MOGAFACE_OT_render_animation", "MOGAFACE_OT_export_ply",
     "MOGAFACE_OT_render_cancel", "MOGAFACE_OT_setup_render_layer", "MOGAFACE_OT_gaussians_to_mesh",
@@ -179,7 +180,7 @@ def test_installing_registers_the_operators_panels_settings_and_handler(scenario
     assert prefs.python_path == "" and prefs.threads == 0  # empty: Blender's own Python
     assert prefs.torch_index == "https://download.pytorch.org/whl/cpu"
     assert bpy.types.MOGAFACE_PT_main.bl_category == "MoGaFace"
-    head_rig = importlib.import_module(MODULE + ".operators.handlers.head_rig")
+    head_rig = importlib.import_module(MODULE + ".operators.handlers.heads")
     assert (head_rig.MODEL_PATH_PROPERTY, head_rig.POSE_KEY_NAME, head_rig.AVATAR_PATH_PROPERTY) \
         == (MODEL_PATH_PROPERTY, POSE_KEY_NAME, AVATAR_PATH_PROPERTY)
 
@@ -412,6 +413,13 @@ class RecordingLayout:
         self.log.append(("operator", idname, self.enabled))
         return type("Properties", (), {})()
 
+    def prop_search(self, data, name, search_data, search_name, **kwargs):
+        assert name in data.bl_rna.properties and hasattr(search_data, search_name), name
+        self.log.append(("prop", name))
+
+    def separator(self, **kwargs):
+        pass
+
     def template_list(self, *args, **kwargs):
         self.log.append(("template_list",))
 
@@ -428,8 +436,10 @@ def test_panels_draw_every_section_and_name_missing_packages(scenario, monkeypat
     bpy.context.view_layer.objects.active = scenario["head_object"]
     log = draw_panels([name for name in CLASS_NAMES if "_PT_" in name])
     assert ("label", "Python packages: ready", True) in log
-    for idname in ("mogaface.import_capture", "mogaface.import_head", "mogaface.import_tracking"):
+    for idname in ("mogaface.import_capture", "mogaface.import_head", "mogaface.import_tracking",
+                   "mogaface.track_footage", "mogaface.drive_from_footage"):
         assert ("operator", idname, True) in log
+    assert ("prop", "footage_clip") in log and ("prop", "drive_tolerance") in log
     assert ("prop", '["mogaface_jaw_pose"]') in log and ("prop", "run_folder") in log
     for idname in ("mogaface.train", "mogaface.load_avatar", "mogaface.render_frame", "mogaface.export_ply"):
         assert ("operator", idname, True) in log
@@ -598,7 +608,7 @@ def test_the_train_operator_takes_its_interpreter_from_its_python_property(scena
 
 
 def test_the_train_operator_asks_for_the_scenes_camera_rounds(scenario, tmp_path, monkeypatch):
-    worker = importlib.import_module(MODULE + ".core.worker")
+    worker = importlib.import_module(MODULE + ".core.for_blender.worker")
     started = []
 
     def refuse(self):

@@ -24,17 +24,20 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 from conftest import make_toy_model  # noqa: E402
 
-from mogaface.core.avatar.avatar import Avatar  # noqa: E402
+from mogaface.core.avatar.avatar import (
+    Avatar,  # noqa: E402
+    render_frame,  # noqa: E402
+)
 from mogaface.core.data.capture import Capture  # noqa: E402
 from mogaface.core.data.generator import CaptureSettings, make_capture  # noqa: E402
 from mogaface.core.flame.model_file import write_model_file  # noqa: E402
+from mogaface.core.for_blender.avatar import load_avatar  # noqa: E402
+from mogaface.core.for_blender.axes import timestep_to_frame  # noqa: E402
+from mogaface.core.for_blender.head_rig import AVATAR_PATH_PROPERTY, POSE_PROPERTIES  # noqa: E402
+from mogaface.core.for_blender.render import render_image_name  # noqa: E402
+from mogaface.core.for_blender.tracking import read_tracking  # noqa: E402
+from mogaface.core.for_blender.worker import TrainWorker, train_command  # noqa: E402
 from mogaface.core.run.folder import RunFolder  # noqa: E402
-from mogaface.core.scene.avatar import load_avatar, render_avatar  # noqa: E402
-from mogaface.core.scene.axes import timestep_to_frame  # noqa: E402
-from mogaface.core.scene.head_rig import AVATAR_PATH_PROPERTY, POSE_PROPERTIES  # noqa: E402
-from mogaface.core.scene.render import render_image_name  # noqa: E402
-from mogaface.core.scene.tracking import read_tracking  # noqa: E402
-from mogaface.core.worker import TrainWorker, train_command  # noqa: E402
 
 MODULE = addon_test.MODULE
 ROOT = addon_test.ROOT
@@ -144,7 +147,7 @@ def test_a_crashing_training_is_reported_with_its_message(trained, tmp_path):
 
 
 def test_worker_ignores_events_of_earlier_sessions_and_partial_lines(tmp_path):
-    from mogaface.core.worker import EventReader
+    from mogaface.core.for_blender.worker import EventReader
 
     path = tmp_path / "events.jsonl"
     path.write_text('{"event": "iter", "step": 1}\n{"event": "it')
@@ -177,7 +180,7 @@ def use_camera(camera_id: str):
 def core_render(run: pathlib.Path, timestep: int, camera) -> np.ndarray:
     """The core's render (Blender's pixel order) of a run's avatar at a training timestep."""
     folder = RunFolder(run)
-    rgb, alpha = render_avatar(Avatar.load(run / "avatar.pt"), folder.flame_params(timestep), camera,
+    rgb, alpha = render_frame(Avatar.load(run / "avatar.pt"), folder.flame_params(timestep), camera,
                                   folder.background)
     return blender_image(rgb)
 
@@ -215,7 +218,7 @@ def test_render_frame_equals_the_core_render(scene):
 
 def test_a_mogaface_run_renders_with_its_modules(scene):
     """A run with MoGaFace modules: keyed with its corrected tracking, rendered as the core renders it."""
-    from mogaface.core.mogaface.avatar import ModulatedAvatar
+    from mogaface.core.correction.avatar import ModulatedAvatar
 
     run = scene["root"] / "run_mogaface"
     command = train_command(sys.executable, scene["capture"], run, preset="mogaface-demo", steps=5)
@@ -235,7 +238,7 @@ def test_a_mogaface_run_renders_with_its_modules(scene):
         assert bpy.ops.mogaface.render_frame(head=head.name) == {"FINISHED"}
         got = image_array(bpy.data.images[render_image_name(obj.name, frame)])
         folder = RunFolder(run)
-        rgb, alpha = render_avatar(avatar, folder.flame_params(timestep), camera, folder.background)
+        rgb, alpha = render_frame(avatar, folder.flame_params(timestep), camera, folder.background)
         expected = blender_image(rgb)
         assert np.abs(got - expected).max() < 1e-4
     finally:  # back to the plain run for the tests below
@@ -379,16 +382,20 @@ def test_headless_script_help():
     assert result.returncode == 0 and "--blend" in result.stdout and "--train" in result.stdout
 
 
-def test_headless_script_builds_a_scene_that_reopens_with_everything(scene, tmp_path):
+def test_headless_script_builds_a_scene_that_reopens_with_everything(scene, tmp_path, handheld):
+    """Trained, then driven by a performance clip (tracked with the avatar's shape), rendered, saved."""
     blend, frames = tmp_path / "scene.blend", tmp_path / "frames"
     env = {**os.environ, **{name: str(tmp_path / "user") for name in addon_test._USER_VARS}}
     result = subprocess.run(
         [sys.executable, str(SCRIPT), str(scene["capture"]), "--run", str(tmp_path / "run"), "--train",
          "--preset", "quick", "--steps", "5", "--blend", str(blend), "--render-dir", str(frames),
-         "--frames", "2", "4"],
-        capture_output=True, text=True, timeout=120, env=env,
+         "--frames", "2", "4", "--drive", str(handheld / "footage" / "clip.mp4"), "--drive-out",
+         str(tmp_path / "performance"), "--fps", "15", "--fit-steps", "5", "--track-size", "112"],
+        capture_output=True, text=True, timeout=180, env=env,
     )
     assert result.returncode == 0, result.stdout + result.stderr
+    performance = read_tracking(tmp_path / "performance")
+    assert len(performance.frames) == 6  # 12 frames at 30 fps, retimed to the scene's 15
     assert sorted(p.name for p in frames.glob("*.png")) == [f"Camera_cam01_{f:04d}.png" for f in (2, 3, 4)]
     bpy.ops.wm.open_mainfile(filepath=str(blend))
     cameras = [o for o in bpy.data.objects if o.type == "CAMERA"]
@@ -398,7 +405,11 @@ def test_headless_script_builds_a_scene_that_reopens_with_everything(scene, tmp_
     images = [bpy.data.images[render_image_name("Camera cam01", f)] for f in (2, 3, 4)]
     assert all(image.packed_file is not None and tuple(image.size) == (48, 48) for image in images)
     assert image_array(images[0])[..., 3].max() > 0.5  # pixels survived the round trip
+    assert bpy.context.scene.mogaface.tracking_folder == str(tmp_path / "performance")
+    assert (bpy.context.scene.frame_start, bpy.context.scene.frame_end) == (1, 6)
     bpy.context.scene.frame_set(3)
+    expr = np.array([head.data.shape_keys.key_blocks[i + 1].value for i in range(performance.params["expr"].shape[1])])
+    np.testing.assert_allclose(expr, performance.params["expr"][2], atol=1e-5)  # the performance is what plays
     assert bpy.ops.mogaface.render_frame() == {"FINISHED"}
 
 

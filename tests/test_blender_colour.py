@@ -9,7 +9,7 @@ import pytest
 
 from mogaface.core.camera import Camera
 from mogaface.core.errors import InputError
-from mogaface.core.scene.render import RenderRequest, RenderResult, blender_rgba, srgb_from_blender, view_framing
+from mogaface.core.for_blender.render import RenderRequest, RenderResult, blender_rgba, srgb_from_blender, view_framing
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 
@@ -109,7 +109,7 @@ def test_build_extension_writes_a_valid_zip_without_tests_or_venv(tmp_path):
         assert zipped.testzip() is None
         manifest = zipped.read("blender_manifest.toml").decode()
     assert 'id = "mogaface"' in manifest and f'version = "{version}"' in manifest
-    assert "__init__.py" in names and "operators/handlers/viewport.py" in names and "core/scene/render.py" in names
+    assert "__init__.py" in names and "operators/handlers/viewport.py" in names and "core/for_blender/render.py" in names
     assert not [n for n in names if n.startswith(("tests/", ".venv/", "docs/", "bench/", ".git/", "dist/"))
                 or "__pycache__" in n or n.endswith(".sh")]
     # tracked files only: a file left in the working tree is not shipped

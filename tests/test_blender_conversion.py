@@ -1,4 +1,4 @@
-"""The Blender-free scene conversions (core/scene/): axes, cameras, head rig, tracking.
+"""The Blender-free scene conversions (core/for_blender/): axes, cameras, head rig, tracking.
 
 No bpy here: Blender's projection of a camera is written out in numpy from its view-plane rules
 (horizontal sensor fit, shifts in units of the width, pixel aspect), so the camera maths is
@@ -14,8 +14,7 @@ from conftest import make_toy_model
 from mogaface.core.camera import Camera
 from mogaface.core.errors import InputError
 from mogaface.core.flame.model_file import write_model_file
-from mogaface.core.io.npz import save_npz
-from mogaface.core.scene.axes import (
+from mogaface.core.for_blender.axes import (
     FLAME_TO_BLENDER,
     blender_to_flame,
     flame_to_blender,
@@ -23,8 +22,8 @@ from mogaface.core.scene.axes import (
     image_pixels,
     timestep_to_frame,
 )
-from mogaface.core.scene.cameras import BlenderCamera, blender_camera
-from mogaface.core.scene.head_rig import (
+from mogaface.core.for_blender.cameras import BlenderCamera, blender_camera
+from mogaface.core.for_blender.head_rig import (
     POSE_PROPERTIES,
     HeadRig,
     fit_components,
@@ -32,7 +31,8 @@ from mogaface.core.scene.head_rig import (
     read_identity,
     zero_pose,
 )
-from mogaface.core.scene.tracking import keyframe_columns, read_tracking, tracking_channels
+from mogaface.core.for_blender.tracking import keyframe_columns, read_tracking, tracking_channels
+from mogaface.core.io.npz import save_npz
 
 
 def test_axis_conversion_is_the_documented_rotation():

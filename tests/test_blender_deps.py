@@ -8,7 +8,7 @@ import time
 import pytest
 from weight_archives import FAKE_DOWNLOAD, write_weight_archives
 
-from mogaface.core import dependencies
+from mogaface.core.for_blender import dependencies
 from mogaface.core.metrics import lpips_weights
 from mogaface.core.track import models as face_models
 

@@ -15,7 +15,7 @@ import pytest  # noqa: E402
 @pytest.fixture(scope="module")
 def handlers():
     return (importlib.import_module("mogaface.operators.handlers.viewport"),
-            importlib.import_module("mogaface.operators.handlers.gpu_splats"))
+            importlib.import_module("mogaface.operators.handlers.gpu_draw"))
 
 
 @pytest.mark.parametrize("mode, gpu_ok, moving, playing, expected", [
@@ -33,13 +33,13 @@ def test_which_draw_is_shown(handlers, mode, gpu_ok, moving, playing, expected):
 
 
 def test_where_the_gpu_cannot_draw_the_reason_is_kept_for_the_panel(handlers):
-    _, gpu_splats = handlers
-    gpu_splats.clear()
-    assert gpu_splats.unavailable() is None  # not tried yet
-    assert gpu_splats.program() is None  # background mode: no drawing
-    reason = gpu_splats.unavailable()
+    _, gpu_draw = handlers
+    gpu_draw.clear()
+    assert gpu_draw.unavailable() is None  # not tried yet
+    assert gpu_draw.program() is None  # background mode: no drawing
+    reason = gpu_draw.unavailable()
     assert reason and "background" in reason
-    gpu_splats.clear()
+    gpu_draw.clear()
 
 
 @pytest.mark.parametrize("mode, software, expected", [
@@ -49,16 +49,16 @@ def test_where_the_gpu_cannot_draw_the_reason_is_kept_for_the_panel(handlers):
     ("CPU", False, False),
 ])
 def test_a_software_opengl_draws_the_cpu_image_in_both(handlers, monkeypatch, mode, software, expected):
-    viewport, gpu_splats = handlers
-    gpu_splats.clear()
-    monkeypatch.setattr(gpu_splats, "software_renderer", lambda: software)
+    viewport, gpu_draw = handlers
+    gpu_draw.clear()
+    monkeypatch.setattr(gpu_draw, "software_renderer", lambda: software)
     assert viewport.gpu_allowed(mode) is expected
 
 
 def test_the_software_renderer_is_asked_once_and_background_mode_is_not_one(handlers):
-    _, gpu_splats = handlers
-    gpu_splats.clear()
-    assert gpu_splats.software_renderer() is False  # background mode: gpu.platform refuses, no draw at all
-    gpu_splats._program["software"] = True
-    assert gpu_splats.software_renderer() is True  # cached: never asked again per draw
-    gpu_splats.clear()
+    _, gpu_draw = handlers
+    gpu_draw.clear()
+    assert gpu_draw.software_renderer() is False  # background mode: gpu.platform refuses, no draw at all
+    gpu_draw._program["software"] = True
+    assert gpu_draw.software_renderer() is True  # cached: never asked again per draw
+    gpu_draw.clear()

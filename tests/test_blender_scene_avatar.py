@@ -23,8 +23,8 @@ from mathutils import Matrix, Vector  # noqa: E402
 
 from mogaface.core.avatar.avatar import Avatar  # noqa: E402
 from mogaface.core.avatar.gaussians import rgb_to_sh_dc  # noqa: E402
-from mogaface.core.scene.axes import FLAME_TO_BLENDER, flame_to_blender  # noqa: E402
-from mogaface.core.scene.render import blender_rgba, render_image_name  # noqa: E402
+from mogaface.core.for_blender.axes import FLAME_TO_BLENDER, flame_to_blender  # noqa: E402
+from mogaface.core.for_blender.render import blender_rgba, render_image_name  # noqa: E402
 
 MODULE = addon_test.MODULE
 SIZE = 64
@@ -89,7 +89,7 @@ def camera_matrices(camera, width=SIZE, height=SIZE):
 
 
 def camera_render(scene_data, frame=1):
-    from mogaface.core.scene.render import render
+    from mogaface.core.for_blender.render import render
 
     avatar_head = ops("avatar_head")
     scn, head = bpy.context.scene, scene_data["head"]
@@ -98,7 +98,7 @@ def camera_render(scene_data, frame=1):
 
 
 def viewport_render(scene_data, frame=1, size=(SIZE, SIZE)):
-    from mogaface.core.scene.render import render
+    from mogaface.core.for_blender.render import render
 
     view, projection = camera_matrices(scene_data["camera"], *size)
     bpy.context.scene.frame_set(frame)
@@ -494,7 +494,7 @@ def addon_test_image(name):
 
 def test_a_finished_training_fills_the_avatar_field(scene, tmp_path):
     train = ops("train")
-    from mogaface.core.worker import Progress
+    from mogaface.core.for_blender.worker import Progress
 
     run = tmp_path / "run"
     run.mkdir()
@@ -602,7 +602,7 @@ def test_improve_tracking_asks_before_replacing_keys_and_shows_its_progress(scen
     assert improving.MOGAFACE_OT_improve_tracking.invoke(fake, context, None) == {"RUNNING_MODAL"}
     assert count and str(count) in asked[0]["message"] and not executed
 
-    from mogaface.core.worker import Progress
+    from mogaface.core.for_blender.worker import Progress
 
     panels = importlib.import_module(MODULE + ".mogaface_addon.panels")
     running = types.SimpleNamespace(progress=Progress(state="running", stage="offsets", step=3, steps=50))

@@ -9,16 +9,17 @@ import pytest
 import torch
 
 from mogaface.core.avatar.avatar import Avatar
+from mogaface.core.correction.avatar import render_world
 from mogaface.core.data.capture import Capture
 from mogaface.core.data.generator import CaptureSettings, make_capture, params_at
 from mogaface.core.errors import InputError
 from mogaface.core.flame.model import FlameModel
-from mogaface.core.mogaface.avatar import render_world
 from mogaface.core.run.names import DELAYS_FILE
 from mogaface.core.train import config as C
 from mogaface.core.train.camera_delays import CameraDelays, _neighbours, read_delays
 from mogaface.core.train.checkpoint import latest_checkpoint, load_checkpoint
 from mogaface.core.train.data import TrainingData
+from mogaface.core.train.presets import FULL_METHOD
 from mogaface.core.train.trainer import Trainer
 
 
@@ -192,7 +193,7 @@ def test_delays_train_beside_the_mogaface_modules_and_move_the_scored_views(capt
         "train": {"steps": 4, "threads": 1, "log_every": 1, "checkpoint_every": 100},
         "densify": {"start": 100, "stop": 200, "interval": 50, "opacity_reset_interval": 0},
         "eval": {"at_end": False, "lpips": False},
-        "mogaface": {**C.FULL_METHOD, "encoder_views": 2, "input_size": 32},
+        "mogaface": {**FULL_METHOD, "encoder_views": 2, "input_size": 32},
         "cameras": {"delays": True, "delay_begin": 0.0, "delay_lr": 0.2},
     })
     run = tmp_path / "run"

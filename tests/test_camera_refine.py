@@ -9,11 +9,11 @@ import pytest
 import torch
 
 from mogaface.core.avatar.avatar import Avatar
+from mogaface.core.correction.avatar import render_world
 from mogaface.core.data.camera_file import read_cameras
 from mogaface.core.data.capture import Capture
 from mogaface.core.data.generator import perturb_camera
 from mogaface.core.evaluate.camera_error import camera_errors, pose_error
-from mogaface.core.mogaface.avatar import render_world
 from mogaface.core.train import config as C
 from mogaface.core.train.camera_refine import CameraOffsets
 from mogaface.core.train.checkpoint import latest_checkpoint, load_checkpoint
@@ -237,7 +237,7 @@ def test_by_default_only_the_rotations_are_stepped_and_the_centres_move_with_the
 
 
 def test_camera_rates_decay_to_their_final_ratio(capture, tmp_path):
-    from mogaface.core.train.trainer import camera_lrs
+    from mogaface.core.train.schedule import camera_lrs
 
     config = refine_config(steps=6)
     config.cameras.final_ratio = 0.01

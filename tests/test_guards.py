@@ -79,12 +79,12 @@ def image_assisted_sources(capture, run):
     """name → source: every source an image-assisted result is made of, as the benchmark and
     ``refine-tracking`` build them (smoothing with fixed σ: choosing σ reads the truth of the
     training sequences by design, see :func:`..sources.smoothed.choose_sigmas`)."""
+    from mogaface.core.correction.model import MoGaFace
+    from mogaface.core.evaluate.sources.corrected import MoGaFaceParams
     from mogaface.core.evaluate.sources.fitted import FittedParams
-    from mogaface.core.evaluate.sources.mogaface import MoGaFaceParams
     from mogaface.core.evaluate.sources.refined import RefinedParams, RefinerInference, run_refiner
     from mogaface.core.evaluate.sources.smoothed import SmoothedParams
     from mogaface.core.evaluate.sources.tracked import AlignedTrackedParams, TrackedParams
-    from mogaface.core.mogaface.model import MoGaFace
     from mogaface.core.run.cameras import InputCameras
 
     avatar = run.load_avatar()
@@ -142,9 +142,9 @@ def test_no_image_assisted_source_reads_the_answers(capture, trained):
 
 def test_the_spy_catches_a_source_that_reads_the_answers(capture, trained):
     """Negative control: fitting started from the truth, and the scoring cameras, are caught."""
-    from mogaface.core.evaluate.images import ScoringCameras
     from mogaface.core.evaluate.sources.fitted import FittedParams
     from mogaface.core.evaluate.sources.true import TrueParams
+    from mogaface.core.run.cameras import ScoringCameras
 
     run, _ = trained
     avatar = run.load_avatar()

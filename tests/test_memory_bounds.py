@@ -6,7 +6,7 @@ import types
 import numpy as np
 import torch
 
-from mogaface.core.mogaface.views import ViewImages
+from mogaface.core.correction.views import ViewImages
 
 
 class CountingCapture:

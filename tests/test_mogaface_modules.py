@@ -6,11 +6,11 @@ import pytest
 import torch
 
 from mogaface.core.avatar.gaussians import BoundGaussians
+from mogaface.core.correction.bank import ExpressionBank, consistency_loss, momentum_at
+from mogaface.core.correction.model import MoGaFace
+from mogaface.core.correction.posing import world_with_offsets
+from mogaface.core.correction.texture_attention import LatentTextureAttention
 from mogaface.core.errors import InputError
-from mogaface.core.mogaface.bank import ExpressionBank, consistency_loss, momentum_at
-from mogaface.core.mogaface.model import MoGaFace
-from mogaface.core.mogaface.posing import world_with_offsets
-from mogaface.core.mogaface.texture_attention import LatentTextureAttention
 
 SPEC = dict(mode="multi", bank=True, texture=True, input_size=32, feature_dim=16, encoder_width=4, heads=2,
             hidden=16, plane_size=8, plane_dim=4, texture_hidden=8, n_expr=5)

@@ -4,12 +4,12 @@ import numpy as np
 import pytest
 import torch
 
+from mogaface.core.correction.model import MoGaFace
 from mogaface.core.data.capture import Capture
-from mogaface.core.mogaface.model import MoGaFace
 from mogaface.core.run.folder import load_flame_file
 from mogaface.core.train import config as C
 from mogaface.core.train.checkpoint import latest_checkpoint, load_checkpoint
-from mogaface.core.train.mogaface_part import mogaface_world
+from mogaface.core.train.correction_part import mogaface_world
 from mogaface.core.train.trainer import Trainer
 
 FULL = {"mode": "multi", "bank": True, "texture": True, "input_size": 32, "feature_dim": 16, "encoder_width": 4,
@@ -115,9 +115,9 @@ def test_resume_is_exact_with_modules_and_bank(tiny_capture, tmp_path):
 
 
 def test_evaluation_never_feeds_the_scored_view(full_run, tiny_capture, monkeypatch):
+    from mogaface.core.correction.views import ViewImages
     from mogaface.core.evaluate.evaluation import evaluate_run
-    from mogaface.core.evaluate.sources.mogaface import MoGaFaceParams
-    from mogaface.core.mogaface.views import ViewImages
+    from mogaface.core.evaluate.sources.corrected import MoGaFaceParams
     from mogaface.core.run.folder import RunFolder
 
     run = RunFolder(full_run)
@@ -188,7 +188,7 @@ def test_rendered_targets_regress_a_known_offset(tiny_capture, tmp_path):
 
 
 def test_rendered_views_are_the_avatar_seen_by_the_encoder(tiny_capture, tmp_path):
-    from mogaface.core.mogaface.rendered_targets import render_views
+    from mogaface.core.correction.rendered_targets import render_views
 
     trainer = Trainer(tiny_capture, tmp_path / "run", config())
     frame = trainer.data.frames[0]

@@ -4,7 +4,7 @@ A tiny run is trained with the full method, then its texture attention is made t
 Gaussians visibly (so a consumer that dropped the modules would fail by far). The same camera and
 timestep are then drawn through each path and compared with the core render:
 
-- ``render`` (the command) and Blender's request path (``core.scene.render``): the same code, exact;
+- ``render`` (the command) and Blender's request path (``core.for_blender.render``): the same code, exact;
 - ``export-ply`` world space, read by trimesh and drawn by an independent 3DGS renderer written
   here from the 3DGS reference (EWA splatting, 0.3 px low-pass, front-to-back alpha, alpha cut
   1/255, transmittance stop 1e-4): ≥ 40 dB;
@@ -13,7 +13,7 @@ timestep are then drawn through each path and compared with the core render:
   ``bmm(face_orien_mat, xyz) * face_scaling + face_center``, ``exp(scaling) * face_scaling``) with
   the mesh of ``flame_param.npz`` row ``t``: rotations within 0.1°, ≥ 40 dB;
 - ``import-ply`` of that file, then the core render: exact;
-- ``core.scene.points`` (Gaussians to Mesh): the world Gaussians, exact.
+- ``core.for_blender.points`` (Gaussians to Mesh): the world Gaussians, exact.
 """
 
 import math
@@ -22,14 +22,13 @@ import numpy as np
 import pytest
 import torch
 
-from mogaface.core.avatar.avatar import Avatar, flame_params_to_torch
+from mogaface.core.avatar.avatar import Avatar, flame_params_to_torch, render_frame
 from mogaface.core.cli import main
-from mogaface.core.evaluate.images import render_frame
+from mogaface.core.correction.avatar import ModulatedAvatar
 from mogaface.core.evaluate.protocols import TrackedParams
-from mogaface.core.mogaface.avatar import ModulatedAvatar
+from mogaface.core.for_blender.avatar import avatar_location, load_avatar
+from mogaface.core.for_blender.axes import blender_to_flame
 from mogaface.core.run.folder import RunFolder
-from mogaface.core.scene.avatar import avatar_location, load_avatar
-from mogaface.core.scene.axes import blender_to_flame
 
 TIMESTEP = 3  # a trained timestep (its corrected parameters come from the run)
 HELD_OUT = 13  # a timestep of the held-out sequence (tracked parameters)
@@ -40,8 +39,8 @@ def modulated(tmp_path_factory):
     """A run with MoGaFace modules whose texture offsets change the picture (≈ 20 dB from the plain avatar)."""
     from test_mogaface_train import config
 
+    from mogaface.core.correction.model import MoGaFace
     from mogaface.core.data.generator import CaptureSettings, make_capture
-    from mogaface.core.mogaface.model import MoGaFace
     from mogaface.core.train.trainer import Trainer
 
     root = tmp_path_factory.mktemp("one_avatar")
@@ -328,8 +327,8 @@ def test_import_ply_then_render_is_exact(modulated, tmp_path):
 
 
 def test_blender_request_and_points_show_the_same_avatar(modulated):
-    from mogaface.core.scene.points import gaussian_points
-    from mogaface.core.scene.render import RenderRequest, render
+    from mogaface.core.for_blender.points import gaussian_points
+    from mogaface.core.for_blender.render import RenderRequest, render
 
     m = modulated
     avatar_path = str(m["run"].avatar_path)

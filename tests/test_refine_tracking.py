@@ -19,11 +19,11 @@ from mogaface.core.data.capture import Capture
 from mogaface.core.errors import InputError
 from mogaface.core.evaluate.sources.refined import RefinedParams, run_refiner
 from mogaface.core.evaluate.sources.tracked import AlignedTrackedParams, TrackedParams
+from mogaface.core.for_blender.tracking import read_tracking
+from mogaface.core.for_blender.worker import RefineTrackingWorker
 from mogaface.core.refiner.training import RefinerSettings, frozen_avatar, train_refiner
 from mogaface.core.run.cameras import InputCameras
 from mogaface.core.run.folder import RunFolder
-from mogaface.core.scene.tracking import read_tracking
-from mogaface.core.worker import RefineTrackingWorker
 from mogaface.core.workflows.refine_tracking import RECORD_FILE, refine_tracking
 
 TINY = dict(starts=2, offsets_per_start=2, gap_timesteps=2, threads=1,
@@ -38,6 +38,15 @@ def run_root(tmp_path_factory):
     shutil.copytree(fake_run(tmp_path_factory), root)
     train_refiner(root, RefinerSettings(**TINY))
     return root
+
+
+@pytest.fixture(scope="module")
+def refined(run_root, tmp_path_factory):
+    """The run's tracking refined once (one pass, 2 views, no fitting), read by several tests: a
+    refine of every timestep is the costly part of each."""
+    out = tmp_path_factory.mktemp("refined_once") / "refined"
+    refine_tracking(run_root, out=out, passes=1, views=2, fit_steps=0, threads=1)
+    return out
 
 
 def test_every_timestep_is_written_in_the_captures_layout_with_the_refined_values(run_root, tmp_path):
@@ -73,7 +82,7 @@ def test_every_timestep_is_written_in_the_captures_layout_with_the_refined_value
     assert events[-1]["event"] == "done" and not list(tmp_path.glob(".refined.*"))
 
 
-def test_fitting_from_the_refiners_answer_lowers_the_image_error_on_unseen_timesteps(run_root, tmp_path):
+def test_fitting_from_the_refiners_answer_lowers_the_image_error_on_unseen_timesteps(run_root, refined, tmp_path):
     import torch
 
     from mogaface.core.avatar.avatar import flame_params_to_torch
@@ -82,7 +91,6 @@ def test_fitting_from_the_refiners_answer_lowers_the_image_error_on_unseen_times
     from mogaface.core.evaluate.sources.fitted import FittedParams
     from mogaface.core.run.folder import load_flame_file
 
-    refine_tracking(run_root, out=tmp_path / "refined", passes=1, views=2, fit_steps=0, threads=1)
     refine_tracking(run_root, out=tmp_path / "fitted", passes=1, views=2, fit_steps=6, threads=1)
     assert json.loads((tmp_path / "fitted" / RECORD_FILE).read_text())["fit_steps"] == 6
     run = RunFolder(run_root)
@@ -106,12 +114,12 @@ def test_fitting_from_the_refiners_answer_lowers_the_image_error_on_unseen_times
     before, after = [], []
     for timestep in capture.timesteps:
         name = f"{timestep:05d}.npz"
-        refined = load_flame_file(tmp_path / "refined" / "flame_param" / name)
+        answer = load_flame_file(refined / "flame_param" / name)
         fitted = load_flame_file(tmp_path / "fitted" / "flame_param" / name)
         if timestep in trained:  # already fitted by training: the refiner's answer is kept
-            np.testing.assert_array_equal(fitted["expr"], refined["expr"])
+            np.testing.assert_array_equal(fitted["expr"], answer["expr"])
             continue
-        before.append(image_error(refined, timestep))
+        before.append(image_error(answer, timestep))
         after.append(image_error(fitted, timestep))
     assert np.mean(after) < np.mean(before)
     assert sum(a < b for a, b in zip(after, before)) > len(before) / 2
@@ -227,9 +235,9 @@ def test_a_refiner_of_an_earlier_version_is_trained_again(run_root, tmp_path):
     assert "refiner curvature" in {e.get("stage") for e in events if e["event"] == "iter"}
 
 
-def test_a_stopped_job_leaves_the_previous_result_and_a_foreign_folder_is_refused(run_root, tmp_path):
+def test_a_stopped_job_leaves_the_previous_result_and_a_foreign_folder_is_refused(run_root, refined, tmp_path):
     out = tmp_path / "refined"
-    refine_tracking(run_root, out=out, passes=1, views=2, threads=1)
+    shutil.copytree(refined, out)  # a finished result (one pass, 2 views)
     before = {p.name: p.read_bytes() for p in (out / "flame_param").iterdir()}
     calls = {"n": 0}
 
@@ -253,7 +261,7 @@ def test_a_stopped_job_leaves_the_previous_result_and_a_foreign_folder_is_refuse
 
 
 def test_the_command_and_its_worker(run_root, tmp_path):
-    from mogaface.core.worker import refine_tracking_command
+    from mogaface.core.for_blender.worker import refine_tracking_command
 
     out = tmp_path / "refined"
     worker = RefineTrackingWorker(refine_tracking_command(sys.executable, run_root, out=out, passes=1, views=2,
@@ -270,7 +278,7 @@ def test_the_command_and_its_worker(run_root, tmp_path):
     assert failed.returncode == 2 and "not a run folder" in failed.stderr
 
 
-def test_errors_against_the_truth_are_zero_for_the_truth_and_its_gauge(run_root, tmp_path):
+def test_errors_against_the_truth_are_zero_for_the_truth_and_its_gauge(run_root, refined):
     from mogaface.core.evaluate.expression_error import frame_errors, tracking_errors, truth_folder
     from mogaface.core.flame.model import FlameModel
     from mogaface.core.run.folder import MOTION_KEYS, load_flame_file
@@ -293,8 +301,7 @@ def test_errors_against_the_truth_are_zero_for_the_truth_and_its_gauge(run_root,
     assert errors["start"]["unseen"]["timesteps"] == len(unseen)
     assert errors["start"]["training"]["timesteps"] == len(trained)
     assert errors["start"]["unseen"]["vertex_mm"] == pytest.approx(direct, rel=1e-6)
-    refine_tracking(run_root, out=tmp_path / "r", passes=1, views=2, threads=1)
-    record = json.loads((tmp_path / "r" / RECORD_FILE).read_text())
+    record = json.loads((refined / RECORD_FILE).read_text())
     assert set(record["truth_errors"]) == {"tracked", "start", "refined"}
     assert record["truth_errors"]["tracked"]["unseen"]["vertex_mm"] == pytest.approx(direct, rel=1e-5)
     aligned = AlignedTrackedParams(capture, run).params_for  # the start: tracked + the mean fine-tuning offset
@@ -306,7 +313,7 @@ def test_errors_against_the_truth_are_zero_for_the_truth_and_its_gauge(run_root,
 def test_cancelling_the_worker_stops_the_child_and_keeps_nothing_half_done(run_root, tmp_path):
     import time
 
-    from mogaface.core.worker import refine_tracking_command
+    from mogaface.core.for_blender.worker import refine_tracking_command
 
     bare = tmp_path / "run"
     shutil.copytree(run_root, bare)

@@ -8,16 +8,17 @@ import numpy as np
 import pytest
 from test_evaluate_fixtures import fake_run, random_avatar, tiny_capture
 
+from mogaface.core.avatar.avatar import render_frame
 from mogaface.core.data.capture import Capture
 from mogaface.core.data.generator import CaptureSettings, make_capture
 from mogaface.core.evaluate.benchmark import benchmark_run, standard_sources
 from mogaface.core.evaluate.expression_error import frame_errors
-from mogaface.core.evaluate.images import ScoringCameras, render_frame
 from mogaface.core.evaluate.protocols import protocol_frames, run_protocol
 from mogaface.core.evaluate.sources import smoothed as smoothed_module
 from mogaface.core.evaluate.sources.fitted import PRIOR_WEIGHT, FittedParams
 from mogaface.core.evaluate.sources.smoothed import SmoothedParams, choose_sigmas, sequence_timesteps
 from mogaface.core.evaluate.sources.true import TrueParams, true_params
+from mogaface.core.run.cameras import ScoringCameras
 from mogaface.core.run.folder import MOTION_KEYS, RunFolder
 
 

@@ -19,6 +19,7 @@ import torch
 from mogaface.core.io.torch_file import load_torch_state
 from mogaface.core.train import config as C
 from mogaface.core.train.checkpoint import list_checkpoints, load_checkpoint
+from mogaface.core.train.presets import FLAME_FINETUNE, FULL_METHOD
 from mogaface.core.train.trainer import Trainer
 
 SETTINGS = {
@@ -26,8 +27,8 @@ SETTINGS = {
     "densify": {"start": 2, "stop": 10, "interval": 3, "grad_threshold": 1e-6, "opacity_reset_interval": 0,
                 "sh_degree_interval": 4, "max_gaussians": 20000, "percent_dense": 0.005},
     "eval": {"at_end": False, "lpips": False},
-    "mogaface": {**C.FULL_METHOD, "encoder_views": 2, "input_size": 32},
-    "flame": C.FLAME_FINETUNE,
+    "mogaface": {**FULL_METHOD, "encoder_views": 2, "input_size": 32},
+    "flame": FLAME_FINETUNE,
 }
 
 
@@ -243,8 +244,8 @@ def test_a_killed_rank_is_reported_and_the_run_resumes(capture, config_file, tmp
 
 def test_launcher_prefix_replaces_the_interpreter():
     from mogaface.core.errors import InputError
-    from mogaface.core.launcher import with_launcher
-    from mogaface.core.worker import train_command
+    from mogaface.core.for_blender.launcher import with_launcher
+    from mogaface.core.for_blender.worker import train_command
 
     command = train_command("/usr/bin/python3", "/data/cap", "/data/run", preset="demo", threads=1)
     assert with_launcher(command, "") == command
@@ -257,7 +258,7 @@ def test_launcher_prefix_replaces_the_interpreter():
 
 
 def test_a_launched_run_gives_each_rank_an_image_and_keeps_the_images_seen():
-    from mogaface.core.launcher import launcher_arguments
+    from mogaface.core.for_blender.launcher import launcher_arguments
     from mogaface.core.train.config import BATCH_RULES, LAUNCHED_BATCH_RULE
 
     assert launcher_arguments("torchrun --nproc_per_node 2", resume=False) == [
@@ -268,8 +269,8 @@ def test_a_launched_run_gives_each_rank_an_image_and_keeps_the_images_seen():
 
 def test_a_worker_started_by_torchrun_reports_progress_and_cancels_with_a_checkpoint(capture, config_file, tmp_path):
     """What the Blender panel and the headless script do with a launcher in the preferences."""
-    from mogaface.core.launcher import with_launcher
-    from mogaface.core.worker import TrainWorker, train_command
+    from mogaface.core.for_blender.launcher import with_launcher
+    from mogaface.core.for_blender.worker import TrainWorker, train_command
 
     run = tmp_path / "run"
     launcher = f"{sys.executable} -m torch.distributed.run --standalone --nproc_per_node 2"

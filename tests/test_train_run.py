@@ -186,8 +186,8 @@ def test_a_signal_during_the_final_evaluation_leaves_a_resumable_run(tiny_captur
 def test_a_metric_that_cannot_be_scored_at_the_end_never_loses_the_avatar(tiny_capture, tmp_path, monkeypatch):
     """Without the LPIPS weights (a Blender whose dependencies predate them), the run completes, the
     avatar is written, and the metrics and a warning say what was not scored and why."""
+    from mogaface.core.for_blender.worker import TrainWorker
     from mogaface.core.metrics import lpips_weights
-    from mogaface.core.worker import TrainWorker
 
     monkeypatch.setenv(lpips_weights.ENV_VAR, str(tmp_path / "nowhere.ckpt"))
     run = tmp_path / "run"
@@ -268,7 +268,7 @@ def test_time_budget_finishes_early_with_results(tiny_capture, tmp_path):
 
 
 def test_progressive_resolution_stages_double_to_full_size():
-    from mogaface.core.train.trainer import image_scale
+    from mogaface.core.train.schedule import image_scale
 
     config = tiny_config(train={"resolution_start": 0.25, "resolution_full": 0.5})
     assert [image_scale(config, p) for p in (0.0, 0.24, 0.25, 0.49, 0.5, 1.0)] == [0.25, 0.25, 0.5, 0.5, 1.0, 1.0]
@@ -276,7 +276,8 @@ def test_progressive_resolution_stages_double_to_full_size():
 
 
 def test_progressive_resolution_trains_on_smaller_images_then_full_size(tiny_capture, tmp_path, monkeypatch):
-    from mogaface.core.train.training_view import ViewRenderer, area_resized
+    from mogaface.core.data.target import area_resized
+    from mogaface.core.train.training_view import ViewRenderer
 
     seen = []
     render = ViewRenderer.render
@@ -299,7 +300,7 @@ def test_progressive_resolution_trains_on_smaller_images_then_full_size(tiny_cap
 
 
 def test_a_schedule_in_minutes_runs_through_the_budget_whatever_the_speed(tiny_capture, tmp_path):
-    from mogaface.core.train.trainer import position_lr
+    from mogaface.core.train.schedule import position_lr
 
     config = tiny_config(train={"steps": 1000, "max_minutes": 1.0, "schedule": "minutes", "resolution_start": 0.5},
                          densify={"start": 100, "stop": 900, "interval": 100, "opacity_reset_interval": 0,

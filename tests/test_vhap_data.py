@@ -12,13 +12,12 @@ import pytest
 import torch
 import vhap_fixture as V
 
-from mogaface.core.avatar.avatar import Avatar, flame_params_to_torch
+from mogaface.core.avatar.avatar import Avatar, flame_params_to_torch, render_frame
 from mogaface.core.data.capture import Capture
 from mogaface.core.data.cy_check import check_cy, judge
 from mogaface.core.data.validate import validate_capture
 from mogaface.core.errors import CaptureError
 from mogaface.core.evaluate.evaluation import evaluate_run
-from mogaface.core.evaluate.protocols import render_frame
 from mogaface.core.flame.model import FlameModel
 from mogaface.core.flame.model_file import write_model_file
 from mogaface.core.flame.teeth import LIP_RING_LOWER, LIP_RING_UPPER, teeth_faces
@@ -351,8 +350,8 @@ def test_our_synthetic_capture_reads_as_gaussianavatars_reads_it(tmp_path):
 
 
 def test_blender_side_reads_teeth_tracking_and_union_cameras(data, head):
-    from mogaface.core.scene.cameras import capture_scene
-    from mogaface.core.scene.head_rig import head_import
+    from mogaface.core.for_blender.cameras import capture_scene
+    from mogaface.core.for_blender.head_rig import head_import
 
     scene = capture_scene(data["union"])
     assert len(scene.cameras) == 3 and len(scene.moving_cameras) == 3

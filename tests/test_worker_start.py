@@ -18,7 +18,7 @@ import warnings
 import pytest
 
 from mogaface.core import numba_cache
-from mogaface.core.worker import package_root, train_command, worker_command, worker_environment
+from mogaface.core.for_blender.worker import package_root, train_command, worker_command, worker_environment
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 
@@ -181,7 +181,7 @@ def test_the_progress_bar_text_fits_the_sidebar_and_says_compiling_until_timed()
     """The sidebar at its default width shows about 30 characters of a progress bar before Blender
     cuts the middle out ("loss 0.…R 16.19 dB"): the bar holds the step and the ETA, the line
     below the loss and PSNR."""
-    from mogaface.core.worker import Progress
+    from mogaface.core.for_blender.worker import Progress
 
     starting = Progress(state="running", step=0, steps=1500)
     assert starting.bar_text() == "step 0/1500 · compiling"

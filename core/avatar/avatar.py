@@ -1,7 +1,8 @@
 """An avatar: a head model, Gaussians bound to its triangles, and the one render call.
 
 Training, evaluation, the command line and Blender all render through
-:meth:`Avatar.render`, so what is trained is what is shown.
+:meth:`Avatar.render`, so what is trained is what is shown; :func:`render_arrays` is the one
+way from an avatar (or a modulated one) and FLAME parameters to numpy images.
 """
 
 from __future__ import annotations
@@ -73,7 +74,7 @@ class Avatar(torch.nn.Module):
 
     def world_posed(self, vertices: torch.Tensor, flame_params: dict | None = None) -> dict[str, torch.Tensor]:
         """World Gaussians on the already posed mesh ``vertices (V,3)``; ``flame_params`` are read
-        only by an avatar whose appearance follows them (:class:`~..mogaface.avatar.ModulatedAvatar`)."""
+        only by an avatar whose appearance follows them (:class:`~..correction.avatar.ModulatedAvatar`)."""
         return self.gaussians.world(vertices, self.flame.faces)
 
     def render(
@@ -165,3 +166,22 @@ def _small_int(state: dict, key: str, low: int, high: int, source) -> int:
 def flame_params_to_torch(params: dict[str, np.ndarray]) -> dict[str, torch.Tensor]:
     """One timestep's numpy FLAME parameters (``(n,)`` each, ``static_offset (V,3)``) → ``(1,…)`` tensors."""
     return {k: torch.as_tensor(np.asarray(v, dtype=np.float32))[None] for k, v in params.items()}
+
+
+def render_arrays(avatar, params: dict[str, np.ndarray], camera: Camera, background,
+                  vertex_shift=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(rgb (H,W,3), alpha (H,W), depth (H,W))`` float32 of ``avatar`` posed by ``params``, without
+    gradients: rgb as rendered (SH can overshoot [0, 1]), alpha clamped to [0, 1], depth the
+    alpha-weighted one. ``vertex_shift``: a move of the posed mesh (a camera's delay), or None."""
+    with torch.no_grad():
+        out = avatar.render(flame_params_to_torch(params), camera, background, vertex_shift=vertex_shift)
+    return (out.rgb.numpy().astype(np.float32), out.alpha.clamp(0.0, 1.0).numpy().astype(np.float32),
+            out.depth.numpy().astype(np.float32))
+
+
+def render_frame(avatar, params: dict[str, np.ndarray], camera: Camera, background, clamp: bool = True,
+                 vertex_shift=None) -> tuple[np.ndarray, np.ndarray]:
+    """``(rgb (H,W,3), alpha (H,W))`` of :func:`render_arrays`; ``clamp=False`` keeps colours outside
+    [0, 1] for compositing later."""
+    rgb, alpha, _ = render_arrays(avatar, params, camera, background, vertex_shift)
+    return (np.clip(rgb, 0.0, 1.0) if clamp else rgb), alpha

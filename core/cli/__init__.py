@@ -30,6 +30,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "make-footage": ("make_footage", "render synthetic phone footage (a clip or photos) of the procedural head, "
                                      "its truth aside"),
     "track": ("track", "turn a phone video or a folder of photos into a tracked capture (CPU, offline)"),
+    "drive": ("drive", "a performance clip drives an avatar: track it with the avatar's shape held fixed, write "
+                       "its frames as flame_param files"),
     "check-capture": ("check_capture", "validate a capture folder and print a summary"),
     "eval": ("eval", "score a trained run on the evaluation protocols (metrics.json, metrics.md)"),
     "render": ("render", "render a trained run's avatar at chosen timesteps and cameras (PNG, EXR)"),

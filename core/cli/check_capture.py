@@ -42,9 +42,9 @@ def _cy_line(args) -> str:
     import pathlib
 
     from ..data.capture import Capture
+    from ..data.capture_info import capture_head_file
     from ..data.cy_check import check_cy
     from ..errors import InputError
-    from ..train.data import capture_head_file
 
     head = args.head
     if head is None:

@@ -28,10 +28,10 @@ def run(args) -> int:
 
     from ..data.camera_file import write_cameras
     from ..data.capture import Capture
+    from ..data.capture_info import capture_head_file
     from ..evaluate.camera_error import camera_summary, pose_error
-    from ..evaluate.images import ScoringCameras
     from ..flame.landmarks import IBUG_COUNT, STATIC_IBUG, read_embedding
-    from ..train.data import capture_head_file
+    from ..run.cameras import ScoringCameras
     from ..train.landmark_cameras import solve_cameras, training_cameras
 
     capture = Capture.open(args.capture)

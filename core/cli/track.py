@@ -10,7 +10,8 @@ import pathlib
 def add_arguments(parser) -> None:
     from ..track.decode import add_footage_arguments
 
-    parser.add_argument("input", type=pathlib.Path, help="a video file (mp4, mov, …) or a folder of photos")
+    parser.add_argument("input", type=pathlib.Path, nargs="+",
+                        help="a video file (mp4, mov, …), a folder of photos, or several photos")
     parser.add_argument("--out", type=pathlib.Path, required=True,
                         help="capture folder to write (new or empty; an interrupted track of the same input resumes)")
     add_footage_arguments(parser)
@@ -21,33 +22,69 @@ def add_arguments(parser) -> None:
     parser.add_argument("--head", type=pathlib.Path, help="head model file (default: the procedural head)")
     parser.add_argument("--fit-steps", type=int, default=200, help="iterations of the fit (default %(default)s)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    parser.add_argument("--events", type=pathlib.Path, metavar="FILE",
+                        help="also append progress as JSON lines here (how Blender follows the job)")
+
+
+def progress_reporter(args):
+    """``progress(stage, done, total)`` for the tracker: a bar per stage (unless ``--quiet``) and
+    ``iter`` events with an ETA in ``--events`` (the lines Blender's progress bar reads); and a
+    closer that writes the ``done`` event (or nothing, when the work failed)."""
+    import time
+
+    from ..progress import ProgressBar
+    from ..train.events import EventLog
+
+    log = EventLog(args.events) if getattr(args, "events", None) else None
+    bars: dict = {}
+    started: dict = {}
+    last = [time.monotonic()]  # a stage starts when the one before it ended (the first: now)
+
+    def progress(stage, done, total):
+        if not args.quiet:
+            bar = bars.get(stage) or bars.setdefault(stage, ProgressBar(max(total, 1), stage))
+            bar.total = max(total, done, 1)
+            bar.update(done - bar.done)
+        if log is not None:
+            now = time.monotonic()
+            first = started.setdefault(stage, (last[0], 0))
+            last[0] = now
+            rate = (done - first[1]) / (now - first[0]) if now > first[0] and done > first[1] else None
+            log.emit("iter", stage=stage, step=int(done), steps=int(max(total, done, 1)),
+                     eta_s=None if rate is None else (max(total, done) - done) / rate)
+
+    def close(**done_fields):
+        if log is not None:
+            if done_fields:
+                log.emit("done", **done_fields)
+            log.close()
+
+    return progress, close
 
 
 def run(args) -> int:
     from ..errors import InputError
-    from ..progress import ProgressBar
     from ..track.decode import focal_in_pixels, open_footage, selection_from_arguments
     from ..track.fit import FitSettings
     from ..track.pipeline import TrackSettings, track_footage
 
-    if args.input.resolve() in (args.out.resolve(), *args.out.resolve().parents):
+    source = args.input[0] if len(args.input) == 1 else list(args.input)
+    if any(path.resolve() in (args.out.resolve(), *args.out.resolve().parents) for path in args.input):
         raise InputError(args.out, None, "the capture folder must not hold the input")
-    info = open_footage(args.input).info
+    info = open_footage(source).info
     for line in info.lines():
         print(line)
     focal = args.focal if args.focal is not None else focal_in_pixels(args.focal_35mm, info.width, info.height)
     settings = TrackSettings(size=args.size, focal_px=focal, threads=args.threads or 2,
                              fit=FitSettings(steps=args.fit_steps), head_file=args.head)
-    bars: dict[str, ProgressBar] = {}
-
-    def progress(stage, done, total):
-        if args.quiet:
-            return
-        bar = bars.get(stage) or bars.setdefault(stage, ProgressBar(max(total, 1), stage))
-        bar.total = max(total, done, 1)
-        bar.update(done - bar.done)
-
-    report = track_footage(args.input, args.out, settings, selection_from_arguments(args), progress)
+    progress, close = progress_reporter(args)
+    try:
+        report = track_footage(source, args.out, settings, selection_from_arguments(args), progress)
+    except BaseException:
+        close()
+        raise
+    close(path=str(args.out), frames=report["frames"], lost_frames=report["lost_frames"],
+          reprojection_px=report["reprojection_px"]["mean"])
     lost = report["lost_frames"]
     print(f"tracked {report['frames']} frames ({report['seconds']['detect']:.1f} s finding the face, "
           f"{report['detect_ms_per_frame']:.0f} ms a frame; {report['seconds']['fit']:.1f} s fitting): "

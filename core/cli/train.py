@@ -190,15 +190,16 @@ def run(args) -> int:
 
 def _train(args, comm) -> int:
     from ..io.atomic import write_text
+    from ..run.names import CONFIG_FILE
     from ..train import config as config_module
-    from ..train.checkpoint import latest_checkpoint
+    from ..train.checkpoint import has_checkpoint
     from ..train.rounds import ROUNDS_DIR, train_earlier_rounds
     from ..train.trainer import Trainer
 
     if args.batch == "auto":
         args.batch = comm.world
     overrides = _overrides(args)
-    rounds_config = args.out / ROUNDS_DIR / "config.toml"  # the whole run's, while earlier rounds train
+    rounds_config = args.out / ROUNDS_DIR / CONFIG_FILE  # the whole run's, while earlier rounds train
     if args.batch_rule is not None and (args.batch is None or args.resume):
         print("error: --batch-rule goes with --batch on a new run (a resumed run's config.toml holds the schedule "
               "already divided)", file=sys.stderr)
@@ -210,8 +211,8 @@ def _train(args, comm) -> int:
             return 2
         # RUN's own settings once its (last) round has a checkpoint; before, the whole run's, from which
         # the rounds derive theirs (RUN/config.toml of a last round that never saved is derived already)
-        order = (args.out / "config.toml", rounds_config)
-        if latest_checkpoint(args.out / "checkpoints") is None:
+        order = (args.out / CONFIG_FILE, rounds_config)
+        if not has_checkpoint(args.out):
             order = order[::-1]
         saved = next((p for p in order if p.exists()), None)
         config = config_module.resolve(path=saved, overrides=overrides) if saved is not None else None
@@ -225,7 +226,7 @@ def _train(args, comm) -> int:
                   "would share cores", file=sys.stderr)
         config.train.threads = threads
     resume = args.resume
-    if config is not None and config.cameras.rounds > 1 and latest_checkpoint(args.out / "checkpoints") is None:
+    if config is not None and config.cameras.rounds > 1 and not has_checkpoint(args.out):
         if comm.is_writer:
             rounds_config.parent.mkdir(parents=True, exist_ok=True)
             write_text(rounds_config, config_module.to_toml(config))

@@ -1,4 +1,5 @@
-"""A least-recently-used cache with a byte bound: a capture's images, never more than the bound in memory."""
+"""A least-recently-used cache with a byte bound: a capture's images, the viewport's posed Gaussians;
+never more than the bound in memory (a value larger than the bound alone is not kept)."""
 
 from __future__ import annotations
 
@@ -16,11 +17,13 @@ class ByteLRU:
         self._lock = threading.Lock()
 
     def get(self, key):
+        """The value cached under ``key`` (now the most recently used), or None."""
         with self._lock:
-            value = self._items.get(key)
-            if value is not None:
-                self._items.move_to_end(key)
-            return value
+            item = self._items.get(key)
+            if item is None:
+                return None
+            self._items.move_to_end(key)
+            return item[0]
 
     def put(self, key, value, size: int) -> None:
         if size > self.max_bytes:

@@ -231,7 +231,7 @@ class Capture:
         key = (frame.file_path, frame.fg_mask_path)
         hit = self._images.get(key)
         if hit is not None:
-            return hit[0]
+            return hit
         camera = self.camera(frame)
         rgb = self._read(frame, "file_path")
         channels = rgb.shape[2]

@@ -16,3 +16,12 @@ def target_image(capture: Capture, frame: Frame, background, capture_background=
         return np.asarray(rgb, dtype=np.float32)
     bg = np.asarray(background, dtype=np.float32)
     return (rgb * mask[..., None] + bg * (1.0 - mask[..., None])).astype(np.float32)
+
+
+def area_resized(image, width: int, height: int):
+    """An ``(H,W,3)`` torch image averaged down to ``(height,width,3)``: each pixel the mean of the
+    area it covers (a training view and test-time fitting at a camera's scaled size)."""
+    import torch
+
+    scaled = torch.nn.functional.interpolate(image.permute(2, 0, 1)[None], size=(height, width), mode="area")
+    return scaled[0].permute(1, 2, 0).contiguous()

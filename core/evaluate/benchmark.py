@@ -39,7 +39,7 @@ PARAMETER_METRICS = ("expr_rmse", "expr_vertex_mm", "vertex_mm", "expr_vertex_mm
 # scoring cameras and images, every parameter source and the refiner's inference. Scores kept on
 # disk are stale once any of these files changes (:func:`scoring_code_hash`).
 SCORING_CODE = ("evaluate/benchmark.py", "evaluate/protocols.py", "metrics/images.py", "metrics/lpips_alex.py",
-                "evaluate/images.py", "evaluate/expression_error.py", "evaluate/camera_error.py",
+                "avatar/avatar.py", "evaluate/expression_error.py", "evaluate/camera_error.py",
                 "evaluate/sources/*.py", "refiner/*.py", "data/target.py", "data/camera_file.py", "run/cameras.py")
 CORE = pathlib.Path(__file__).resolve().parents[1]
 
@@ -73,8 +73,8 @@ def standard_sources(run: RunFolder, capture, avatar, fit_steps=FIT_STEPS,
     from ..data.capture_info import capture_info
     from ..run.cameras import InputCameras
     from .sources.base import INPUT_VIEWS, training_cameras
+    from .sources.corrected import MoGaFaceParams
     from .sources.fitted import FittedParams
-    from .sources.mogaface import MoGaFaceParams
     from .sources.refined import RefinedParams, RefinerInference, run_refiner
     from .sources.smoothed import SmoothedParams, choose_sigmas
     from .sources.tracked import AlignedTrackedParams, TrackedParams

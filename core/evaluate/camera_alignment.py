@@ -46,9 +46,9 @@ def align_camera(avatar, camera: Camera, views: list[tuple[dict, np.ndarray]], b
     Adam on the L1 image error, one view a step, rates decaying tenfold. The offset is kept only
     if it lowers the mean error over all fit views; otherwise the camera is returned unmoved.
     """
-    from ..mogaface.avatar import render_world
+    from ..correction.avatar import render_world
     from ..train.camera_refine import CameraOffsets
-    from ..train.trainer import decayed
+    from ..train.schedule import decayed
 
     if not views:
         raise ValueError("aligning a camera needs at least one view")

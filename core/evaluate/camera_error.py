@@ -31,8 +31,8 @@ import numpy as np
 from ..camera import look_point
 from ..data.camera_file import read_cameras
 from ..flame.numpy_model import axis_angle_to_matrix
+from ..run.cameras import ScoringCameras
 from ..run.names import REFINED_CAMERAS_FILE
-from .images import ScoringCameras
 
 
 def pose_error(camera, truth) -> tuple[float, float]:

@@ -9,11 +9,11 @@ from collections.abc import Iterable
 import numpy as np
 
 from ..errors import InputError
+from ..run.cameras import ScoringCameras
 from ..run.folder import RunFolder
 from ..train.camera_delays import delayed_views
 from . import report
 from .camera_alignment import split_frames
-from .images import ScoringCameras
 from .protocols import (
     PROTOCOLS,
     DrivenParams,
@@ -80,7 +80,7 @@ def evaluate_run(
         check_output_target(out / name)
     cap = run.open_capture()
     if avatar is None and source is None:
-        from .sources.mogaface import run_inference
+        from .sources.corrected import run_inference
 
         avatar, source = run_inference(run, cap)  # MoGaFace runs: modules + image-assisted inference
         avatar, source = _with_refiner(run, cap, avatar, source)

@@ -10,7 +10,7 @@ Images are full frames on the training background colour. Where an avatar's FLAM
 come from is a parameter source (:mod:`.sources`): each protocol asks it for one frame's
 parameters and names the view being scored as ``exclude_view``, so a source that looks at images
 must leave that view out. The scored image is never an input to anything. A frame is rendered
-from its true camera where the capture keeps one (:class:`~.images.ScoringCameras`).
+from its true camera where the capture keeps one (:class:`~..run.cameras.ScoringCameras`).
 """
 
 from __future__ import annotations
@@ -21,11 +21,12 @@ from collections.abc import Iterable, Iterator
 
 import numpy as np
 
+from ..avatar.avatar import render_frame
 from ..data.capture import Capture, Frame
 from ..data.capture_info import capture_info
 from ..data.target import target_image
 from ..errors import InputError
-from .images import ScoringCameras, render_frame
+from ..run.cameras import ScoringCameras
 from .protocol_names import ALL_PROTOCOLS, OPTIONAL_PROTOCOLS, PROTOCOLS, SCORE_SPLITS
 from .sources.base import ParamSource, views_at
 from .sources.driven import DrivenParams
@@ -33,7 +34,7 @@ from .sources.tracked import TrackedParams
 
 __all__ = ["ALL_PROTOCOLS", "OPTIONAL_PROTOCOLS", "PROTOCOLS", "SCORE_SPLITS", "check_protocol", "check_split",
            "DrivenParams", "ParamSource", "Scored", "TrackedParams", "cross_identity", "novel_view",
-           "novel_view_aligned", "protocol_frames", "render_frame", "run_protocol", "score", "scored_views",
+           "novel_view_aligned", "protocol_frames", "run_protocol", "score", "scored_views",
            "self_reenactment", "target_image", "views_at"]
 
 
@@ -166,7 +167,7 @@ def run_protocol(
 ) -> Iterator[Scored]:
     """Render each frame from parameters that never saw its image, and pair it with the truth.
 
-    ``cameras``: frame → the camera it is rendered from (default :class:`~.images.ScoringCameras`).
+    ``cameras``: frame → the camera it is rendered from (default :class:`~..run.cameras.ScoringCameras`).
     ``shift``: frame → the move of its posed mesh (a run's camera delays), or None."""
     recorded = capture_info(capture.root).get("background")
     cameras = ScoringCameras(capture) if cameras is None else cameras

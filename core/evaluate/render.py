@@ -11,13 +11,14 @@ import pathlib
 
 import numpy as np
 
+from ..avatar.avatar import render_frame
 from ..data.capture_info import capture_info
 from ..errors import InputError
 from ..io.atomic import check_output_target
 from ..io.image import srgb_to_linear, write_exr, write_png
 from ..run.folder import RunFolder, load_flame_file
-from .protocols import TrackedParams, render_frame
-from .sources.mogaface import run_inference
+from .protocols import TrackedParams
+from .sources.corrected import run_inference
 
 RENDER_DIR = "renders"
 

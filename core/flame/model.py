@@ -39,6 +39,7 @@ class FlameModel(torch.nn.Module):
         self.parents = [int(p) for p in arrays.parents]
         self.shape_names = list(arrays.shape_names)
         self.expression_names = list(arrays.expression_names)
+        self.n_shape, self.n_expr = arrays.n_shape, arrays.n_expr  # the component counts, fixed at load
 
         def buffer(name, value):
             self.register_buffer(name, torch.as_tensor(np.ascontiguousarray(value), dtype=dtype))
@@ -69,14 +70,6 @@ class FlameModel(torch.nn.Module):
         """
         arrays = match_tracking(read_model_file(path, n_shape=n_shape, n_expr=n_expr), n_vertices, path)
         return cls(arrays, dtype=dtype)
-
-    @property
-    def n_shape(self) -> int:
-        return self.shapedirs.shape[2]
-
-    @property
-    def n_expr(self) -> int:
-        return self.exprdirs.shape[2]
 
     def check_counts(self, params: dict, source) -> None:
         """Refuse parameters read from ``source`` (a ``flame_param`` file) with more shape or expression

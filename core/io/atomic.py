@@ -125,6 +125,17 @@ def atomic_path(path: str | os.PathLike):
         raise
 
 
+def remove_partials(folder: str | os.PathLike) -> list[pathlib.Path]:
+    """Delete the temporary files a killed writer of :func:`atomic_path` left in ``folder`` (``.*.partial*``)."""
+    folder = pathlib.Path(folder)
+    if not folder.is_dir():
+        return []
+    removed = [p for p in folder.iterdir() if p.name.startswith(".") and ".partial" in p.name and p.is_file()]
+    for p in removed:
+        p.unlink(missing_ok=True)
+    return removed
+
+
 @contextlib.contextmanager
 def atomic_open(path: str | os.PathLike, mode: str = "wb", **kwargs):
     """``open`` for writing, atomically: the file appears at ``path`` complete or not at all."""

@@ -18,7 +18,7 @@ import torch
 import torch.nn.functional as F
 
 from ..avatar.avatar import flame_params_to_torch
-from ..mogaface.avatar import render_world
+from ..correction.avatar import render_world
 from .crops import crop_camera, crop_image, head_window
 from .groups import scale_vector, split
 

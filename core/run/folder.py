@@ -16,11 +16,10 @@ import pathlib
 import numpy as np
 
 from ..data import layout
-from ..data.capture_info import capture_info
+from ..data.capture_info import DEFAULT_BACKGROUND, capture_background
 from ..errors import InputError
 from . import names
 
-DEFAULT_BACKGROUND = (1.0, 1.0, 1.0)
 IDENTITY_KEYS = ("shape", "static_offset")
 MOTION_KEYS = tuple(k for k in layout.FLAME_KEYS if k not in IDENTITY_KEYS)
 
@@ -166,8 +165,7 @@ class RunFolder:
             return parse_background(self.info["background"], self.run_json_path)
         if self._capture is None and not self.info.get("capture"):
             return DEFAULT_BACKGROUND
-        recorded = capture_info(self.capture_root).get("background", DEFAULT_BACKGROUND)
-        return parse_background(recorded, self.capture_root)
+        return capture_background(self.capture_root)
 
     @functools.cached_property
     def trained_timesteps(self) -> list[int]:
@@ -206,14 +204,14 @@ class RunFolder:
 
     def load_avatar(self):
         """The run's avatar as ``render`` draws it: :class:`~..avatar.avatar.Avatar`, wrapped in
-        :class:`~..mogaface.avatar.ModulatedAvatar` when the run has MoGaFace modules."""
+        :class:`~..correction.avatar.ModulatedAvatar` when the run has MoGaFace modules."""
         from ..avatar.avatar import Avatar
 
         avatar = Avatar.load(self.avatar_path)
         if not self.has_modules():
             return avatar
-        from ..mogaface.avatar import ModulatedAvatar
-        from ..mogaface.model import MoGaFace
+        from ..correction.avatar import ModulatedAvatar
+        from ..correction.model import MoGaFace
 
         try:
             model = MoGaFace.load(self.modules_path)

@@ -11,10 +11,12 @@
     RUN/avatar.pt                 the trained avatar (Avatar.save)
     RUN/mogaface.pt               the MoGaFace modules (runs trained with them)
     RUN/flame_param/TTTTT.npz     FLAME parameters used for each training timestep (VHAP form)
+    RUN/flame_param_corrected/    the same with the correction modules' expressions (MoGaFace runs)
     RUN/metrics_train_end.json    quick val-split metrics after training
     RUN/cameras_refined.json      learned camera poses (camera refinement)
     RUN/camera_delays.json        learned camera delays (camera id → timesteps)
     RUN/cameras_landmarks.json    cameras solved from landmarks (a run that started from them)
+    RUN/.lock                     the one writer's lock (holds its pid)
 """
 
 RUN_FORMAT = "mogaface-run"
@@ -29,7 +31,9 @@ CHECKPOINT_DIR = "checkpoints"
 AVATAR_FILE = "avatar.pt"
 MODULES_FILE = "mogaface.pt"
 FLAME_PARAM_DIR = "flame_param"
+CORRECTED_DIR = "flame_param_corrected"
 METRICS_TRAIN_END_FILE = "metrics_train_end.json"
 REFINED_CAMERAS_FILE = "cameras_refined.json"
 DELAYS_FILE = "camera_delays.json"
 LANDMARK_CAMERAS_FILE = "cameras_landmarks.json"
+LOCK_FILE = ".lock"

@@ -2,7 +2,8 @@
 
 Input: per frame, landmarks in pixels with a confidence (0 where a point was not seen), and where
 each lies on the head mesh (a :class:`~mogaface.core.flame.landmarks.LandmarkEmbedding`). Output:
-the shared shape, and per frame the expression, jaw, head rotation and translation; and one pinhole
+the shared shape, and per frame the expression, jaw, gaze (from the iris centres, where the
+embedding has them), head rotation and translation; and one pinhole
 camera with its focal length (given, or estimated about a phone's).
 
 One fixed camera per clip. The subject turning in front of a still phone and a phone orbiting a
@@ -30,6 +31,7 @@ from ..errors import InputError
 from ..flame.landmarks import LandmarkEmbedding
 from ..flame.lbs import axis_angle_to_matrix, linear_blend_skinning
 from ..flame.model import FlameModel
+from .photometric import BrightnessAgreement, PhotometricSettings, seen_points, skin_points, vertex_embedding
 
 #: A phone's main camera: about 26 mm in 35 mm terms (its diagonal field of view, 79°).
 PHONE_FOCAL_35MM = 26.0
@@ -81,7 +83,10 @@ class FitSettings:
     jaw_prior: float = 5.0  # per radian²; chosen on validation clips (docs/tracking.md)
     focal_prior: float = 4.0  # of log(f / f_phone)²
     smooth: float = 3.0  # of the second differences (per frame²) of pose and expression
+    gaze_prior: float = 1.0  # per radian² of the gaze (both eyes turned alike, from the iris centres)
+    photometric: PhotometricSettings = dataclasses.field(default_factory=PhotometricSettings)
     seed: int = 0
+    shape: np.ndarray | None = None  # held fixed when given (an avatar's identity: a performance drives it)
 
 
 @dataclasses.dataclass
@@ -133,15 +138,17 @@ class LandmarkHead(torch.nn.Module):
         self.joints_expr = torch.einsum("jv,vck->jck", regressor, model.exprdirs.to(d))
         self.parents = model.parents
 
-    def forward(self, shape, expr, rotation, jaw, translation) -> torch.Tensor:
-        """Landmarks ``(T,L,3)`` in the world for shape ``(1,S)`` and per-frame ``(T,·)`` parameters."""
+    def forward(self, shape, expr, rotation, jaw, translation, eyes=None) -> torch.Tensor:
+        """Landmarks ``(T,L,3)`` in the world for shape ``(1,S)`` and per-frame ``(T,·)`` parameters
+        (``eyes (T,6)``: FLAME's ``eyes_pose``, at rest when None)."""
         frames = expr.shape[0]
         shaped = (self.v_template + torch.einsum("vck,bk->bvc", self.shapedirs, shape)
                   + torch.einsum("vck,bk->bvc", self.exprdirs, expr))
         joints = (self.joints_template + torch.einsum("jck,bk->bjc", self.joints_shape, shape)
                   + torch.einsum("jck,bk->bjc", self.joints_expr, expr))
         zero = torch.zeros(frames, 3, dtype=expr.dtype)
-        pose = torch.cat([rotation, zero, jaw, zero, zero], dim=1).reshape(frames, 5, 3)
+        eyes = torch.cat([zero, zero], dim=1) if eyes is None else eyes
+        pose = torch.cat([rotation, zero, jaw, eyes], dim=1).reshape(frames, 5, 3)
         posed = linear_blend_skinning(shaped, axis_angle_to_matrix(pose), joints.expand(frames, -1, -1),
                                       self.parents, self.weights, self.posedirs)
         corners = posed[:, self.corner]  # (T,L,3,3)
@@ -155,9 +162,10 @@ def start_camera(width: int, height: int, focal: float) -> Camera:
 
 
 def fit_landmarks(model: FlameModel, observations: Observations, settings: FitSettings = FitSettings(),
-                  progress=None) -> Fit:
-    """Fit shape, per-frame expression, jaw and head pose, and the focal length, to a clip's landmarks.
-    ``progress(step, steps, rms_px)`` is called now and then."""
+                  progress=None, brightness: np.ndarray | None = None) -> Fit:
+    """Fit shape, per-frame expression, gaze, jaw and head pose, and the focal length, to a clip's
+    landmarks; with the frames' ``brightness (T,H,W)`` (a video's, in [0, 1]), then the photometric
+    stage (``settings.photometric``). ``progress(step, steps, rms_px)`` is called now and then."""
     obs = observations.check()
     torch.manual_seed(settings.seed)
     d = torch.float64
@@ -174,11 +182,15 @@ def fit_landmarks(model: FlameModel, observations: Observations, settings: FitSe
     lens = (sizes.norm(dim=1) / math.hypot(obs.width, obs.height))[:, None, None]  # each frame's focal / the first's
 
     log_focal = torch.tensor(math.log(settings.focal or phone), dtype=d, requires_grad=settings.focal is None)
-    shape = torch.zeros(1, model.n_shape, dtype=d, requires_grad=True)
+    # The shared unknowns are stepped in units of 1/sqrt(T): their curvature, a sum over the frames,
+    # then matches one frame's own, and L-BFGS converges in far fewer iterations on long clips.
+    unit = math.sqrt(frames)
+    shape_stepped = _start_shape(settings.shape, model.n_shape, unit)
     expr = torch.zeros(frames, model.n_expr, dtype=d, requires_grad=True)
     jaw = torch.zeros(frames, 3, dtype=d, requires_grad=True)
     rotation = torch.zeros(frames, 3, dtype=d, requires_grad=True)
     translation_cm = torch.zeros(frames, 3, dtype=d, requires_grad=True)  # centimetres: a step's scale like the rest
+    gaze = torch.zeros(frames, 2, dtype=d, requires_grad=True)  # pitch (about x), yaw (about y), both eyes
 
     def project(world):
         cam = world @ w2c[:3, :3].T + w2c[:3, 3]
@@ -194,35 +206,61 @@ def fit_landmarks(model: FlameModel, observations: Observations, settings: FitSe
     def second_differences(x):
         return (x[2:] - 2 * x[1:-1] + x[:-2]).pow(2).sum() if len(x) > 2 else x.sum() * 0
 
+    def shared_shape():
+        return shape_stepped / unit
+
+    def current() -> dict[str, np.ndarray]:
+        with torch.no_grad():
+            return {"shape": shared_shape().numpy()[0].copy(), "expr": expr.numpy().copy(), "rotation": rotation.numpy().copy(),
+                    "neck_pose": np.zeros((frames, 3)), "jaw_pose": jaw.numpy().copy(),
+                    "eyes_pose": eyes_pose(gaze).numpy(), "translation": translation_cm.numpy() / 100}
+
+    def landmarks():
+        return head(shared_shape(), expr, rotation, jaw, translation_cm / 100, eyes_pose(gaze))
+
     def objective(rigid_only: bool):
-        loss, residual = reprojection(head(shape, expr, rotation, jaw, translation_cm / 100))
+        loss, residual = reprojection(landmarks())
         smooth = second_differences(rotation) + second_differences(translation_cm / 100)
         if rigid_only:
             return loss + settings.smooth * scale * smooth, residual
-        prior = (settings.shape_prior * shape.pow(2).sum() * scale + settings.expr_prior * expr.pow(2).mean()
-                 + settings.jaw_prior * jaw.pow(2).mean())
+        prior = (settings.shape_prior * shared_shape().pow(2).sum() * scale + settings.expr_prior * expr.pow(2).mean()
+                 + settings.jaw_prior * jaw.pow(2).mean() + settings.gaze_prior * gaze.pow(2).mean())
         if settings.focal is None:
             prior = prior + settings.focal_prior * (log_focal - math.log(phone)) ** 2
-        smooth = smooth + 0.01 * second_differences(expr) + second_differences(jaw)
+        smooth = smooth + 0.01 * second_differences(expr) + second_differences(jaw) + second_differences(gaze)
         return loss + prior + settings.smooth * scale * smooth, residual
 
+    def photometric(agreement, skin):
+        def stage_objective(_):
+            loss, residual = objective(False)
+            pixels = project(skin(shared_shape(), expr, rotation, jaw, translation_cm / 100, eyes_pose(gaze)))
+            return loss + settings.photometric.weight * agreement(pixels), residual
+        return stage_objective
+
     # 1. Rigid start: the mean head placed where each frame's landmarks are, at the depth their
-    # spread gives, then turned and moved onto them; 2. everything.
+    # spread gives, then turned and moved onto them; 2. everything; 3. (videos, with the frames'
+    # brightness) everything but the focal length, the skin's brightness agreeing between frames.
     scale = 1.0 / frames
     with torch.no_grad():
-        translation_cm.copy_(100 * _placed(head(shape, expr, rotation, jaw, translation_cm), points, weight,
+        translation_cm.copy_(100 * _placed(head(shared_shape(), expr, rotation, jaw, translation_cm), points, weight,
                                           torch.exp(log_focal) * lens[:, 0, 0], centre[:, 0], w2c))
-    stages = (([rotation, translation_cm], True, max(settings.steps // 4, 1)),
-              ([shape, expr, jaw, rotation, translation_cm] + ([log_focal] if settings.focal is None else []), False,
-               settings.steps))
-    done = 0
-    for unknowns, rigid_only, steps in stages:
+    everything = [shape_stepped] * shape_stepped.requires_grad + [expr, jaw, gaze, rotation, translation_cm]
+    stages = [([rotation, translation_cm], objective, True, max(settings.steps // 4, 1)),
+              (everything + ([log_focal] if settings.focal is None else []), objective, False, settings.steps)]
+    photometric_steps = settings.photometric.steps if brightness is not None and obs.sizes is None else 0
+    if photometric_steps:
+        stages.append((everything, None, False, photometric_steps))
+    done, total = 0, sum(stage[3] for stage in stages)
+    for unknowns, stage_objective, rigid_only, steps in stages:
+        if stage_objective is None:  # the photometric stage: what each frame sees, from the fit so far
+            stage_objective = photometric(*_photometric_term(model, current(), start_camera(
+                obs.width, obs.height, float(torch.exp(log_focal))), brightness, seen.numpy(), settings.photometric))
         optimiser = torch.optim.LBFGS(unknowns, lr=1.0, max_iter=steps, history_size=30,
                                       line_search_fn="strong_wolfe", tolerance_grad=1e-10, tolerance_change=1e-12)
 
         def closure():
             optimiser.zero_grad()
-            loss, residual = objective(rigid_only)
+            loss, residual = stage_objective(rigid_only)
             loss.backward()
             return loss
 
@@ -231,17 +269,39 @@ def fit_landmarks(model: FlameModel, observations: Observations, settings: FitSe
         if progress is not None:
             with torch.no_grad():
                 _, residual = objective(rigid_only)
-            progress(done, sum(stage[2] for stage in stages), float(_rms(residual, weight).mean()))
+            progress(done, total, float(_rms(residual, weight).mean()))
 
     with torch.no_grad():
-        _, residual = reprojection(head(shape, expr, rotation, jaw, translation_cm / 100))
+        _, residual = reprojection(landmarks())
         focal = float(torch.exp(log_focal))
     camera = start_camera(obs.width, obs.height, focal)
-    zeros = np.zeros((frames, 3))
-    params = {"shape": shape.detach().numpy()[0], "expr": expr.detach().numpy(),
-              "rotation": rotation.detach().numpy(), "neck_pose": zeros, "jaw_pose": jaw.detach().numpy(),
-              "eyes_pose": np.zeros((frames, 6)), "translation": translation_cm.detach().numpy() / 100}
-    return Fit(params, camera, _rms(residual, weight).numpy(), seen.numpy(), obs.sizes)
+    return Fit(current(), camera, _rms(residual, weight).numpy(), seen.numpy(), obs.sizes)
+
+
+def _photometric_term(model: FlameModel, params: dict, camera: Camera, brightness: np.ndarray, frames: np.ndarray,
+                      settings: PhotometricSettings) -> tuple[BrightnessAgreement, LandmarkHead]:
+    """The photometric stage's loss and the head posed at its skin points (:mod:`.photometric`);
+    ``frames (T,)``: those with landmarks (the others' parameters are a guess)."""
+    points = skin_points(model, settings.points, settings.seed)
+    seen = seen_points(model, params, camera, points) & frames[:, None]
+    skin = LandmarkHead(model, vertex_embedding(model.faces.numpy(), points))
+    return BrightnessAgreement(brightness, seen, settings), skin
+
+
+def eyes_pose(gaze: torch.Tensor) -> torch.Tensor:
+    """FLAME's ``eyes_pose (T,6)`` of a gaze ``(T,2)``: both eyes turned alike by the axis-angle
+    ``(pitch, yaw, 0)`` (at a phone's distance the eyes converge too little to tell them apart)."""
+    turn = torch.cat([gaze, torch.zeros_like(gaze[:, :1])], dim=1)
+    return torch.cat([turn, turn], dim=1)
+
+
+def _start_shape(fixed, count: int, unit: float) -> torch.Tensor:
+    """``(1, count)`` times ``unit``: zeros to fit, or the given identity held fixed (cut or padded
+    to ``count``)."""
+    if fixed is None:
+        return torch.zeros(1, count, dtype=torch.float64, requires_grad=True)
+    values = np.asarray(fixed, np.float64).reshape(-1)[:count]
+    return unit * torch.as_tensor(np.pad(values, (0, count - len(values))), dtype=torch.float64)[None]
 
 
 def _placed(rest: torch.Tensor, points: torch.Tensor, weight: torch.Tensor, focal: torch.Tensor, centre: torch.Tensor,

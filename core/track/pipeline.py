@@ -26,6 +26,7 @@ import time
 
 import numpy as np
 
+from ..data import layout
 from ..data.writer import CaptureWriter
 from ..errors import InputError
 from ..io.atomic import check_output_target, write_json
@@ -163,7 +164,7 @@ def refit(out, settings: TrackSettings) -> dict:
 
 def _fit_and_write(out, model, head_file, detections, settings, info, progress) -> dict:
     started = time.monotonic()
-    fit = _fit(model, detections, settings, info, progress)
+    fit = _fit(out, model, detections, settings, info, progress)
     fit_s = time.monotonic() - started
     report = _write_capture(out, fit, detections, head_file, model, info.kind == "video", progress)
     report.update(source=str(info.path), kind=info.kind, input_size=[info.width, info.height], fps=info.fps,
@@ -181,7 +182,6 @@ def _head_model(out: pathlib.Path, head_file) -> pathlib.Path:
 def _detect(footage, out, key, settings, selection, resume, progress):
     """Detect every selected frame at the input's own size (the face models see the most detail
     there), and write its image and mask at the capture's size as it goes; resumable."""
-    from ..data import layout
     from .decode import output_size
     from .detect import FaceTracker
 
@@ -239,7 +239,7 @@ def _shrunk(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     return np.asarray(Image.fromarray(image).resize(size, Image.Resampling.BOX))
 
 
-def _fit(model, detections: Detections, settings: TrackSettings, info, progress):
+def _fit(out, model, detections: Detections, settings: TrackSettings, info, progress):
     from ..camera import focal_from_35mm
     from .fit import Observations, fit_landmarks
 
@@ -255,25 +255,39 @@ def _fit(model, detections: Detections, settings: TrackSettings, info, progress)
         focal = focal_from_35mm(lens, width, height) if lens else None
     sizes = None if detections.one_size else detections.sizes
     observations = Observations(np.nan_to_num(points), confidence, width, height, embedding, sizes)
+    photometric = settings.fit.photometric.steps > 0 and info.kind == "video"
     return fit_landmarks(model, observations, dataclasses.replace(settings.fit, focal=focal),
-                         progress=None if progress is None else lambda done, total, _rms: progress("fit", done, total))
+                         progress=None if progress is None else lambda done, total, _rms: progress("fit", done, total),
+                         brightness=_brightness(out, detections) if photometric else None)
+
+
+def _brightness(out: pathlib.Path, detections: Detections) -> np.ndarray:
+    """``(T,H,W)`` the brightness of the capture's images as written (0 where a frame found no face:
+    the photometric stage leaves those out)."""
+    from ..io.image import read_image
+    from .photometric import brightness
+
+    width, height = (int(v) for v in detections.sizes[0])
+    frames = np.zeros((len(detections.presence), height, width), np.float32)
+    for t in np.nonzero(detections.presence > 0)[0]:
+        frames[t] = brightness(read_image(out / layout.image_path(int(t), 0)))
+    return frames
 
 
 def _embedding(model):
     """The points fitted: where they lie on the model's mesh, and which of the detector's 478 each is.
 
     A model with the procedural head's triangles: MediaPipe's own mesh points, those found stable on
-    that mesh (:mod:`.mediapipe_embedding`; not the iris centres, which follow ``eyes_pose``, which the
-    fit leaves at rest). Any other model: the 51 iBUG points fixed on the face, each the mesh point
+    that mesh, and the iris centres, which give the gaze (:mod:`.mediapipe_embedding`). Any other
+    model: the 51 iBUG points fixed on the face, each the mesh point
     :data:`.mediapipe_ibug68.IBUG68_FROM_MESH` names."""
     from ..flame.landmarks import STATIC_IBUG, model_landmarks
-    from .mediapipe_embedding import MESH_COUNT, model_mediapipe_embedding
+    from .mediapipe_embedding import model_mediapipe_embedding
     from .mediapipe_ibug68 import IBUG68_FROM_MESH
 
     faces = model.faces.numpy()
     dense = model_mediapipe_embedding(faces)
     if dense is not None:
-        dense = dense.subset(np.arange(MESH_COUNT))
         return dense, dense.ibug
     embedding = model_landmarks(faces)
     if embedding is None:

@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING
 from ..errors import InputError
 from ..io.atomic import atomic_path, write_text
 from ..io.torch_file import check_format, load_torch_state, save_torch_state
+from ..run.names import AVATAR_FILE, CHECKPOINT_DIR
 
 CHECKPOINT_FORMAT = "mogaface-train-checkpoint"
 CHECKPOINT_VERSION = 1
@@ -28,7 +29,7 @@ LATEST = "latest"
 REFUSED = ".refused"  # the suffix of a checkpoint set aside because it did not load
 _NAME = re.compile(r"^step_(\d{6,})\.pt$")
 
-if TYPE_CHECKING:  # the lock takes this module's remove_partials: no import back at run time
+if TYPE_CHECKING:
     from ..run.folder import RunFolder
     from .run_lock import RunLock
 
@@ -66,13 +67,16 @@ def latest_checkpoint(folder: str | os.PathLike) -> pathlib.Path | None:
     return found[-1] if found else None
 
 
-def resumable(run_root: str | os.PathLike) -> bool:
-    """Whether a run folder holds a checkpoint and no finished avatar: what Blender's "Auto"
-    resumes. Checkpoint files are looked for, not the ``latest`` pointer (it may lag or be lost)."""
-    from ..run.names import AVATAR_FILE, CHECKPOINT_DIR
+def has_checkpoint(run_root: str | os.PathLike) -> bool:
+    """Whether a run folder holds a checkpoint: the one test of "can this run continue" (the
+    command line, the ablation, Blender). Checkpoint files are looked for, not the ``latest``
+    pointer (it may lag or be lost)."""
+    return latest_checkpoint(pathlib.Path(run_root) / CHECKPOINT_DIR) is not None
 
-    root = pathlib.Path(run_root)
-    return latest_checkpoint(root / CHECKPOINT_DIR) is not None and not (root / AVATAR_FILE).exists()
+
+def resumable(run_root: str | os.PathLike) -> bool:
+    """Whether a run folder holds a checkpoint and no finished avatar: what Blender's "Auto" resumes."""
+    return has_checkpoint(run_root) and not (pathlib.Path(run_root) / AVATAR_FILE).exists()
 
 
 def load_checkpoint(path: str | os.PathLike) -> dict:
@@ -80,17 +84,6 @@ def load_checkpoint(path: str | os.PathLike) -> dict:
     state = load_torch_state(path, "checkpoint")
     check_format(state, path, CHECKPOINT_FORMAT, CHECKPOINT_VERSION)
     return state
-
-
-def remove_partials(folder: str | os.PathLike) -> list[pathlib.Path]:
-    """Delete the temporary files a killed writer left in ``folder`` (``.*.partial*``)."""
-    folder = pathlib.Path(folder)
-    if not folder.is_dir():
-        return []
-    removed = [p for p in folder.iterdir() if p.name.startswith(".") and ".partial" in p.name and p.is_file()]
-    for p in removed:
-        p.unlink(missing_ok=True)
-    return removed
 
 
 def newest_intact_checkpoint(folder: str | os.PathLike) -> tuple[pathlib.Path, dict, list[str]]:
@@ -150,7 +143,7 @@ def starting_state(run_folder: RunFolder, resume: bool, lock: RunLock | None) ->
     sets each newer checkpoint that did not load aside (:func:`set_aside_newer`)."""
     folder = run_folder.checkpoint_dir
     if not resume:
-        if latest_checkpoint(folder) is not None or run_folder.avatar_path.exists():
+        if has_checkpoint(run_folder.root) or run_folder.avatar_path.exists():
             raise InputError(run_folder.root, None, "already holds a run (resume it with --resume, "
                                                     "or choose another folder)")
         return None, []

@@ -10,31 +10,10 @@ import numpy as np
 import torch
 
 from ..data.capture import Capture, Frame
-from ..data.capture_info import INFO_FILE, capture_info
-from ..errors import CaptureError, MogafaceError
-from ..io.files import file_inside
+from ..data.capture_info import capture_background
+from ..errors import MogafaceError
 
-DEFAULT_BACKGROUND = (1.0, 1.0, 1.0)
 JOINTS = ("rotation", "neck_pose", "jaw_pose", "eyes_pose")
-
-
-def capture_background(root: pathlib.Path) -> tuple[float, float, float]:
-    """The colour the capture's images are composited on (``capture_info.json`` "background"; white)."""
-    value = capture_info(root).get("background", DEFAULT_BACKGROUND)
-    if not (isinstance(value, list | tuple) and len(value) == 3
-            and all(isinstance(v, int | float) and 0 <= v <= 1 for v in value)):
-        raise CaptureError(root / INFO_FILE, "background", f"expected three numbers in [0, 1], got {value!r}")
-    return tuple(float(v) for v in value)
-
-
-def capture_head_file(root: pathlib.Path) -> pathlib.Path:
-    """The head model file a capture names (``capture_info.json`` "model_file"), or ``head.pkl``."""
-    name = capture_info(root).get("model_file", "head.pkl")
-    path = file_inside(root, name, root / INFO_FILE, "model_file", CaptureError)
-    if not path.is_file():
-        raise CaptureError(root / INFO_FILE, "model_file",
-                           f"head model file {path} not found (pass --head FILE)")
-    return path
 
 
 def principal_point_notes(capture, head) -> list[str]:
@@ -159,3 +138,27 @@ class TrainingData:
                 "cameras": sorted({f.camera_id for f in frames}),
             }
         return out
+
+
+class FrameOrder:
+    """Training frames in a fresh random order each epoch (every image seen once per epoch); its
+    state (the epoch's order, the place in it) is part of a checkpoint."""
+
+    def __init__(self, count: int):
+        self.count = count
+        self.order = torch.zeros(0, dtype=torch.long)
+        self.position = 0
+
+    def next(self, generator: torch.Generator) -> int:
+        """The index of the next training frame, drawing a new order from ``generator`` at an epoch's end."""
+        if self.position >= len(self.order):
+            self.order = torch.randperm(self.count, generator=generator)
+            self.position = 0
+        self.position += 1
+        return int(self.order[self.position - 1])
+
+    def state(self) -> dict:
+        return {"order": self.order.clone(), "position": self.position}
+
+    def load_state(self, state: dict) -> None:
+        self.order, self.position = state["order"].clone(), int(state["position"])

@@ -1,8 +1,11 @@
 """Training losses: ``0.8·L1 + 0.2·(1 − SSIM)`` on the image, plus the binding hinges.
 
-The SSIM here is differentiable torch code with the evaluation metric's definition (Gaussian
-window σ = 1.5, 11 taps, population covariances, data range 1, mean over the border-cropped
-"valid" area), so the loss optimises what :func:`mogaface.core.metrics.images.ssim` reports.
+SSIM and PSNR here are torch twins of :mod:`mogaface.core.metrics.images` (the scores), kept apart
+for a reason: they run every step inside autograd (differentiable, no input checks, no mask, no
+copy to numpy). The SSIM has the metric's definition, with its window (``SSIM_SIGMA``,
+``SSIM_TRUNCATE``: 11 taps), population covariances, data range 1 and the mean over the
+border-cropped "valid" area, so the loss optimises what :func:`mogaface.core.metrics.images.ssim`
+reports.
 """
 
 from __future__ import annotations
@@ -12,8 +15,9 @@ import math
 import torch
 import torch.nn.functional as F
 
-SSIM_SIGMA = 1.5
-SSIM_RADIUS = 5  # int(3.5·σ + 0.5): scikit-image's truncation, 11 taps
+from ..metrics.images import SSIM_SIGMA, SSIM_TRUNCATE
+
+SSIM_RADIUS = int(SSIM_TRUNCATE * SSIM_SIGMA + 0.5)  # scikit-image's truncation: 5, 11 taps
 _C1 = 0.01**2
 _C2 = 0.03**2
 

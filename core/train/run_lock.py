@@ -11,8 +11,7 @@ import os
 import pathlib
 
 from ..errors import InputError
-
-LOCK_NAME = ".lock"
+from ..run.names import CHECKPOINT_DIR, LOCK_FILE
 
 try:
     import fcntl
@@ -40,7 +39,7 @@ class RunLock:
     """Hold the run folder's lock; ``previous_owner`` is the pid of a stale lock taken over."""
 
     def __init__(self, root: str | os.PathLike):
-        self.path = pathlib.Path(root) / LOCK_NAME
+        self.path = pathlib.Path(root) / LOCK_FILE
         self.previous_owner: int | None = None
         self.removed_partials: list[pathlib.Path] = []
         self._fd: int | None = None
@@ -93,8 +92,7 @@ def _read_pid(fd: int) -> int | None:
 
 def take_run_folder(root: pathlib.Path) -> RunLock:
     """Create ``root`` if needed and hold its lock; then clear what killed writers left there."""
-    from ..io.atomic import check_output_target
-    from .checkpoint import remove_partials
+    from ..io.atomic import check_output_target, remove_partials
 
     check_output_target(root, folder=True)  # a FIFO, device or file there: say what it is
     try:
@@ -102,5 +100,5 @@ def take_run_folder(root: pathlib.Path) -> RunLock:
     except OSError as error:
         raise InputError(root, None, f"cannot create the run folder ({error.strerror})") from None
     lock = RunLock(root).acquire()
-    lock.removed_partials = remove_partials(root / "checkpoints") + remove_partials(root)
+    lock.removed_partials = remove_partials(root / CHECKPOINT_DIR) + remove_partials(root)
     return lock

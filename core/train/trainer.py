@@ -1,16 +1,18 @@
-"""The baseline trainer: Gaussians bound to the tracked FLAME mesh, optimised view by view.
+"""The trainer: Gaussians bound to the tracked FLAME mesh, optimised view by view, with the
+correction modules (expression correction, bank, texture attention) where ``[mogaface]`` has them.
 
-One step renders one random training image (a timestep and a camera) and takes an Adam step
-on ``0.8·L1 + 0.2·(1 − SSIM)`` plus the position and scaling hinges of the Gaussians visible in
-it; the :class:`~mogaface.core.avatar.densify.DensifyStrategy` then densifies, prunes, resets
+One step renders ``train.batch`` random training images (a timestep and a camera each) and takes
+an Adam step on ``0.8·L1 + 0.2·(1 − SSIM)`` plus the position and scaling hinges of the Gaussians
+visible; the :class:`~mogaface.core.avatar.densify.DensifyStrategy` then densifies, prunes, resets
 opacities and raises the SH degree on its schedule. Optionally the per-timestep FLAME
-parameters are fine-tuned too. Everything that decides what happens next (step, parameters,
+parameters and the cameras are fine-tuned too. Everything that decides what happens next (step, parameters,
 Adam moments, densification statistics, random state, frame order) is in :meth:`Trainer.state`,
 so a resumed run continues exactly where its checkpoint left it.
 
 The trainer holds the loop and gathers the parts: each trainable part gives its own optimiser
-groups (``param_groups``), :mod:`.training_view` renders and scores a view, :mod:`.camera_start`
-starts the cameras, :mod:`.checkpoint` says where a run starts, :mod:`.results` writes what it ends with.
+groups (``param_groups``), :mod:`.schedule` gives each rate and size at a step, :mod:`.training_view`
+renders and scores a view, :mod:`.camera_start` starts the cameras, :mod:`.checkpoint` says where a
+run starts, :mod:`.results` writes what it ends with.
 """
 
 from __future__ import annotations
@@ -26,7 +28,8 @@ import torch
 
 from ..avatar.avatar import Avatar
 from ..avatar.binding import triangle_frames
-from ..avatar.densify import DensifySchedule, DensifyStrategy
+from ..avatar.densify import DensifyStrategy
+from ..data.capture_info import capture_head_file
 from ..errors import InputError, MogafaceError
 from ..io.atomic import atomic_path, write_text
 from ..run.folder import RunFolder
@@ -37,12 +40,13 @@ from . import config as config_module
 from .camera_start import build_camera_delays, build_camera_offsets, load_cameras
 from .checkpoint import save_checkpoint, starting_state
 from .config import TrainConfig
-from .data import TrainingData, capture_head_file, principal_point_notes
+from .correction_part import build_mogaface
+from .data import FrameOrder, TrainingData, principal_point_notes
 from .distributed import Communicator
 from .events import EventLog, Listener
-from .mogaface_part import build_mogaface
-from .results import quick_check, write_learned_cameras, write_results, write_run_json
+from .results import RunOutputs, write_learned_cameras, written_avatar
 from .run_lock import take_run_folder
+from .schedule import cameras_settling, densify_schedule, hold_still, image_scale, rates_at, schedule_position
 from .training_view import ViewRenderer, ViewResult
 
 
@@ -52,49 +56,6 @@ def set_threads(threads: int) -> None:
 
     torch.set_num_threads(threads)
     numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
-
-
-def densify_schedule(config: TrainConfig) -> DensifySchedule:
-    d = config.densify
-    return DensifySchedule(**{name: getattr(d, name) for name in DensifySchedule.__dataclass_fields__})
-
-
-def decayed(rate: float, final_ratio: float, step: int, steps: int) -> float:
-    """Exponential decay from ``rate`` at the first step to ``final_ratio × rate`` at the last."""
-    t = min(max(step / max(steps, 1), 0.0), 1.0)
-    return rate * math.exp(t * math.log(final_ratio))
-
-
-def position_lr(config: TrainConfig, extent: float, step: int) -> float:
-    return decayed(config.lr.position * extent, config.lr.position_final_ratio, step, config.train.steps)
-
-
-def camera_lrs(config: TrainConfig, step: int) -> dict[str, float]:
-    """The camera offsets' rates at ``step``: constant unless ``cameras.final_ratio`` < 1."""
-    cams = config.cameras
-    return {f"cameras.{name}": decayed(rate, cams.final_ratio, step, config.train.steps)
-            for name, rate in (("rotation", cams.rotation_lr), ("translation", cams.translation_lr),
-                               ("delay", cams.delay_lr))}
-
-
-def image_scale(config: TrainConfig, progress: float) -> float:
-    """Progressive resolution: the scale of the training images at ``progress`` (0 to 1) of the
-    training. From ``train.resolution_start`` it doubles in even stages up to full size at
-    ``train.resolution_full``: early steps, which shape the avatar coarsely, cost a fraction of a
-    full-size step."""
-    start, full = config.train.resolution_start, config.train.resolution_full
-    if start >= 1.0 or full <= 0.0:
-        return 1.0
-    stages = math.ceil(math.log2(1.0 / start) - 1e-9)
-    return min(1.0, start * 2.0 ** min(stages, int(progress / full * stages)))
-
-
-def hold_still(optimizer, holds) -> None:
-    """Drop the gradients of the parameter groups whose name ``holds``: Adam skips them this step."""
-    for group in optimizer.param_groups:
-        if holds(group["name"]):
-            for param in group["params"]:
-                param.grad = None
 
 
 class Trainer:
@@ -120,11 +81,11 @@ class Trainer:
         self.data = TrainingData(capture)
         self.extent = self.config.lr.scene_extent or self.data.extent
         self.background = torch.tensor(self.data.background, dtype=torch.float32)
+        self.outputs = RunOutputs(self.run_folder, self.config, self.data, self.extent)
         self.generator = torch.Generator().manual_seed(self.config.train.seed)
+        self.frame_order = FrameOrder(len(self.data.frames))
         self.step = 0
         self.elapsed = 0.0
-        self._order = torch.zeros(0, dtype=torch.long)
-        self._position = 0
         self._stop_signal: int | None = None
 
         writer = self.comm.is_writer
@@ -165,7 +126,7 @@ class Trainer:
         self.strategy = DensifyStrategy(densify_schedule(self.config), len(self.avatar.gaussians),
                                         len(self.avatar.flame.faces))
         if self.comm.is_writer:
-            write_run_json(self, complete=False)
+            self.outputs.write_run_json(self.avatar, self.table, self.step, self.elapsed, complete=False)
             self._notes.extend(principal_point_notes(self.data.capture, head))
 
     def _restore(self, state: dict) -> None:
@@ -193,8 +154,7 @@ class Trainer:
         self.strategy.load_state_dict(state["densify"])
         self.comm.keep_statistics_once(self.strategy)  # the checkpoint's totals count once (rank 0)
         self.generator.set_state(state["rng"]["torch"])
-        self._order = state["sampler"]["order"].clone()
-        self._position = int(state["sampler"]["position"])
+        self.frame_order.load_state(state["sampler"])
         self.step = int(state["step"])
         self.elapsed = float(state["elapsed_s"])
         if self.comm.is_writer:
@@ -202,8 +162,8 @@ class Trainer:
 
     def _build_optimizer(self) -> None:
         """One Adam over the groups each trainable part gives (Gaussians, FLAME table, cameras)."""
-        groups = [*self.avatar.gaussians.param_groups(self.config.lr, position_lr(self.config, self.extent, self.step)),
-                  *self.table.param_groups(self.config.flame)]
+        position = rates_at(self.config, self.extent, self.step)["local_position"]
+        groups = [*self.avatar.gaussians.param_groups(self.config.lr, position), *self.table.param_groups(self.config.flame)]
         for cameras in (self.camera_offsets, self.camera_delays):
             if cameras is not None:
                 groups += cameras.param_groups(self.config.cameras)
@@ -212,7 +172,7 @@ class Trainer:
     # -- state ----------------------------------------------------------------------------------
     def state(self) -> dict:
         """Everything a resumed run needs, as tensors and plain values (``weights_only`` safe)."""
-        self.avatar.gaussians.active_sh_degree = self.strategy.schedule.sh_degree(self.schedule_step())
+        self._set_sh_degree()
         return {
             "elapsed_s": self.elapsed,
             "config": self.config.to_dict(),
@@ -222,7 +182,7 @@ class Trainer:
             "optimizer": self.optimizer.state_dict(),
             "densify": self.strategy.state_dict(),
             "rng": {"torch": self.generator.get_state()},
-            "sampler": {"order": self._order.clone(), "position": self._position},
+            "sampler": self.frame_order.state(),
             **({"mogaface": self.mogaface.state_dict()} if self.mogaface is not None else {}),
             **({"cameras": self.camera_offsets.state()} if self.camera_offsets is not None else {}),
             **({"delays": self.camera_delays.state()} if self.camera_delays is not None else {}),
@@ -241,15 +201,6 @@ class Trainer:
         return path
 
     # -- one step -------------------------------------------------------------------------------
-    def _next_frame(self):
-        """Training frames in a fresh random order each epoch (every image seen once per epoch)."""
-        if self._position >= len(self._order):
-            self._order = torch.randperm(len(self.data.frames), generator=self.generator)
-            self._position = 0
-        frame = self.data.frames[int(self._order[self._position])]
-        self._position += 1
-        return frame
-
     def view_generator(self, index: int) -> torch.Generator:
         """The random source of view ``index`` of the current step (encoder views, rendered offsets).
 
@@ -259,14 +210,8 @@ class Trainer:
         return torch.Generator().manual_seed(hash((self.config.train.seed, self.step, index)) & (2**63 - 1))
 
     def _schedule_position(self, steps_done: int) -> float:
-        """Where the schedules stand, in steps: ``steps_done``, or under ``train.schedule =
-        "minutes"`` the step of ``train.steps`` that the share of ``train.max_minutes`` spent stands
-        for. Every schedule (rates, densification, SH degree, cameras, bank, resolution) reads it,
-        so a budget in minutes runs the whole schedule whatever the machine's speed."""
-        cfg = self.config.train
-        if cfg.schedule == "minutes":
-            return min(float(cfg.steps), self.elapsed / (cfg.max_minutes * 60) * cfg.steps)
-        return float(steps_done)
+        """Where the schedules stand after ``steps_done`` steps (:func:`.schedule.schedule_position`)."""
+        return schedule_position(self.config, steps_done, self.elapsed)
 
     def schedule_step(self) -> int:
         """The step the schedules read while running step :attr:`step` (:meth:`_schedule_position`)."""
@@ -288,12 +233,6 @@ class Trainer:
             params += [p for group in self.mogaface.optimizer.param_groups for p in group["params"]]
         return params
 
-    def _settling(self) -> bool:
-        """Whether this step is in the cameras-only phase (``[cameras] settle_at``, ``settle_steps``)."""
-        cams = self.config.cameras
-        step = self.schedule_step()
-        return self.camera_offsets is not None and cams.settle_at <= step < cams.settle_at + cams.settle_steps
-
     def train_step(self) -> dict:
         """Run step ``self.step`` (0-based) and advance; returns its losses and what densification did.
 
@@ -301,12 +240,12 @@ class Trainer:
         updated; what it drew from the random sampler is put back, so a checkpoint written then
         equals the one an uninterrupted run writes at this step.
         """
-        drawn = (self.generator.get_state(), self._order, self._position)
+        drawn = (self.generator.get_state(), self.frame_order.state())
         try:
             return self._run_step()
         except RenderCancelled:
             self.generator.set_state(drawn[0])
-            self._order, self._position = drawn[1], drawn[2]
+            self.frame_order.load_state(drawn[1])
             self.optimizer.zero_grad(set_to_none=True)
             raise
 
@@ -320,16 +259,16 @@ class Trainer:
         comm = self.comm
         gaussians = self.avatar.gaussians
         at = self.schedule_step()
-        rates = {"local_position": position_lr(cfg, self.extent, at), **camera_lrs(cfg, at)}
+        rates = rates_at(cfg, self.extent, at)
         for group in self.optimizer.param_groups:
             if group["name"] in rates:
                 group["lr"] = rates[group["name"]]
         gaussians.active_sh_degree = self.strategy.schedule.sh_degree(at)
         batch = cfg.train.batch
-        frames = [self._next_frame() for _ in range(batch)]
+        frames = [self.data.frames[self.frame_order.next(self.generator)] for _ in range(batch)]
         names = self.views.terms.names  # the same on every rank, one without a view included
         views = {j: self._render_view(frames[j], j) for j in comm.share(batch)}
-        settling = self._settling()
+        settling = self.camera_offsets is not None and cameras_settling(cfg, at)
         after = int(self._schedule_position(self.step + 1))  # where the schedules stand once this step is done
         sums = torch.zeros(len(names), dtype=torch.float64)
         if views:
@@ -342,12 +281,7 @@ class Trainer:
                 if not settling:  # settling, the Gaussians hold still: their densification statistics too
                     view.observe(self.strategy, after, batch)
         sums = comm.reduce_step(self._trainable(), sums)
-        if self.camera_offsets is not None and at < cfg.cameras.begin * cfg.train.steps:
-            hold_still(self.optimizer, lambda name: name in ("cameras.rotation", "cameras.translation"))
-        if self.camera_delays is not None and at < cfg.cameras.delay_begin * cfg.train.steps:
-            hold_still(self.optimizer, lambda name: name == "cameras.delay")
-        if settling:  # only the cameras step
-            hold_still(self.optimizer, lambda name: not name.startswith("cameras."))
+        hold_still(self.optimizer, cfg, at, settling)
         self.optimizer.step()
         self.optimizer.zero_grad(set_to_none=True)
         if self.camera_offsets is not None:
@@ -454,7 +388,7 @@ class Trainer:
                     self.events.emit("iter", step=self.step, steps=max(steps, self.step), **result["losses"],
                                      gaussians=len(self.avatar.gaussians),
                                      sh_degree=self.avatar.gaussians.active_sh_degree,
-                                     lr_position=position_lr(self.config, self.extent, self.schedule_step()),
+                                     lr_position=rates_at(self.config, self.extent, self.schedule_step())["local_position"],
                                      it_s=rate, eta_s=None if first_window else eta,
                                      elapsed_s=self.elapsed)
                     window_start, window_steps, first_window = now, 0, False
@@ -494,9 +428,21 @@ class Trainer:
             if self.lock is not None:
                 self.lock.release()
 
+    def _set_sh_degree(self) -> None:
+        """The SH degree the schedule gives now: what a checkpoint, a check or the final avatar holds."""
+        self.avatar.gaussians.active_sh_degree = self.strategy.schedule.sh_degree(self.schedule_step())
+
+    def current_avatar(self):
+        """``(table, avatar)`` as the run would write them at this step (:func:`.results.written_avatar`)."""
+        self._set_sh_degree()
+        return written_avatar(self.mogaface, self.avatar, self.table)
+
     def _quick_check(self) -> None:
-        quick_check(self)
+        table, avatar = self.current_avatar()
+        self.outputs.quick_check(avatar, table, self.step, self.events)
 
     def finish(self) -> None:
         """Write the final avatar, the FLAME parameters used, run.json and the quick val metrics."""
-        write_results(self)
+        self._set_sh_degree()
+        self.outputs.write_final(self.avatar, self.table, self.mogaface, (self.camera_offsets, self.camera_delays),
+                                 self.step, self.elapsed, self.events)

@@ -13,20 +13,15 @@ import dataclasses
 import torch
 
 from ..camera import Camera
-from ..mogaface.avatar import render_world
-from ..mogaface.training import CorrectionTraining, StepCorrection
+from ..correction.avatar import render_world
+from ..correction.training import CorrectionTraining, StepCorrection
+from ..data.target import area_resized
 from ..splat.api import SplatOutput
 from .config import TrainConfig
+from .correction_part import mogaface_render
 from .losses import image_loss, position_hinge, psnr, scaling_hinge
-from .mogaface_part import mogaface_render
 
 IMAGE_TERMS = ("l1", "ssim", "rgb")  # ``rgb`` = (1 − λ)·l1 + λ·(1 − ssim): the image term of the total
-
-
-def area_resized(image: torch.Tensor, width: int, height: int) -> torch.Tensor:
-    """An ``(H,W,3)`` image averaged down to ``(height,width,3)``: each pixel the mean of the area it covers."""
-    scaled = torch.nn.functional.interpolate(image.permute(2, 0, 1)[None], size=(height, width), mode="area")
-    return scaled[0].permute(1, 2, 0).contiguous()
 
 
 class LossTerms:

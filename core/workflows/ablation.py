@@ -17,7 +17,8 @@ import pathlib
 import numpy as np
 
 from ..run.folder import is_complete
-from ..train.config import FULL_METHOD
+from ..run.names import RUN_FILE
+from ..train.presets import FULL_METHOD
 
 
 def _variant(mode: str, bank: bool = False, texture: bool = False, finetune: bool = True) -> dict:
@@ -56,12 +57,12 @@ def merge_sections(a: dict, b: dict) -> dict:
 def train_variant(capture, run_dir: pathlib.Path, name: str, preset, config_path, overrides, progress) -> None:
     """Train one variant (reusing a complete run, resuming an interrupted one)."""
     from ..train import config as config_module
-    from ..train.checkpoint import latest_checkpoint
+    from ..train.checkpoint import has_checkpoint
     from ..train.trainer import Trainer
 
     if is_complete(run_dir):
         return
-    resume = latest_checkpoint(run_dir / "checkpoints") is not None
+    resume = has_checkpoint(run_dir)
     config = config_module.resolve(preset, config_path, merge_sections(overrides or {}, LADDER[name]))
     listeners = []
     if progress:
@@ -103,9 +104,9 @@ def run_folder(out: pathlib.Path, name: str, seed: int) -> pathlib.Path:
 
 def image_source(run_dir):
     """``(avatar, source)``: the run's own inference, image-assisted where it has modules."""
-    from ..evaluate.sources.mogaface import MoGaFaceParams
+    from ..correction.avatar import ModulatedAvatar
+    from ..evaluate.sources.corrected import MoGaFaceParams
     from ..evaluate.sources.tracked import TrackedParams
-    from ..mogaface.avatar import ModulatedAvatar
     from ..run.folder import RunFolder
 
     run = RunFolder(run_dir)
@@ -139,7 +140,7 @@ def score_variant(run_dir: pathlib.Path, max_frames, lpips: bool, fit_steps, spl
                "refiner": changed(REFINER_FILE), "refined_cameras": changed(REFINED_CAMERAS_FILE),
                "scoring_code": scoring_code_hash(), "split": split}
     cached = run_dir / split_name(SCORES_FILE, split)
-    if cached.exists() and cached.stat().st_mtime >= (run_dir / "run.json").stat().st_mtime:
+    if cached.exists() and cached.stat().st_mtime >= (run_dir / RUN_FILE).stat().st_mtime:
         try:
             earlier = json.loads(cached.read_text(encoding="utf-8"))
         except (OSError, ValueError):
@@ -156,7 +157,7 @@ def score_variant(run_dir: pathlib.Path, max_frames, lpips: bool, fit_steps, spl
 
 
 def _train_summary(run_dir: pathlib.Path) -> dict:
-    info = json.loads((run_dir / "run.json").read_text(encoding="utf-8"))
+    info = json.loads((run_dir / RUN_FILE).read_text(encoding="utf-8"))
     steps, wall = info.get("final_step"), info.get("wall_time_s")
     return {"steps": steps, "wall_time_s": wall, "it_s": round(steps / wall, 3) if steps and wall else None,
             "gaussians": info.get("gaussians")}
@@ -167,8 +168,9 @@ def write_figure(path: pathlib.Path, run_dirs: dict[str, pathlib.Path], split: s
     (the validation frames: self-reenactment only)."""
     from PIL import Image, ImageDraw
 
+    from ..avatar.avatar import render_frame
     from ..data.target import target_image
-    from ..evaluate.protocols import protocol_frames, render_frame
+    from ..evaluate.protocols import protocol_frames
     from ..io.atomic import atomic_path
     from ..run.folder import RunFolder
 

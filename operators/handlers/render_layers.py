@@ -58,9 +58,9 @@ def layer_heads(scene) -> list:
 
 def layer_pixels(result) -> tuple[np.ndarray, np.ndarray]:
     """A transparent render as the compositor wants it, in Blender's flat pixel order (rows from
-    the bottom): :func:`core.scene.render.blender_rgba`, and the depth (:data:`FAR` where the
+    the bottom): :func:`core.for_blender.render.blender_rgba`, and the depth (:data:`FAR` where the
     avatar is not)."""
-    from ...core.scene.render import blender_rgba
+    from ...core.for_blender.render import blender_rgba
 
     rgba = blender_rgba(result)
     depth = np.where(np.isfinite(result.depth), result.depth, FAR)[..., None]
@@ -77,7 +77,7 @@ def fill_image(image, width: int, height: int, pixels) -> None:
 
 def render_layer(scene, head) -> None:
     """Render ``head``'s avatar layer at the scene's frame from its camera into the layer images."""
-    from ...core.scene.render import render
+    from ...core.for_blender.render import render
     from ..avatar_head import camera_of, head_request
 
     frame = scene.frame_current

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import bpy
 
-from .head_rig import AVATAR_PATH_PROPERTY, is_head
+from .heads import AVATAR_PATH_PROPERTY, is_head
 from .render_layers import NODE_TAG, compositor_tree
 
 #: Custom property on what :func:`suspend_scenes` changed: a node (True) or a head (its settings).

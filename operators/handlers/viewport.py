@@ -13,7 +13,7 @@ writes the avatar's depth as fragment depth, so scene geometry in front hides it
 behind it is hidden. Everything up to the pixel buffer (:func:`viewport_image`) is plain data and
 runs without a window; only :func:`draw_image` needs a GPU context.
 
-Beside that exact image, the GPU draws the Gaussians themselves (:mod:`.gpu_splats`) at the
+Beside that exact image, the GPU draws the Gaussians themselves (:mod:`.gpu_draw`) at the
 speed of the view: a per-head switch (:data:`DRAW_PROPERTY`) picks the GPU draw, the CPU image,
 or both: the GPU while the view moves, during playback and until the CPU image of the resting
 view arrives, then that image. Where the GPU draw cannot run, the CPU image is drawn.
@@ -29,8 +29,8 @@ from bpy.props import BoolProperty, EnumProperty
 
 from ..common import background_thread
 from ..dependencies import LazyModule
-from . import gpu_splats
-from .head_rig import AVATAR_PATH_PROPERTY, is_head
+from . import gpu_draw
+from .heads import AVATAR_PATH_PROPERTY, is_head
 
 np = LazyModule("numpy")  # imported on first use: registering needs no numpy
 
@@ -81,7 +81,7 @@ def viewport_request(head, view_matrix, projection, size: tuple[int, int], frame
 
     ``view_matrix``/``projection``: ``RegionView3D.view_matrix`` / ``window_matrix``.
     """
-    from ...core.scene.render import RenderRequest, view_camera
+    from ...core.for_blender.render import RenderRequest, view_camera
     from ..avatar_head import head_values
 
     view = view_camera(np.array(view_matrix), np.array(projection), np.array(head.matrix_world), *size)
@@ -92,13 +92,13 @@ def viewport_request(head, view_matrix, projection, size: tuple[int, int], frame
 def viewport_image(result, view, projection) -> ViewportImage:
     """A finished render as the draw's pixel buffers (rows flipped, depth in window units).
 
-    The colours are :func:`core.scene.render.blender_rgba`'s, as everywhere. A ``POST_VIEW``
+    The colours are :func:`core.for_blender.render.blender_rgba`'s, as everywhere. A ``POST_VIEW``
     handler draws into the view's overlay buffer, which holds linear values encoded as sRGB and
     is laid over the scene after its view transform: the avatar is shown with the core's sRGB
     colours under every view transform, exactly as the capture photo a camera shows as its
     background image (checked in Blender 4.3 by reading the screen back).
     """
-    from ...core.scene.render import blender_rgba, depth_buffer_values
+    from ...core.for_blender.render import blender_rgba, depth_buffer_values
 
     height, width = result.alpha.shape
     rgba = blender_rgba(result)
@@ -127,11 +127,11 @@ class ViewState:
         self.view_key = None
         self.view_changed = 0.0
         self.error: str | None = None
-        self.gpu = None  # gpu_splats.GpuSplats, made in a GPU context
-        self.posing = gpu_splats.Posing()
+        self.gpu = None  # gpu_draw.GpuSplats, made in a GPU context
+        self.posing = gpu_draw.Posing()
 
     def submit(self, request, view, projection) -> None:
-        from ...core.scene.render import render
+        from ...core.for_blender.render import render
 
         projection = np.array(projection)
 
@@ -187,7 +187,7 @@ def track_view(state: ViewState, view_matrix, projection, region, now: float) ->
 def draw_gpu(state: ViewState, head, region, region_3d, scene) -> bool:
     """The GPU draw of the head's Gaussians at the region's size; False while it cannot draw
     (no GPU draw here, or the first frame still being posed)."""
-    if gpu_splats.program() is None:
+    if gpu_draw.program() is None:
         return False
     view_matrix, projection = np.array(region_3d.view_matrix), np.array(region_3d.window_matrix)
     request, view = viewport_request(head, view_matrix, projection, (region.width, region.height),
@@ -199,7 +199,7 @@ def draw_gpu(state: ViewState, head, region, region_3d, scene) -> bool:
     if splats is None:
         return False
     if state.gpu is None:
-        state.gpu = gpu_splats.GpuSplats()
+        state.gpu = gpu_draw.GpuSplats()
     return state.gpu.draw(splats, view, projection, region.width, region.height, state.posing.frame)
 
 
@@ -207,9 +207,9 @@ def gpu_allowed(mode: str) -> bool:
     """Whether a head's draw may use the GPU: not in "CPU" mode, not where the GPU draw cannot run,
     and not in "BOTH" on a software OpenGL, where the CPU image off the interface thread keeps the
     interface responsive ("GPU" still forces it)."""
-    if mode == "CPU" or gpu_splats.unavailable() is not None:
+    if mode == "CPU" or gpu_draw.unavailable() is not None:
         return False
-    return mode == "GPU" or not gpu_splats.software_renderer()
+    return mode == "GPU" or not gpu_draw.software_renderer()
 
 
 def gpu_first(mode: str, gpu_ok: bool, moving: bool, playing: bool) -> bool:
@@ -408,7 +408,7 @@ def unregister() -> None:
         bpy.app.timers.unregister(_poll_renders)
     _views.clear()
     _shader.clear()
-    gpu_splats.clear()
+    gpu_draw.clear()
     for name in (SHOW_PROPERTY, DRAW_PROPERTY):
         if hasattr(bpy.types.Object, name):
             delattr(bpy.types.Object, name)

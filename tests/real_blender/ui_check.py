@@ -381,6 +381,9 @@ def scene_stages():
     yield from avatar_in_scene_stages(head)
     yield from disable_stages(head)
     yield from improve_tracking_stages(head, run)
+    if ARGS.get("footage"):
+        yield from drive_from_footage_stages(head)
+        yield from track_footage_stages(head)
     bpy.ops.wm.save_userpref()
 
 
@@ -501,14 +504,14 @@ def core_render(head, camera, frame, transparent):
     avatar_head = module("operators.avatar_head")
     request = avatar_head.head_request(scene, head, avatar_head.camera_of(scene, camera, head), frame,
                                        transparent=transparent, keyed=True)
-    return module("core.scene.render").render(request)
+    return module("core.for_blender.render").render(request)
 
 
 def render_frame_pixels(head, camera):
     """Render Frame's image saved through the view transform: under Standard the core render."""
     scene = bpy.context.scene
     frame = scene.frame_current
-    image = bpy.data.images[module("core.scene.render").render_image_name(camera.name, frame)]
+    image = bpy.data.images[module("core.for_blender.render").render_image_name(camera.name, frame)]
     core = core_render(head, camera, frame, transparent=False)
     mask = core.alpha > 1 / 255
     check(scene.view_settings.view_transform == "Standard", "Import Capture did not set Standard")
@@ -555,6 +558,189 @@ def improve_tracking_stages(head, run):
     stage("improve tracking (the refiner trained first), the head keyed")
 
 
+def follow_footage_job(what, screenshot):
+    """A generator step: a footage job to its end, the interface's longest block meanwhile timed
+    against the idle window's (the job runs in a child process: Blender must never wait for it)."""
+    footage = module("operators.footage")
+    ticks = [time.monotonic()]
+
+    def tick():  # while the child runs; the import and keying after it are not the tracking
+        if footage.current_worker() is None:
+            return None
+        ticks.append(time.monotonic())
+        return 0.02
+
+    bpy.app.timers.register(tick, first_interval=0.02)
+    yield from wait_until(lambda: footage.current_worker() is None or footage.current_worker().progress.step >= 1,
+                          600, f"{what} progress")
+    yield from show_panel()
+    taken = time.monotonic()
+    shot(screenshot)  # the check's own screenshot holds the main thread: its gap is not Blender's
+    taken = (taken, time.monotonic())
+    yield from wait_until(lambda: footage.current_worker() is None, 900, what)
+    check(footage.last_progress().state == "done", f"{what} gave {footage.last_progress()}")
+    idle = RESULTS["load_avatar"]["idle_longest_block_s"]
+    gaps = [b - a for a, b in zip(ticks, ticks[1:]) if b < taken[0] or a > taken[1]]
+    longest = max(gaps, default=0.0)
+    RESULTS.setdefault("footage", {})[what] = {"seconds": round(ticks[-1] - ticks[0], 1),
+                                               "longest_ui_block_s": round(longest, 3), "idle_block_s": idle}
+    log(f"{what}: {RESULTS['footage'][what]}")
+    check_at_end(longest < max(0.5, idle + 0.3), f"{what} froze the UI: {RESULTS['footage'][what]}")
+
+
+def drive_from_footage_stages(head):
+    """Drive from Footage on the trained avatar's head with a second clip: the keys are the tracker's
+    parameters at the scene's frame rate, and Render Frame shows the performance (two frames, each the
+    core render of its keys, differing as the performance does)."""
+    import numpy as np
+
+    scene = bpy.context.scene
+    camera = next(o for o in scene.objects if o.get("mogaface_resolution") is not None)
+    check(module("operators.import_capture").apply_render_settings(scene, camera), "capture camera")
+    scene.frame_set(scene.frame_start)
+    out = WORK / "performance"
+    with override():
+        result = bpy.ops.mogaface.drive_from_footage("INVOKE_DEFAULT", filepath=ARGS["performance"], out=str(out),
+                                                     target=head.name, tolerance=0.001, size=160, fit_steps=60)
+        check(result == {"RUNNING_MODAL"}, f"drive from footage gave {result}")
+    yield from follow_footage_job("drive from footage", "12-drive-from-footage")
+    performance = module("core.for_blender.tracking").read_tracking(out)
+    n_expr = performance.params["expr"].shape[1]
+    worst = 0.0
+    for index, frame in enumerate(performance.frames):
+        scene.frame_set(int(frame))
+        keys = head.data.shape_keys.key_blocks
+        worst = max(worst, float(np.abs(np.array([keys[i + 1].value for i in range(n_expr)])
+                                        - performance.params["expr"][index]).max()))
+        for name, (prop, _) in module("core.for_blender.head_rig").POSE_PROPERTIES.items():
+            worst = max(worst, float(np.abs(np.array(head[prop]) - performance.params[name][index]).max()))
+    fps = scene.render.fps / scene.render.fps_base
+    RESULTS["footage"]["drive"] = {"frames": len(performance.frames), "scene_fps": fps, "keys_worst_error": worst}
+    check(worst < 1e-4, f"the keyed channels differ from the tracker's parameters by {worst}")
+    expr = performance.params["expr"]
+    first, other = 0, int(np.argmax(np.abs(expr - expr[0]).sum(1)))  # the frame furthest from the first
+    renders = []
+    for index in (first, other):
+        frame = int(performance.frames[index])
+        scene.frame_set(frame)
+        with override():
+            check(bpy.ops.mogaface.render_frame(head=head.name) == {"FINISHED"}, "render frame of the performance")
+        image = bpy.data.images[module("core.for_blender.render").render_image_name(camera.name, frame)]
+        core = core_render(head, camera, frame, transparent=False)
+        got = saved_pixels(image, f"drive-frame-{frame}")[..., :3]
+        compare(f"Drive from Footage frame {frame}", got, core.rgb, core.alpha > 1 / 255)
+        renders.append((got, core.rgb))
+    shown_change = float(np.abs(renders[0][0] - renders[1][0]).mean())
+    core_change = float(np.abs(renders[0][1] - renders[1][1]).mean())
+    RESULTS["footage"]["drive"].update(frames_compared=[int(performance.frames[first]), int(performance.frames[other])],
+                                       shown_change=round(shown_change, 5), core_change=round(core_change, 5))
+    log(f"drive: {RESULTS['footage']['drive']}")
+    check(shown_change > 1e-3 and abs(shown_change - core_change) < 0.25 * core_change,
+          f"the rendered frames do not change as the performance does: {RESULTS['footage']['drive']}")
+    yield from close_render_windows()
+    stage("Drive from Footage: the performance keyed at the scene's rate, rendered as it plays")
+
+
+def track_footage_stages(avatar_head):
+    """Track Footage of a phone clip: the camera with the movie behind it, the head keyed; the head's
+    landmarks read back from Blender (evaluated mesh, Blender's camera) reproject onto the detections
+    as the tracker's own fit does, and its F12 silhouette covers the person's mask."""
+    import numpy as np
+    from bpy_extras.object_utils import world_to_camera_view
+    from mathutils import Vector
+
+    scene = bpy.context.scene
+    viewport = module("operators.handlers.viewport")
+    setattr(avatar_head, viewport.SHOW_PROPERTY, False)
+    for obj in scene.objects:
+        if obj.type == "MESH":
+            obj.hide_set(True)
+            obj.hide_render = True
+    earlier = bpy.data.collections.get("MoGaFace Capture")
+    if earlier is not None:
+        earlier.name = "MoGaFace Capture (trained)"
+        earlier.hide_viewport = True
+    out = WORK / "tracked"
+    with override():
+        result = bpy.ops.mogaface.track_footage("INVOKE_DEFAULT", filepath=ARGS["footage"], out=str(out), size=160,
+                                                fit_steps=100)
+        check(result == {"RUNNING_MODAL"}, f"track footage gave {result}")
+    yield from follow_footage_job("track footage", "13-tracking-footage")
+    report = json.loads((out / "tracking.json").read_text())
+    head, camera = bpy.context.view_layer.objects.active, scene.camera
+    check(module("operators.handlers.heads").is_head(head), "Track Footage left no head active")
+    background = camera.data.background_images[0]
+    check(background.source == "MOVIE_CLIP" and background.clip is not None, "the footage is not behind the camera")
+    capture = module("core.data.capture").Capture.open(out)
+    faces = np.array([p.vertices[:] for p in head.data.polygons])
+    embedding = module("core.track.mediapipe_embedding").model_mediapipe_embedding(faces)
+    mesh_of_ibug = module("core.track.mediapipe_ibug68").IBUG68_FROM_MESH
+    row = {int(m): i for i, m in enumerate(embedding.ibug)}
+    ibug = [i for i, m in enumerate(mesh_of_ibug) if int(m) in row]
+    at = np.array([row[int(mesh_of_ibug[i])] for i in ibug])  # the embedding's rows of those iBUG points
+    points = module("core.flame.landmarks").LandmarkEmbedding(embedding.faces[at], embedding.barycentric[at],
+                                                              embedding.ibug[at])
+    detected = module("core.data.landmarks").read_landmarks(out, capture.cameras, len(capture.timesteps))["cam00"]
+    model = module("core.for_blender.head_rig").load_head_model(head["mogaface_model_path"])
+    width, height = scene.render.resolution_x, scene.render.resolution_y
+    errors = {"blender_vs_core": [], "blender_vs_detected": [], "core_vs_detected": []}
+    for t in sorted({0, len(capture.timesteps) // 2, len(capture.timesteps) - 1}):
+        scene.frame_set(t + 1)
+        evaluated = head.evaluated_get(bpy.context.evaluated_depsgraph_get())
+        mesh = evaluated.to_mesh()
+        co = np.zeros(len(mesh.vertices) * 3, np.float32)
+        mesh.vertices.foreach_get("co", co)
+        evaluated.to_mesh_clear()
+        world = [head.matrix_world @ Vector(p) for p in points.positions(co.reshape(-1, 3).astype(np.float64), faces)]
+        shown = np.array([[v.x * width, (1 - v.y) * height]
+                          for v in (world_to_camera_view(scene, camera, p) for p in world)])
+        params = capture.flame_params(t)
+        vertices = model(**{k: v for k, v in params.items() if k != "static_offset"})
+        core, _ = capture.camera_at("cam00", t).project(points.positions(vertices, model.arrays.faces))
+        seen = detected[t, ibug, 2] > 0
+        errors["blender_vs_core"].append(float(np.linalg.norm(shown - core, axis=1).mean()))
+        errors["blender_vs_detected"].append(float(np.linalg.norm(shown - detected[t, ibug, :2], axis=1)[seen].mean()))
+        errors["core_vs_detected"].append(float(np.linalg.norm(core - detected[t, ibug, :2], axis=1)[seen].mean()))
+    reprojection = {k: round(float(np.mean(v)), 3) for k, v in errors.items()}
+    reprojection["tracker_report_px"] = report["reprojection_px"]["mean"]
+    RESULTS["footage"]["track"] = {"frames": report["frames"], "lost": report["lost_frames"],
+                                   "landmarks_px": reprojection}
+    check_at_end(reprojection["blender_vs_core"] < 0.5
+                 and abs(reprojection["blender_vs_detected"] - reprojection["core_vs_detected"]) < 0.5,
+                 f"the head in Blender does not reproject as the tracker's fit: {reprojection}")
+    # pixels: the head's silhouette in an F12 render (Workbench) against the person's mask of that frame
+    engine, transparent = scene.render.engine, scene.render.film_transparent
+    scene.render.engine, scene.render.film_transparent = "BLENDER_WORKBENCH", True
+    scene.render.resolution_percentage = 100  # the capture's own size, as its masks
+    head.hide_set(False)
+    head.hide_render = False
+    t = len(capture.timesteps) // 2
+    scene.frame_set(t + 1)
+    scene.render.filepath = str(WORK / "tracked-head")
+    with override():
+        bpy.ops.render.render(write_still=True)
+    image = bpy.data.images.load(str(WORK / "tracked-head.png"))
+    alpha = np.array(image.pixels[:], np.float32).reshape(image.size[1], image.size[0], 4)[::-1, :, 3]
+    bpy.data.images.remove(image)
+    scene.render.engine, scene.render.film_transparent = engine, transparent
+    frame = capture.timestep_frame(t)
+    _, mask = capture.load_image(frame)
+    person, drawn = np.asarray(mask).reshape(alpha.shape) > 0.5, alpha > 0.5
+    iou = float((person & drawn).sum() / max((person | drawn).sum(), 1))
+    RESULTS["footage"]["track"]["silhouette_iou"] = round(iou, 3)
+    log(f"track footage: {RESULTS['footage']['track']}")
+    check_at_end(iou > 0.6, f"the tracked head's silhouette covers the person's mask poorly: IoU {iou:.3f}")
+    window, area, _ = window_and_view()
+    area.spaces.active.region_3d.view_perspective = "CAMERA"
+    head.display_type = "WIRE"  # the footage seen through the tracked head, as a user checks the fit
+    area.tag_redraw()
+    yield from show_panel()
+    yield 1.0
+    shot("14-tracked-head-over-footage")
+    head.display_type = "TEXTURED"
+    stage("Track Footage: the camera, the keyed head over the movie, read back from Blender")
+
+
 def viewport_pixels(head, viewport):
     """The still viewport read back from the screen: at the region's own size, and under Standard
     the core render of the view's camera over what the view shows without the avatar."""
@@ -573,7 +759,7 @@ def viewport_pixels(head, viewport):
     yield from wait_until(full_size, 300, "the still viewport at the region's size")
     request, _ = viewport.viewport_request(head, np.array(region_3d.view_matrix), np.array(region_3d.window_matrix),
                                            (region.width, region.height), bpy.context.scene.frame_current)
-    core = module("core.scene.render").render(request)
+    core = module("core.for_blender.render").render(request)
     alpha = np.where(core.alpha >= viewport.OPAQUE_ALPHA, 1.0, core.alpha)[..., None]
     straight = np.divide(core.rgb, core.alpha[..., None], out=np.zeros_like(core.rgb), where=core.alpha[..., None] > 0)
     RESULTS["viewport_size"] = [region.width, region.height]
@@ -652,9 +838,9 @@ def gpu_draw_pixels(head, viewport):
     its frames per second at 30k and 100k Gaussians."""
     import numpy as np
 
-    gpu_splats = module("operators.handlers.gpu_splats")
-    core_gpu = module("core.scene.gpu_splats")
-    render = module("core.scene.render")
+    gpu_splats = module("operators.handlers.gpu_draw")
+    core_gpu = module("core.for_blender.splat_buffers")
+    render = module("core.for_blender.render")
     check(gpu_splats.program() is not None, f"the GPU draw cannot run: {gpu_splats.unavailable()}")
     _, area, _ = window_and_view()
     region_3d = area.spaces.active.region_3d
@@ -698,7 +884,7 @@ def live_gpu_pixels(head, viewport):
     yield 1.0  # the avatar drawn again before the screenshot below
     request, _ = viewport.viewport_request(head, np.array(region_3d.view_matrix), np.array(region_3d.window_matrix),
                                            (region.width, region.height), bpy.context.scene.frame_current)
-    core = module("core.scene.render").render(request)
+    core = module("core.for_blender.render").render(request)
     alpha = core.alpha[..., None]
     straight = np.divide(core.rgb, alpha, out=np.zeros_like(core.rgb), where=alpha > 0)
     expected = over(straight, alpha, behind)
@@ -717,9 +903,9 @@ class Profile:
     upload); what is left of a block is Blender's own redraw and the GL work it waits for."""
 
     def __init__(self):
-        gpu_splats = module("operators.handlers.gpu_splats")
+        gpu_splats = module("operators.handlers.gpu_draw")
         viewport = module("operators.handlers.viewport")
-        core_gpu = module("core.scene.gpu_splats")
+        core_gpu = module("core.for_blender.splat_buffers")
         self.targets = [(viewport, "draw_head", "draw handler, in all"),
                         (viewport, "update_view", "CPU image: request"),
                         (viewport, "textures", "CPU image: upload"),
@@ -727,7 +913,7 @@ class Profile:
                         (gpu_splats.GpuSplats, "draw", "GPU draw: sort, upload, draw"),
                         (core_gpu.SplatOrder, "update", "GPU draw: sort and colours"),
                         (gpu_splats.Posing, "latest", "GPU draw: posing hand-over"),
-                        (module("operators.handlers.head_rig"), "_update_heads", "head meshes re-posed")]
+                        (module("operators.handlers.heads"), "_update_heads", "head meshes re-posed")]
         self.seconds, self.calls, self.saved = {}, {}, []
 
     def __enter__(self):
@@ -815,7 +1001,7 @@ def scrub_blocks(head, viewport):
     scene = bpy.context.scene
     frames = list(range(scene.frame_start, min(scene.frame_end, scene.frame_start + 11) + 1))
     idle = RESULTS.get("load_avatar", {}).get("idle_longest_block_s", 0.0)
-    RESULTS["software_opengl"] = module("operators.handlers.gpu_splats").software_renderer()
+    RESULTS["software_opengl"] = module("operators.handlers.gpu_draw").software_renderer()
     for mode in ("BOTH", "GPU"):
         setattr(head, viewport.DRAW_PROPERTY, mode)
         changes = [lambda frame=frame: scene.frame_set(frame) for frame in frames + frames[::-1]]

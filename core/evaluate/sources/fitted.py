@@ -11,11 +11,9 @@ import numpy as np
 import torch
 
 from ...data.capture import Capture, Frame
-from ...data.capture_info import capture_info
-from ...data.target import target_image
+from ...data.target import area_resized, target_image
 from ...run.cameras import InputCameras
-from ...train.training_view import area_resized
-from .base import ParamSource, input_views, timestep_of
+from .base import ImageAssistedSource, ParamSource
 
 # The width of the prior toward the start per parameter (make-capture's default tracker error for
 # the expression, twice it for rotations and translation), and the scale of the Adam step sizes,
@@ -53,7 +51,7 @@ def frozen(*modules):
             p.requires_grad_(flag)
 
 
-class FittedParams:
+class FittedParams(ImageAssistedSource):
     """``base``'s parameters (image-free) refined by ``steps`` Adam steps of the L1 photometric
     error on ``views_per_step`` of the other views per step, rendered at ``scale`` of their size.
 
@@ -63,38 +61,23 @@ class FittedParams:
     (scored camera, cameras seen).
     """
 
-    uses_images = True
-
     def __init__(self, avatar, capture: Capture, base: ParamSource, steps: int, background,
                  views_per_step: int = 2, scale: float = SCALE, rates: dict[str, float] | None = None,
                  prior_weight: float = PRIOR_WEIGHT, decay: bool = True, cameras: InputCameras | None = None,
                  views: int | None = None, input_cameras=None):
-        self.avatar = avatar
-        self.capture = capture
-        self.cameras = cameras or InputCameras(capture)
-        self.base = base
+        super().__init__(avatar, capture, base, background, steps, views, cameras, input_cameras)
         self.steps = steps
-        self.background = tuple(float(v) for v in background)
         self.views_per_step = views_per_step
         self.scale = scale
         self.rates = dict(RATES if rates is None else rates)
         self.prior_weight = float(prior_weight)
         self.decay = decay
-        self.recorded = capture_info(capture.root).get("background")
         self.views = views
-        self.input_cameras = None if input_cameras is None else list(input_cameras)
-        self.inputs: list[tuple[str | None, list[str]]] = []
         among = "other views" if views is None else f"of {views} other views"
         self.description = (f"test-time fitting ({steps} Adam steps on expression and pose, "
                             f"{views_per_step} {among} per step at {scale:g}× size; scored view left out)")
 
-    def params_for(self, frame: Frame | int, exclude_view: str | None = None) -> dict[str, np.ndarray]:
-        timestep = timestep_of(frame)
-        start = self.base.params_for(frame, exclude_view)  # a base that reads images leaves it out too
-        frames = input_views(self.capture, timestep, exclude_view, self.views, self.input_cameras)
-        if not frames or self.steps <= 0:
-            return start
-        self.inputs.append((exclude_view, [f.camera_id for f in frames]))
+    def improve(self, start: dict[str, np.ndarray], frames: list[Frame], timestep: int) -> dict[str, np.ndarray]:
         return {**start, **self._fit(start, frames, timestep)}
 
     def _fit(self, start: dict[str, np.ndarray], frames: list[Frame], timestep: int) -> dict[str, np.ndarray]:

@@ -12,44 +12,28 @@ from __future__ import annotations
 import numpy as np
 
 from ...data.capture import Capture, Frame
-from ...data.capture_info import capture_info
 from ...data.target import target_image
 from ...refiner.inference import refine
 from ...run.cameras import InputCameras
-from .base import INPUT_VIEWS, ParamSource, input_views, timestep_of
+from .base import INPUT_VIEWS, ImageAssistedSource, ParamSource, timestep_of
 from .fitted import FittedParams
 from .tracked import AlignedTrackedParams
 
 
-class RefinedParams:
-    uses_images = True
-
+class RefinedParams(ImageAssistedSource):
     """``base``'s parameters refined by the run's refiner from ``max_views`` other views of the
     timestep from ``input_cameras`` (ids; None: any), spread over the rig (:func:`.base.input_views`)."""
 
     def __init__(self, avatar, capture: Capture, base: ParamSource, refiner, background, passes: int = 1,
                  max_views: int = INPUT_VIEWS, cameras: InputCameras | None = None, input_cameras=None):
-        self.avatar = avatar
-        self.capture = capture
-        self.cameras = cameras or InputCameras(capture)
-        self.base = base
+        super().__init__(avatar, capture, base, background, passes, max_views, cameras, input_cameras)
         self.refiner = refiner
-        self.background = tuple(float(v) for v in background)
         self.passes = passes
         self.max_views = max_views
-        self.input_cameras = None if input_cameras is None else list(input_cameras)
-        self.recorded = capture_info(capture.root).get("background")
-        self.inputs: list[tuple[str | None, list[str]]] = []
         self.description = (f"multi-view refiner ({passes} pass{'es' if passes > 1 else ''}, "
                             f"{max_views} other views; scored view left out)")
 
-    def params_for(self, frame: Frame | int, exclude_view: str | None = None) -> dict[str, np.ndarray]:
-        timestep = timestep_of(frame)
-        start = self.base.params_for(frame, exclude_view)  # a base that reads images leaves it out too
-        frames = input_views(self.capture, timestep, exclude_view, self.max_views, self.input_cameras)
-        if not frames or self.passes <= 0:
-            return start
-        self.inputs.append((exclude_view, [f.camera_id for f in frames]))
+    def improve(self, start: dict[str, np.ndarray], frames: list[Frame], timestep: int) -> dict[str, np.ndarray]:
         images = [target_image(self.capture, f, self.background, self.recorded) for f in frames]
         cameras = [self.cameras(f) for f in frames]
         return refine(self.avatar, self.refiner, start, cameras, images, self.background, self.passes)[-1]

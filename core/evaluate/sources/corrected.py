@@ -18,9 +18,9 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from ...correction.model import MoGaFace
+from ...correction.views import ViewImages
 from ...data.capture import Capture, Frame
-from ...mogaface.model import MoGaFace
-from ...mogaface.views import ViewImages
 from ...run.folder import RunFolder
 from .base import timestep_of, views_at
 from .tracked import TrackedParams

@@ -1,7 +1,7 @@
 """Head objects in Blender: finding them, reading their rig, and re-posing them.
 
 A head object keeps its model file, identity and pose as custom properties (names in
-:mod:`...core.scene.head_rig`), one shape key per expression component and a last shape key,
+:mod:`...core.for_blender.head_rig`), one shape key per expression component and a last shape key,
 "MoGaFace pose", that the handlers (frame change, edits) rewrite from the core's FLAME
 evaluation. The mesh then shows exactly what the core computes for the current expression
 values and pose properties, while the expression sliders stay ordinary shape keys.
@@ -15,7 +15,7 @@ from ..dependencies import FILE_MODULES, LazyModule, missing_modules
 
 np = LazyModule("numpy")  # imported on first use: registering needs no numpy
 
-# The same values as core.scene.head_rig's constants, here so that registering and drawing
+# The same values as core.for_blender.head_rig's constants, here so that registering and drawing
 # never import the core (whose packages may be missing).
 MODEL_PATH_PROPERTY = "mogaface_model_path"
 POSE_KEY_NAME = "MoGaFace pose"
@@ -39,7 +39,7 @@ def head_objects(scene) -> list:
 
 def rig_of(obj):
     """The core :class:`HeadRig` of a head object (model loaded once per file)."""
-    from ...core.scene.head_rig import SHAPE_PROPERTY, STATIC_OFFSET_PROPERTY, HeadRig, load_head_model
+    from ...core.for_blender.head_rig import SHAPE_PROPERTY, STATIC_OFFSET_PROPERTY, HeadRig, load_head_model
 
     shape = np.asarray(obj.get(SHAPE_PROPERTY, []), np.float64)
     offset = obj.get(STATIC_OFFSET_PROPERTY)
@@ -59,7 +59,7 @@ def expression_values(obj, n_expr: int) -> np.ndarray:
 
 def pose_values(obj) -> dict:
     """The pose custom properties as FLAME parameters."""
-    from ...core.scene.head_rig import POSE_PROPERTIES
+    from ...core.for_blender.head_rig import POSE_PROPERTIES
 
     return {name: np.asarray(obj.get(prop, [0.0] * size), np.float64) for name, (prop, size) in POSE_PROPERTIES.items()}
 

@@ -11,14 +11,12 @@ import pathlib
 
 import torch
 
+from ..correction.avatar import ModulatedAvatar, render_world
+from ..correction.posing import world_with_offsets
+from ..correction.training import CorrectionTraining
 from ..data import layout
 from ..io.npz import save_npz
-from ..mogaface.avatar import ModulatedAvatar, render_world
-from ..mogaface.posing import world_with_offsets
-from ..mogaface.training import CorrectionTraining
-from ..run.names import MODULES_FILE
-
-CORRECTED_DIR = "flame_param_corrected"
+from ..run.names import CORRECTED_DIR, MODULES_FILE
 
 
 def build_mogaface(config, data, table, avatar) -> CorrectionTraining | None:

@@ -9,12 +9,12 @@ from __future__ import annotations
 
 import shlex
 
-from .errors import InputError
+from ..errors import InputError
 from .worker import module_arguments
 
 
 def with_launcher(command: list[str], launcher: str) -> list[str]:
-    """``command`` (a :func:`~mogaface.core.worker.worker_command`) run by ``launcher`` as ``-m mogaface …``.
+    """``command`` (a :func:`~mogaface.core.for_blender.worker.worker_command`) run by ``launcher`` as ``-m mogaface …``.
 
     The launcher starts its own Python processes, so the package must be importable there (an
     installed ``mogaface``); the isolated start of a plain worker does not carry over. An empty
@@ -33,7 +33,7 @@ def launcher_arguments(launcher: str, resume: bool) -> list[str]:
     """The ``train`` options a launched run adds: one image per rank a step (``--batch auto``),
     kept to the images seen under :data:`~mogaface.core.train.config.LAUNCHED_BATCH_RULE`, so the
     ranks shorten the run instead of lengthening it; a resumed run keeps its own settings."""
-    from .train.config import LAUNCHED_BATCH_RULE
+    from ..train.config import LAUNCHED_BATCH_RULE
 
     if not launcher.strip() or resume:
         return []

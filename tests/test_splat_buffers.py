@@ -1,4 +1,4 @@
-"""The Blender-free parts of the viewport's GPU draw (core/scene/gpu_splats.py): covariances,
+"""The Blender-free parts of the viewport's GPU draw (core/for_blender/splat_buffers.py): covariances,
 back-to-front order keyed on view, frame and pose, the packed texture, the posing cache, and the
 draw's maths (the shaders' steps, replayed here in numpy on the packed texture) against the
 splat engine's render of the same view."""
@@ -10,8 +10,8 @@ import pytest
 import torch
 
 from mogaface.core.camera import Camera
-from mogaface.core.scene import gpu_splats
-from mogaface.core.scene.render import RenderRequest, blender_rgba, render, view_camera
+from mogaface.core.for_blender import splat_buffers
+from mogaface.core.for_blender.render import RenderRequest, blender_rgba, render, view_camera
 
 
 def _rotation(axis, angle):
@@ -24,9 +24,9 @@ def _splats(n=200, seed=0, key="pose-a"):
     rng = np.random.default_rng(seed)
     quats = rng.normal(size=(n, 4))
     scales = rng.uniform(0.005, 0.03, (n, 3))
-    return gpu_splats.PosedSplats(
+    return splat_buffers.PosedSplats(
         means=rng.uniform(-0.2, 0.2, (n, 3)).astype(np.float32),
-        covariances=gpu_splats.covariances(quats, scales),
+        covariances=splat_buffers.covariances(quats, scales),
         opacities=rng.uniform(0.0, 1.0, n).astype(np.float32),
         colors=rng.normal(0.0, 0.3, (n, 4, 3)).astype(np.float32), key=key), quats, scales
 
@@ -52,19 +52,19 @@ def test_covariances_are_r_s_s_r():
 def test_back_to_front_is_by_view_depth_and_drops_what_cannot_show():
     splats, _, _ = _splats()
     w2c = _w2c(np.diag([1.0, -1.0, -1.0]), (0.0, 0.0, 1.0))  # looking down -z from z = 1
-    order = gpu_splats.back_to_front(splats, w2c)
+    order = splat_buffers.back_to_front(splats, w2c)
     depth = splats.means.astype(np.float64) @ w2c[2, :3] + w2c[2, 3]
     assert np.all(np.diff(depth[order]) <= 0)
     assert set(order) == set(np.flatnonzero(splats.opacities >= 1 / 255))
     behind = _w2c(np.eye(3), (0.0, 0.0, 1.0))  # looking up +z: everything behind the camera
-    assert len(gpu_splats.back_to_front(splats, behind)) == 0
+    assert len(splat_buffers.back_to_front(splats, behind)) == 0
 
 
 def test_the_order_is_rebuilt_when_the_view_turns_in_place_or_the_frame_changes():
     splats, _, _ = _splats()
     eye = (0.0, 0.0, 1.0)
     front = _w2c(np.diag([1.0, -1.0, -1.0]), eye)
-    order = gpu_splats.SplatOrder()
+    order = splat_buffers.SplatOrder()
     assert order.update(splats, front, frame=1)
     first = order.packed.texels.copy()
     assert not order.update(splats, front, frame=1)  # nothing changed: no new sort
@@ -76,7 +76,7 @@ def test_the_order_is_rebuilt_when_the_view_turns_in_place_or_the_frame_changes(
     assert np.all(np.diff(packed_depth) <= 1e-6) and not np.array_equal(order.packed.texels, first)
     assert len(means) == int(((depth > 0.01) & (splats.opacities >= 1 / 255)).sum())
     assert order.update(splats, turned, frame=2)  # the frame changed, the view did not
-    moved = gpu_splats.PosedSplats(-splats.means, splats.covariances, splats.opacities, splats.colors, "pose-b")
+    moved = splat_buffers.PosedSplats(-splats.means, splats.covariances, splats.opacities, splats.colors, "pose-b")
     assert order.update(moved, turned, frame=2)  # a new pose (the head's values changed)
     means = order.packed.texels.reshape(-1, 4, 4)[:order.packed.count, 0, :3]
     assert np.all(np.diff(means.astype(np.float64) @ turned[2, :3]) <= 1e-6)
@@ -87,9 +87,9 @@ def test_pack_holds_each_gaussian_in_four_texels():
     splats, _, _ = _splats(1500)
     order = np.arange(1500)[::-1]
     colors = np.random.default_rng(1).uniform(0, 1, (1500, 3)).astype(np.float32)
-    packed = gpu_splats.pack(splats, order, colors)
+    packed = splat_buffers.pack(splats, order, colors)
     width, rows = packed.size
-    assert width == gpu_splats.TEXTURE_WIDTH and rows == 2 and packed.count == 1500
+    assert width == splat_buffers.TEXTURE_WIDTH and rows == 2 and packed.count == 1500
     texels = packed.texels.reshape(-1, 4)
     for slot, g in ((0, 1499), (1023, 476), (1024, 475), (1499, 0)):  # across the row break
         at = slot * 4
@@ -106,13 +106,13 @@ def test_view_colors_are_the_engines_sh_for_the_camera():
     w2c = _w2c(np.diag([1.0, -1.0, -1.0]), (0.1, 0.2, 1.0))
     expected = sh_to_rgb(torch.from_numpy(splats.colors), torch.from_numpy(splats.means),
                          torch.tensor([0.1, 0.2, 1.0])).numpy()
-    np.testing.assert_allclose(gpu_splats.view_colors(splats, w2c), np.clip(expected, 0, 1), atol=1e-5)
+    np.testing.assert_allclose(splat_buffers.view_colors(splats, w2c), np.clip(expected, 0, 1), atol=1e-5)
     turned = _w2c(_rotation((1.0, 0.0, 0.0), 0.4) @ np.diag([1.0, -1.0, -1.0]), (0.1, 0.2, 1.0))
-    np.testing.assert_allclose(gpu_splats.view_colors(splats, turned), np.clip(expected, 0, 1), atol=1e-5)
+    np.testing.assert_allclose(splat_buffers.view_colors(splats, turned), np.clip(expected, 0, 1), atol=1e-5)
 
 
 def shader_draw(packed, values, width, height):
-    """The vertex and fragment shaders of operators/handlers/gpu_splats.py step by step in numpy,
+    """The vertex and fragment shaders of operators/handlers/gpu_draw.py step by step in numpy,
     blended "over" in the packed (back-to-front) order: ``(H, W, 4)`` linear premultiplied, top row
     first."""
     from mogaface.core.io.image import srgb_to_linear
@@ -179,16 +179,16 @@ def _view(width, height):
 
 
 def test_posing_is_the_avatars_own_and_cached_per_pose(small_avatar):
-    from mogaface.core.scene.avatar import load_avatar
+    from mogaface.core.for_blender.avatar import load_avatar
 
     values = {"expr": np.zeros(3), "jaw_pose": np.array([0.2, 0.0, 0.0])}
-    first = gpu_splats.posed_splats(str(small_avatar), values)
-    assert gpu_splats.posed_splats(str(small_avatar), dict(values)) is first  # the same pose: cached
-    other = gpu_splats.posed_splats(str(small_avatar), {**values, "jaw_pose": np.array([0.0, 0.0, 0.0])})
+    first = splat_buffers.posed_splats(str(small_avatar), values)
+    assert splat_buffers.posed_splats(str(small_avatar), dict(values)) is first  # the same pose: cached
+    other = splat_buffers.posed_splats(str(small_avatar), {**values, "jaw_pose": np.array([0.0, 0.0, 0.0])})
     assert other.key != first.key and np.abs(other.means - first.means).max() > 1e-4  # the jaw closed
     avatar = load_avatar(str(small_avatar))
     from mogaface.core.avatar.avatar import flame_params_to_torch
-    from mogaface.core.scene.render import fitted_params
+    from mogaface.core.for_blender.render import fitted_params
 
     with torch.no_grad():
         world = avatar.world_gaussians(flame_params_to_torch(fitted_params(values, avatar)))
@@ -199,17 +199,17 @@ def test_posing_is_the_avatars_own_and_cached_per_pose(small_avatar):
 def test_the_draws_maths_agree_with_the_engines_render(small_avatar):
     """The same view drawn by the shaders' maths and rendered by the engine: ≥ 30 dB over the
     avatar's pixels, as premultiplied sRGB (what "Standard" shows over black)."""
-    from mogaface.core.scene.render import srgb_from_blender
+    from mogaface.core.for_blender.render import srgb_from_blender
 
     width, height = 96, 80
     view_matrix, projection = _view(width, height)
     view = view_camera(view_matrix, projection, np.diag([2.0, 2.0, 2.0, 1.0]), width, height)
     values = {"jaw_pose": np.array([0.1, 0.0, 0.0])}
     core = render(RenderRequest(str(small_avatar), values, view.camera, None, view.scale))
-    splats = gpu_splats.posed_splats(str(small_avatar), values)
-    order = gpu_splats.SplatOrder()
+    splats = splat_buffers.posed_splats(str(small_avatar), values)
+    order = splat_buffers.SplatOrder()
     order.update(splats, view.camera.w2c, frame=0)
-    drawn = shader_draw(order.packed, gpu_splats.shader_values(view, projection, width, height), width, height)
+    drawn = shader_draw(order.packed, splat_buffers.shader_values(view, projection, width, height), width, height)
     mask = core.alpha > 1 / 255
     assert mask.mean() > 0.2
     got, expected = srgb_from_blender(drawn.astype(np.float32)), srgb_from_blender(blender_rgba(core))
@@ -218,7 +218,7 @@ def test_the_draws_maths_agree_with_the_engines_render(small_avatar):
     print(f"shader maths against the engine: {db:.1f} dB")
     assert np.abs(drawn[..., 3] - core.alpha).max() < 0.05
     # at twice the target size the camera's pixels scale with it (the same picture, finer)
-    finer = shader_draw(order.packed, gpu_splats.shader_values(view, projection, 2 * width, 2 * height),
+    finer = shader_draw(order.packed, splat_buffers.shader_values(view, projection, 2 * width, 2 * height),
                         2 * width, 2 * height)
     assert abs(finer[..., 3].mean() - drawn[..., 3].mean()) < 0.02
 
@@ -226,6 +226,6 @@ def test_the_draws_maths_agree_with_the_engines_render(small_avatar):
 def test_a_camera_of_another_size_is_scaled_to_the_target():
     camera = Camera(np.array([[100.0, 0, 32], [0, 100, 24], [0, 0, 1]]), np.eye(4), 64, 48)
     view = type("View", (), {"camera": camera, "scale": 1.0, "depth_offset": 0.0})()
-    values = gpu_splats.shader_values(view, np.eye(4), 128, 96)
+    values = splat_buffers.shader_values(view, np.eye(4), 128, 96)
     assert values["intrinsics"] == (200.0, 200.0, 64.0, 48.0)
     assert values["depth_map"] == (128.0, 96.0, 1.0, 0.0)

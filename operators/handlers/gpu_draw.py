@@ -1,7 +1,7 @@
 """The avatar drawn by the GPU: every Gaussian an instanced quad, through Blender's ``gpu`` module.
 
 The Gaussians of the shown frame, posed, coloured for the view and sorted back to front by
-:mod:`core.scene.gpu_splats`, are one float texture (4 texels each). A unit quad is drawn once
+:mod:`core.for_blender.splat_buffers`, are one float texture (4 texels each). A unit quad is drawn once
 per Gaussian (``GPUBatch.draw_instanced``); its vertex shader projects the 3D covariance as the
 CPU engine does (EWA Jacobian with the same 1.3x clamp, the same 0.3 px² low-pass), places the
 quad at 3σ of the larger axis, and its fragment shader evaluates the Gaussian, cuts alpha at
@@ -9,7 +9,7 @@ quad at 3σ of the larger axis, and its fragment shader evaluates the Gaussian, 
 premultiplied. Blending "over" back to front gives what the engine composites front to back.
 The splats are depth-tested against the scene at their centres' depth but write no depth.
 
-The camera is the core's camera of the view (:func:`core.scene.render.view_camera`), so the
+The camera is the core's camera of the view (:func:`core.for_blender.render.view_camera`), so the
 GPU and the CPU image of a view are the same picture. Needs a GPU context; the posing runs on a
 worker thread so a frame not yet posed never blocks a redraw.
 """
@@ -90,7 +90,7 @@ def _build():
     import gpu
     from gpu_extras.batch import batch_for_shader
 
-    from ...core.scene.gpu_splats import TEXTURE_WIDTH
+    from ...core.for_blender.splat_buffers import TEXTURE_WIDTH
     from ...core.splat.projection import BLUR, NEAR
 
     if not hasattr(gpu.types.GPUBatch, "draw_instanced"):
@@ -155,7 +155,7 @@ class GpuSplats:
     """One (view, head) pair's GPU state: its sorted Gaussians and their texture."""
 
     def __init__(self):
-        from ...core.scene.gpu_splats import SplatOrder
+        from ...core.for_blender.splat_buffers import SplatOrder
 
         self.order = SplatOrder()
         self.texture = None  # (order key, GPUTexture)
@@ -165,7 +165,7 @@ class GpuSplats:
         import gpu
         import mathutils
 
-        from ...core.scene.gpu_splats import shader_values
+        from ...core.for_blender.splat_buffers import shader_values
 
         shader = program()
         if shader is None:
@@ -206,7 +206,7 @@ class Posing:
         self.error: str | None = None
 
     def latest(self, avatar_path: str, values: dict, frame: int):
-        from ...core.scene.gpu_splats import values_key
+        from ...core.for_blender.splat_buffers import values_key
 
         key = values_key(avatar_path, values)
         if self.future is not None and self.future.done():
@@ -226,7 +226,7 @@ class Posing:
 
 
 def _pose(avatar_path, values, frame):
-    from ...core.scene.gpu_splats import posed_splats
+    from ...core.for_blender.splat_buffers import posed_splats
 
     return posed_splats(avatar_path, values), frame
 

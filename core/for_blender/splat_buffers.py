@@ -1,6 +1,6 @@
 """The avatar's Gaussians for the viewport's GPU draw: posed, coloured for a view, sorted, packed.
 
-The GPU draw (``operators/handlers/gpu_splats.py``) splats each Gaussian as an instanced quad;
+The GPU draw (``operators/handlers/gpu_draw.py``) splats each Gaussian as an instanced quad;
 everything it needs up to the float texture it uploads is plain numpy here, testable without
 Blender:
 
@@ -19,13 +19,12 @@ Units are the avatar's own, and the camera is the core's :class:`~..camera.Camer
 
 from __future__ import annotations
 
-import collections
 import dataclasses
 import hashlib
-import threading
 
 import numpy as np
 
+from ..data.byte_cache import ByteLRU
 from ..splat.projection import NEAR
 from ..splat.tiles import ALPHA_MIN
 
@@ -86,8 +85,7 @@ def pose_key(avatar, params: dict) -> str:
     return values_key(f"loaded avatar {id(avatar)}", params)
 
 
-_pose_cache: collections.OrderedDict = collections.OrderedDict()
-_pose_lock = threading.Lock()
+_pose_cache = ByteLRU(POSE_CACHE_BYTES)
 
 
 def posed_splats(avatar_path, values: dict) -> PosedSplats:
@@ -101,10 +99,9 @@ def posed_splats(avatar_path, values: dict) -> PosedSplats:
     avatar = load_avatar(avatar_path)
     params = fitted_params(values, avatar)
     key = pose_key(avatar, params)
-    with _pose_lock:
-        if key in _pose_cache:
-            _pose_cache.move_to_end(key)
-            return _pose_cache[key]
+    cached = _pose_cache.get(key)
+    if cached is not None:
+        return cached
     with torch.no_grad():
         world = avatar.world_gaussians(flame_params_to_torch(params))
     splats = PosedSplats(
@@ -114,10 +111,7 @@ def posed_splats(avatar_path, values: dict) -> PosedSplats:
         colors=world["colors"].numpy().astype(np.float32),
         key=key,
     )
-    with _pose_lock:
-        _pose_cache[key] = splats
-        while len(_pose_cache) > 1 and sum(s.nbytes for s in _pose_cache.values()) > POSE_CACHE_BYTES:
-            _pose_cache.popitem(last=False)
+    _pose_cache.put(key, splats, splats.nbytes)
     return splats
 
 

@@ -10,6 +10,7 @@ import re
 import numpy as np
 
 from ..errors import InputError
+from ..workflows.drive import thin_channel
 from .axes import FRAME_OFFSET
 from .head_rig import EXPRESSION_SLIDER_RANGE, POSE_PROPERTIES, fit_components
 
@@ -76,15 +77,20 @@ def read_tracking(folder) -> Tracking:
     return Tracking(os.fspath(folder), timesteps, out)
 
 
-def keyframe_columns(frames, values) -> list[np.ndarray]:
+def keyframe_columns(frames, values, tolerance: float = 0.0) -> list[np.ndarray]:
     """``values (T,n)`` at ``frames (T,)`` → n flat ``[f0, v0, f1, v1, …]`` float32 arrays.
 
-    The layout of ``FCurve.keyframe_points.foreach_set("co", …)``: one array per channel.
+    The layout of ``FCurve.keyframe_points.foreach_set("co", …)``: one array per channel. With a
+    ``tolerance``, each channel keeps only the keys :func:`thin_channel` keeps.
     """
     frames = np.asarray(frames, dtype=np.float64)
     values = np.asarray(values, dtype=np.float64).reshape(len(frames), -1)
-    return [np.ascontiguousarray(np.stack([frames, values[:, i]], axis=1), dtype=np.float32).reshape(-1)
-            for i in range(values.shape[1])]
+    columns = []
+    for i in range(values.shape[1]):
+        kept = thin_channel(values[:, i], tolerance, frames)
+        columns.append(np.ascontiguousarray(np.stack([frames[kept], values[kept, i]], axis=1),
+                                            dtype=np.float32).reshape(-1))
+    return columns
 
 
 def expression_keyframes(tracking: Tracking, n_expr: int) -> tuple[np.ndarray, str | None]:
@@ -113,10 +119,12 @@ class TrackingChannels:
     note: str | None = None
 
 
-def tracking_channels(folder, n_expr: int) -> TrackingChannels:
-    """A ``flame_param`` folder as keyframe columns for a head with ``n_expr`` expression keys."""
+def tracking_channels(folder, n_expr: int, tolerance: float = 0.0) -> TrackingChannels:
+    """A ``flame_param`` folder as keyframe columns for a head with ``n_expr`` expression keys
+    (thinned within ``tolerance``: a key linear interpolation gives within it is dropped)."""
     tracking = read_tracking(folder)
     frames = tracking.frames
     expr, note = expression_keyframes(tracking, n_expr)
-    pose = {prop: keyframe_columns(frames, tracking.params[name]) for name, (prop, _) in POSE_PROPERTIES.items()}
-    return TrackingChannels(frames, pose, keyframe_columns(frames, expr), note)
+    pose = {prop: keyframe_columns(frames, tracking.params[name], tolerance)
+            for name, (prop, _) in POSE_PROPERTIES.items()}
+    return TrackingChannels(frames, pose, keyframe_columns(frames, expr, tolerance), note)

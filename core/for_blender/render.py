@@ -88,20 +88,15 @@ def render(request: RenderRequest) -> RenderResult:
     ``request.params`` holds what the head shows (identity, expression values, pose); they are
     fitted to the avatar's counts here, so building a request never loads the avatar.
     """
-    import torch
-
-    from ..avatar.avatar import flame_params_to_torch
+    from ..avatar.avatar import render_arrays
 
     avatar = load_avatar(request.avatar_path)
     params = fitted_params(request.params, avatar)
     background = (0.0, 0.0, 0.0) if request.background is None else tuple(request.background)
-    with torch.no_grad():
-        out = avatar.render(flame_params_to_torch(params), request.camera, background)
-    rgb = out.rgb.numpy().astype(np.float32)
-    alpha = out.alpha.clamp(0.0, 1.0).numpy().astype(np.float32)
+    rgb, alpha, depth = render_arrays(avatar, params, request.camera, background)
     rgb = np.clip(rgb, 0.0, 1.0) if request.background is not None else np.clip(rgb, 0.0, alpha[..., None])
     with np.errstate(divide="ignore", invalid="ignore"):
-        depth = out.depth.numpy().astype(np.float32) / alpha * np.float32(request.depth_scale)
+        depth = depth / alpha * np.float32(request.depth_scale)
     depth = np.where(alpha >= EMPTY_ALPHA, depth, np.float32(np.inf)).astype(np.float32)
     return RenderResult(request, rgb, alpha, depth)
 

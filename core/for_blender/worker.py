@@ -24,8 +24,8 @@ import sys
 import threading
 import time
 
-from .errors import InputError
-from .run import names as run_names
+from ..errors import InputError
+from ..run import names as run_names
 
 #: The package's import name; the child runs ``python -m mogaface train``.
 PACKAGE = "mogaface"
@@ -100,7 +100,7 @@ runpy.run_module(spec["name"], run_name="__main__", alter_sys=True)
 
 def package_root() -> pathlib.Path:
     """The folder of this package (an installed extension's folder, or the checkout)."""
-    return pathlib.Path(__file__).resolve().parents[1]
+    return pathlib.Path(__file__).resolve().parents[2]
 
 
 def worker_command(python: str | None, arguments, paths=()) -> list[str]:
@@ -349,3 +349,43 @@ def refine_tracking_command(python: str, run, out=None, passes: int | None = Non
         if value is not None:
             arguments += [flag, str(int(value))]
     return worker_command(python, arguments, paths)
+
+
+class FootageWorker(TrainWorker):
+    """``track`` or ``drive`` in a child process (:func:`track_command`, :func:`drive_command`),
+    followed through the ``--events`` file in its job folder; a cancelled track keeps its
+    detections (the same command resumes it), a cancelled drive writes nothing."""
+
+    EVENTS_FILE = "events.jsonl"
+    JOB = "tracking the footage"
+    CANCELLED = "nothing imported"
+    DONE = "done"
+
+
+def _footage_options(size, fit_steps, threads) -> list[str]:
+    arguments = []
+    for flag, value in (("--size", size), ("--fit-steps", fit_steps), ("--threads", threads)):
+        if value is not None:
+            arguments += [flag, str(int(value))]
+    return arguments
+
+
+def track_command(python: str, inputs, out, job, size: int | None = None, fit_steps: int | None = None,
+                  threads: int | None = None, paths=()) -> list[str]:
+    """The argument list of a ``track`` child process writing its events into the folder ``job``."""
+    arguments = ["track", *map(os.fspath, inputs), "--out", os.fspath(out), "--quiet",
+                 "--events", os.fspath(pathlib.Path(job) / FootageWorker.EVENTS_FILE)]
+    return worker_command(python, arguments + _footage_options(size, fit_steps, threads), paths)
+
+
+def drive_command(python: str, clip, avatar, out, job, head=None, fps: float | None = None,
+                  keep_head_still: bool = False, tolerance: float = 0.0, size: int | None = None,
+                  fit_steps: int | None = None, threads: int | None = None, paths=()) -> list[str]:
+    """The argument list of a ``drive`` child process writing its events into the folder ``job``."""
+    arguments = ["drive", os.fspath(clip), "--avatar", os.fspath(avatar), "--out", os.fspath(out), "--quiet",
+                 "--events", os.fspath(pathlib.Path(job) / FootageWorker.EVENTS_FILE),
+                 "--tolerance", f"{float(tolerance):g}"]
+    arguments += ["--head", os.fspath(head)] if head is not None else []
+    arguments += ["--to-fps", f"{float(fps):.6g}"] if fps else []
+    arguments += ["--keep-head-still"] if keep_head_still else []
+    return worker_command(python, arguments + _footage_options(size, fit_steps, threads), paths)

@@ -1,12 +1,9 @@
-"""The trained avatar for Blender: found from a run folder, loaded once per file version, rendered."""
+"""The trained avatar for Blender: found from a run folder, loaded once per file version."""
 
 from __future__ import annotations
 
 import pathlib
 
-import numpy as np
-
-from ..camera import Camera
 from .file_cache import CACHE_LOCK, file_version
 
 
@@ -43,9 +40,3 @@ def load_avatar(path):
             _avatar_cache[key] = avatar
     return avatar
 
-
-def render_avatar(avatar, params: dict, camera: Camera, background) -> tuple[np.ndarray, np.ndarray]:
-    """``(rgb (H,W,3), alpha (H,W))`` float32: the core's one render of the avatar at ``params``."""
-    from ..evaluate.protocols import render_frame
-
-    return render_frame(avatar, params, camera, background)

@@ -1,0 +1,157 @@
+"""The photometric stage of tracking: the skin, not the landmarks, decides where the head is.
+
+A landmark detector's points are not fixed to the skin: they slide with the view by a few pixels
+(docs/tracking.md), and a fit to landmarks alone follows them. A point of the skin looks the same in
+neighbouring frames, so after the landmark fit the head is moved until each visible skin point
+samples the same brightness in frame ``t`` as in frame ``t + gap`` (for a few gaps: a short one
+for the motion, long ones for the parallax that tells the shape). No texture is estimated and no
+lighting assumed: only frame-to-frame agreement, which shading changes slowly enough to keep
+within the longest gap; each pair's mean difference is removed (exposure drift).
+
+What a point sees is decided once, from the landmark fit: facing the camera (its normal within
+:data:`FACING` of the line of sight) and in front of every other point of the mesh near it on the
+image (a coarse depth buffer of all vertices). The landmarks stay in the loss beside it.
+
+Videos only: photos have a camera each and no neighbours in time.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import torch
+
+from ..camera import Camera
+from ..flame.landmarks import LandmarkEmbedding
+from ..flame.model import FlameModel
+
+#: A point is seen when its normal is turned toward the camera by at least this cosine.
+FACING = 0.35
+#: The depth buffer's cells (pixels) and how far behind the nearest point a seen point may be (m).
+DEPTH_CELL_PX, DEPTH_SLACK_M = 3, 0.006
+
+
+@dataclasses.dataclass
+class PhotometricSettings:
+    steps: int = 0  # L-BFGS iterations after the landmark fit (0: the stage is off)
+    points: int = 1500  # skin points sampled
+    gaps: tuple[int, ...] = (1, 5, 20)  # frame pairs (t, t + gap)
+    blur_px: float = 1.5  # the images' blur (a smooth basin for the sampling's gradient)
+    weight: float = 3000.0  # of the mean robust brightness difference, beside the landmarks' pixels²
+    huber: float = 0.04  # the robust loss's knee (brightness, 0–1)
+    seed: int = 0
+
+
+def skin_points(model: FlameModel, count: int, seed: int) -> np.ndarray:
+    """``count`` vertex ids drawn at random (seeded) from those the eyes do not carry (the eyeballs
+    turn with the gaze under the lids: not skin)."""
+    eyes = model.lbs_weights[:, 3:5].sum(1).numpy() > 0.5
+    candidates = np.nonzero(~eyes)[0]
+    rng = np.random.default_rng(seed)
+    return np.sort(rng.choice(candidates, size=min(count, len(candidates)), replace=False))
+
+
+def vertex_embedding(faces: np.ndarray, vertices: np.ndarray) -> LandmarkEmbedding:
+    """Vertices as an embedding (a triangle holding each, weight 1 on it): posed by the same
+    :class:`~.fit.LandmarkHead` as the landmarks."""
+    ids, first = np.unique(faces.ravel(), return_index=True)  # each vertex's first corner
+    slot = first[np.searchsorted(ids, vertices)]
+    barycentric = np.zeros((len(vertices), 3))
+    barycentric[np.arange(len(vertices)), slot % 3] = 1.0
+    return LandmarkEmbedding(slot // 3, barycentric, np.arange(len(vertices)))
+
+
+def seen_points(model: FlameModel, params: dict, camera: Camera, points: np.ndarray, chunk: int = 60) -> np.ndarray:
+    """``(T, P)`` whether each of ``points`` (vertex ids) is seen by ``camera`` in each frame of
+    ``params`` (a fit's, per frame arrays and one ``shape``): see the module's docstring."""
+    frames = len(params["expr"])
+    faces = model.faces.numpy()
+    w2c = camera.w2c
+    centre = -w2c[:3, :3].T @ w2c[:3, 3]
+    cells_x = int(np.ceil(camera.width / DEPTH_CELL_PX)) + 1
+    cells_y = int(np.ceil(camera.height / DEPTH_CELL_PX)) + 1
+    seen = np.zeros((frames, len(points)), bool)
+    dtype = model.v_template.dtype
+    for start in range(0, frames, chunk):
+        given = {k: torch.as_tensor(params[k][start:start + chunk], dtype=dtype)
+                 for k in ("expr", "rotation", "jaw_pose", "eyes_pose", "translation")}
+        n = len(given["expr"])
+        with torch.no_grad():
+            vertices, _ = model.evaluate(shape=torch.as_tensor(params["shape"], dtype=dtype)[None].expand(n, -1), **given)
+        vertices = vertices.double().numpy()
+        normals = _vertex_normals(vertices, faces)
+        in_camera = vertices @ w2c[:3, :3].T + w2c[:3, 3]
+        depth = in_camera[..., 2]
+        x = camera.fx * in_camera[..., 0] / np.maximum(depth, 1e-3) + camera.cx
+        y = camera.fy * in_camera[..., 1] / np.maximum(depth, 1e-3) + camera.cy
+        cx = np.clip((x // DEPTH_CELL_PX).astype(np.int64), 0, cells_x - 1)
+        cy = np.clip((y // DEPTH_CELL_PX).astype(np.int64), 0, cells_y - 1)
+        for i in range(n):
+            nearest = np.full((cells_y, cells_x), np.inf)
+            np.minimum.at(nearest, (cy[i], cx[i]), depth[i])
+            sight = centre - vertices[i, points]
+            facing = (normals[i, points] * sight).sum(1) > FACING * np.linalg.norm(sight, axis=1)
+            front = depth[i, points] <= nearest[cy[i, points], cx[i, points]] + DEPTH_SLACK_M
+            seen[start + i] = facing & front & (depth[i, points] > 1e-3)
+    return seen
+
+
+def _vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Area-weighted vertex normals ``(T,V,3)``."""
+    a, b, c = (vertices[:, faces[:, k]] for k in range(3))
+    face_normals = np.cross(b - a, c - a)
+    normals = np.zeros_like(vertices)
+    for k in range(3):
+        np.add.at(normals, (slice(None), faces[:, k]), face_normals)
+    return normals / np.maximum(np.linalg.norm(normals, axis=-1, keepdims=True), 1e-12)
+
+
+class BrightnessAgreement:
+    """The photometric loss: frames' brightness ``(T,H,W)`` blurred, pairs of frames a gap apart,
+    and which points each frame sees; called with the points' pixels ``(T,P,2)``."""
+
+    def __init__(self, brightness: np.ndarray, seen: np.ndarray, settings: PhotometricSettings):
+        frames, height, width = brightness.shape
+        blurred = _blur(torch.as_tensor(brightness, dtype=torch.float32)[:, None], settings.blur_px)
+        self.images = blurred
+        self.size = torch.tensor([width, height], dtype=torch.float64)
+        self.seen = torch.as_tensor(seen)
+        self.pairs = [(gap, torch.as_tensor(seen[:-gap] & seen[gap:]))
+                      for gap in settings.gaps if gap < frames]
+        self.huber = settings.huber
+
+    def __call__(self, pixels: torch.Tensor) -> torch.Tensor:
+        grid = (2 * pixels / self.size - 1).float()[:, :, None, :]  # (T,P,1,2), align_corners=False
+        sampled = torch.nn.functional.grid_sample(self.images, grid, mode="bilinear", padding_mode="border",
+                                                  align_corners=False)[:, 0, :, 0].double()  # (T,P)
+        total, count = 0.0, 0
+        for gap, both in self.pairs:
+            difference = sampled[gap:] - sampled[:-gap]
+            weight = both.double()
+            offset = (weight * difference).sum(1, keepdim=True) / weight.sum(1, keepdim=True).clamp_min(1)
+            residual = (difference - offset).abs()
+            knee = self.huber
+            robust = torch.where(residual < knee, 0.5 * residual ** 2, knee * (residual - 0.5 * knee))
+            total = total + (weight * robust).sum()
+            count += int(both.sum())
+        return total / max(count, 1)
+
+
+def _blur(images: torch.Tensor, sigma: float) -> torch.Tensor:
+    """Gaussian blur of ``(T,1,H,W)`` (separable, reflected at the edges)."""
+    if sigma <= 0:
+        return images
+    radius = max(1, int(round(3 * sigma)))
+    x = torch.arange(-radius, radius + 1, dtype=images.dtype)
+    kernel = torch.exp(-0.5 * (x / sigma) ** 2)
+    kernel = kernel / kernel.sum()
+    padded = torch.nn.functional.pad(images, (radius, radius, 0, 0), mode="reflect")
+    images = torch.nn.functional.conv2d(padded, kernel.view(1, 1, 1, -1))
+    padded = torch.nn.functional.pad(images, (0, 0, radius, radius), mode="reflect")
+    return torch.nn.functional.conv2d(padded, kernel.view(1, 1, -1, 1))
+
+
+def brightness(rgb: np.ndarray) -> np.ndarray:
+    """Rec. 709 luma of sRGB values ``(…,3)``."""
+    return rgb[..., :3] @ np.array([0.2126, 0.7152, 0.0722], np.float32)
