@@ -115,8 +115,7 @@ def run(args) -> int:
         return 2
     options = {name: getattr(args, name) for name in OPTION_BENCHMARKS if getattr(args, name) is not None}
     if args.compare_with is not None:
-        from mogaface.bench import compare
-
+        compare = importlib.import_module("mogaface.bench.compare")  # as every benchmark: by name, above the core
         ref = options.pop("compare_with")
         try:
             report = compare.run(args.name, ref, threads=args.threads, quick=args.quick, **options)
