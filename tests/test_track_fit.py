@@ -78,3 +78,34 @@ def test_the_scoring_aligns_a_similar_copy_exactly_and_places_the_head(clip):
                                              "translation": 0 * params["translation"]}, posed=True)
     head = head_to_world(params, joints)  # the unposed head carried by the head's pose is the posed head
     assert np.abs(unposed @ head[:3, :3].T + head[:3, 3] - posed).max() < 1e-9
+
+
+def test_the_gaze_is_fitted_from_the_iris_centres(procedural_head_pkl):
+    """Both eyes turned alike, seen through the dense embedding's iris centres (no noise): the gaze
+    comes back. At a phone's distance a tenth of a radian moves an iris by about a pixel here, so
+    the bar is on the gaze's course over the clip, not on each frame's angle."""
+    from mogaface.core.track.fit import eyes_pose
+    from mogaface.core.track.mediapipe_embedding import IRIS_CENTRES, model_mediapipe_embedding
+
+    model = FlameModel.load(procedural_head_pkl, dtype=torch.float64)
+    embedding = model_mediapipe_embedding(model.faces.numpy())
+    assert set(IRIS_CENTRES) <= set(embedding.ibug.tolist())
+    time = np.linspace(0, 1, 10)[:, None]
+    gaze = np.concatenate([0.15 * np.sin(2 * np.pi * time), 0.3 * np.cos(2 * np.pi * time)], 1)
+    truth = {"shape": np.random.default_rng(1).normal(0, 0.5, (1, model.n_shape)),
+             "rotation": np.concatenate([0 * time, 0.3 * time, 0 * time], 1),
+             "eyes_pose": eyes_pose(torch.as_tensor(gaze)).numpy()}
+    with torch.no_grad():
+        vertices = model(**{k: torch.as_tensor(v) for k, v in truth.items()}).numpy()
+    camera = start_camera(WIDTH, HEIGHT, FOCAL)
+    points = np.stack([camera.project(embedding.positions(v, model.faces.numpy()))[0] for v in vertices])
+    obs = Observations(points, np.ones(points.shape[:2]), WIDTH, HEIGHT, embedding)
+    fit = fit_landmarks(model, obs, FitSettings(steps=150, focal=FOCAL, shape_prior=0.01, gaze_prior=0.01))
+    fitted = fit.params["eyes_pose"]
+    assert np.allclose(fitted[:, :3], fitted[:, 3:]) and np.abs(fitted[:, 2]).max() == 0  # both eyes alike
+    assert np.corrcoef(fitted[:, 1], gaze[:, 1])[0, 1] > 0.9  # the yaw's course
+    assert np.abs(fitted[:, :2] - gaze).mean() < 0.1  # radians
+    mesh_points = ~np.isin(embedding.ibug, IRIS_CENTRES)
+    without = fit_landmarks(model, Observations(points[:, mesh_points], np.ones((10, mesh_points.sum())), WIDTH, HEIGHT,
+                                                embedding.subset(embedding.ibug[mesh_points])), FitSettings(steps=5, focal=FOCAL))
+    assert np.abs(without.params["eyes_pose"]).max() == 0  # no iris centres: the eyes stay at rest

@@ -1,0 +1,60 @@
+"""The photometric stage of tracking: skin points posed like landmarks, what each frame sees, and
+the brightness agreement between frames (synthetic, known answers)."""
+
+import numpy as np
+import torch
+
+from mogaface.core.flame.model import FlameModel
+from mogaface.core.track.fit import start_camera
+from mogaface.core.track.photometric import (
+    BrightnessAgreement,
+    PhotometricSettings,
+    seen_points,
+    skin_points,
+    vertex_embedding,
+)
+
+
+def test_skin_points_are_posed_as_the_mesh_and_only_the_facing_front_is_seen(procedural_head_pkl):
+    model = FlameModel.load(procedural_head_pkl, dtype=torch.float64)
+    points = skin_points(model, 400, seed=0)
+    eyes = model.lbs_weights[:, 3:5].sum(1).numpy() > 0.5
+    assert len(points) == 400 and not eyes[points].any()  # never the eyeballs
+    with torch.no_grad():
+        vertices = model(rotation=torch.tensor([[0.0, 0.4, 0.0]])).numpy()[0]
+    embedding = vertex_embedding(model.faces.numpy(), points)
+    assert np.abs(embedding.positions(vertices, model.faces.numpy()) - vertices[points]).max() < 1e-12
+
+    camera = start_camera(360, 640, 600.0)  # in front of the face (+z)
+    front, back = int(np.argmax(vertices[:, 2])), int(np.argmin(vertices[:, 2]))
+    chosen = np.array([front, back])
+    params = {"shape": np.zeros(model.n_shape), "expr": np.zeros((1, model.n_expr)), "jaw_pose": np.zeros((1, 3)),
+              "eyes_pose": np.zeros((1, 6)), "rotation": np.array([[0.0, 0.4, 0.0]]), "translation": np.zeros((1, 3))}
+    seen = seen_points(model, params, camera, chosen)
+    assert seen.tolist() == [[True, False]]  # the point nearest the camera, not the back of the head
+    everything = seen_points(model, params, camera, points)[0]
+    assert 0.2 < everything.mean() < 0.6  # about the front half, less what the nose and ears hide
+
+
+def test_brightness_agrees_where_the_points_follow_the_skin():
+    """A texture sliding 1.5 px a frame: points that slide with it sample the same brightness in
+    every frame (no loss), points held still do not, and the gradient moves them toward the skin."""
+    rng = np.random.default_rng(0)
+    texture = torch.nn.functional.avg_pool2d(torch.as_tensor(rng.random((1, 1, 80, 120)), dtype=torch.float32), 5, 1)
+    frames, shift = 6, 1.5
+    xs = torch.arange(texture.shape[-1], dtype=torch.float32)
+    images = np.stack([np.stack([np.interp(xs - shift * t, xs, row) for row in texture[0, 0].numpy()])
+                       for t in range(frames)]).astype(np.float32)
+    settings = PhotometricSettings(gaps=(1, 3), blur_px=1.0, huber=1.0)
+    start = torch.as_tensor(np.stack([rng.uniform(30, 70, 40), rng.uniform(20, 50, 40)], 1))
+    follow = torch.stack([start + torch.tensor([shift * t, 0.0], dtype=torch.float64) for t in range(frames)])
+    agreement = BrightnessAgreement(images, np.ones((frames, 40), bool), settings)
+    still = start.expand(frames, -1, -1).clone().requires_grad_(True)
+    loss = agreement(still)
+    assert float(agreement(follow)) < 0.02 * loss.item()  # what is left: resampling a resampled texture
+    loss.backward()
+    stepped = still.detach() - 0.5 * still.grad / still.grad.abs().max()  # half a pixel against the gradient
+    assert float(agreement(stepped)) < loss.item()
+    hidden = np.ones((frames, 40), bool)
+    hidden[:, :20] = False  # points no frame sees do not count
+    assert float(BrightnessAgreement(images, hidden, settings)(still.detach())) != loss.item()
