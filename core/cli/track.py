@@ -21,6 +21,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--focal-35mm", type=float, help="the same as a 35 mm equivalent focal length (mm)")
     parser.add_argument("--head", type=pathlib.Path, help="head model file (default: the procedural head)")
     parser.add_argument("--fit-steps", type=int, default=200, help="iterations of the fit (default %(default)s)")
+    parser.add_argument("--photometric-steps", type=int, help="iterations of the photometric stage after the "
+                        "landmark fit, videos only (0: off; default: the one chosen on validation clips, "
+                        "docs/tracking.md)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     parser.add_argument("--events", type=pathlib.Path, metavar="FILE",
                         help="also append progress as JSON lines here (how Blender follows the job)")
@@ -66,6 +69,7 @@ def run(args) -> int:
     from ..errors import InputError
     from ..track.decode import focal_in_pixels, open_footage, selection_from_arguments
     from ..track.fit import FitSettings
+    from ..track.photometric import PhotometricSettings
     from ..track.pipeline import TrackSettings, track_footage
 
     source = args.input[0] if len(args.input) == 1 else list(args.input)
@@ -76,7 +80,9 @@ def run(args) -> int:
         print(line)
     focal = args.focal if args.focal is not None else focal_in_pixels(args.focal_35mm, info.width, info.height)
     settings = TrackSettings(size=args.size, focal_px=focal, threads=args.threads or 2,
-                             fit=FitSettings(steps=args.fit_steps), head_file=args.head)
+                             fit=FitSettings(steps=args.fit_steps, photometric=PhotometricSettings(
+                                 **({} if args.photometric_steps is None else {"steps": args.photometric_steps}))),
+                             head_file=args.head)
     progress, close = progress_reporter(args)
     try:
         report = track_footage(source, args.out, settings, selection_from_arguments(args), progress)

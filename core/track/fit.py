@@ -167,6 +167,9 @@ def fit_landmarks(model: FlameModel, observations: Observations, settings: FitSe
     landmarks; with the frames' ``brightness (T,H,W)`` (a video's, in [0, 1]), then the photometric
     stage (``settings.photometric``). ``progress(step, steps, rms_px)`` is called now and then."""
     obs = observations.check()
+    if settings.steps < 1 or settings.photometric.steps < 0:
+        raise InputError(None, "steps", f"the fit needs at least 1 iteration and the photometric stage 0 (off) or "
+                                        f"more; found {settings.steps} and {settings.photometric.steps}")
     torch.manual_seed(settings.seed)
     d = torch.float64
     head = LandmarkHead(model, obs.embedding)
@@ -254,7 +257,7 @@ def fit_landmarks(model: FlameModel, observations: Observations, settings: FitSe
     for unknowns, stage_objective, rigid_only, steps in stages:
         if stage_objective is None:  # the photometric stage: what each frame sees, from the fit so far
             stage_objective = photometric(*_photometric_term(model, current(), start_camera(
-                obs.width, obs.height, float(torch.exp(log_focal))), brightness, seen.numpy(), settings.photometric))
+                obs.width, obs.height, float(torch.exp(log_focal.detach()))), brightness, seen.numpy(), settings.photometric))
         optimiser = torch.optim.LBFGS(unknowns, lr=1.0, max_iter=steps, history_size=30,
                                       line_search_fn="strong_wolfe", tolerance_grad=1e-10, tolerance_change=1e-12)
 
