@@ -85,12 +85,10 @@ class MOGAFACE_PT_capture(_SubPanel, bpy.types.Panel):
 
 def draw_footage_progress(layout, context) -> bool:
     """A running footage job's bar and Cancel (True), else nothing; a failed one's message."""
-    from ..operators.footage import current_worker, last_progress
+    from ..operators import footage
 
-    progress = last_progress()
-    if current_worker() is not None:
-        draw_worker_progress(layout, progress)
-        layout.operator("mogaface.footage_cancel", icon="CANCEL")
+    running, progress = draw_running_job(layout, footage, "mogaface.footage_cancel")
+    if running:
         return True
     if progress is not None and progress.state == "failed":
         wrapped_label(layout, context, progress.message, icon="ERROR")
@@ -164,12 +162,10 @@ class MOGAFACE_PT_training(_SubPanel, bpy.types.Panel):
             layout.prop(settings, "cameras_from_landmarks")
             layout.prop(settings, "camera_centres_measured")
         layout.prop(settings, "camera_delays")
-        from ..operators.train import current_worker, last_progress
+        from ..operators import train
 
-        progress = last_progress()
-        if current_worker() is not None:
-            draw_worker_progress(layout, progress)
-            layout.operator("mogaface.train_cancel", icon="CANCEL")
+        running, progress = draw_running_job(layout, train, "mogaface.train_cancel")
+        if running:
             return
         if operator_available("mogaface.train"):
             op = layout.operator("mogaface.train", icon="PLAY")
@@ -178,6 +174,17 @@ class MOGAFACE_PT_training(_SubPanel, bpy.types.Panel):
             draw_stage_operators(layout, "training")
         if progress is not None:
             wrapped_label(layout, context, progress.message, icon="ERROR" if progress.state == "failed" else "INFO")
+
+
+def draw_running_job(layout, job_module, cancel: str):
+    """``(running, last progress)`` of the child job an operator module follows (its
+    ``current_worker`` and ``last_progress``); while it runs, its bar and the ``cancel`` button."""
+    progress = job_module.last_progress()
+    running = job_module.current_worker() is not None
+    if running:
+        draw_worker_progress(layout, progress)
+        layout.operator(cancel, icon="CANCEL")
+    return running, progress
 
 
 def draw_worker_progress(layout, progress) -> None:
@@ -279,12 +286,10 @@ def draw_drive_from_footage(layout, context) -> None:
 
 def draw_improve_tracking(layout, context) -> None:
     """Improve Tracking with the scene's run, or the running improvement's progress and Cancel."""
-    from ..operators.improve_tracking import current_worker, last_progress
+    from ..operators import improve_tracking
 
-    progress = last_progress()
-    if current_worker() is not None:
-        draw_worker_progress(layout, progress)
-        layout.operator("mogaface.improve_tracking_cancel", icon="CANCEL")
+    running, progress = draw_running_job(layout, improve_tracking, "mogaface.improve_tracking_cancel")
+    if running:
         return
     row = layout.row()
     row.enabled = is_head(context.active_object) and bool(context.scene.mogaface.run_folder)
