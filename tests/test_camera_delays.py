@@ -7,11 +7,12 @@ import json
 import numpy as np
 import pytest
 import torch
+from test_evaluate_fixtures import tiny_capture_like
 
 from mogaface.core.avatar.avatar import Avatar
 from mogaface.core.correction.avatar import render_world
 from mogaface.core.data.capture import Capture
-from mogaface.core.data.generator import CaptureSettings, make_capture, params_at
+from mogaface.core.data.generator import params_at
 from mogaface.core.errors import InputError
 from mogaface.core.flame.model import FlameModel
 from mogaface.core.run.names import DELAYS_FILE
@@ -25,10 +26,7 @@ from mogaface.core.train.trainer import Trainer
 
 @pytest.fixture(scope="module")
 def capture(tmp_path_factory):
-    root = tmp_path_factory.mktemp("delayed_capture")
-    make_capture(root, CaptureSettings(views=3, timesteps=16, size=48, supersample=1, camera_delay=0.4),
-                 progress=False)
-    return root
+    return tiny_capture_like(tmp_path_factory, "delayed_capture", camera_delay=0.4)
 
 
 def test_neighbours_stay_inside_a_sequence():

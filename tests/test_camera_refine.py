@@ -7,6 +7,7 @@ import json
 import numpy as np
 import pytest
 import torch
+from test_evaluate_fixtures import tiny_capture_like
 
 from mogaface.core.avatar.avatar import Avatar
 from mogaface.core.correction.avatar import render_world
@@ -23,12 +24,7 @@ from mogaface.core.train.trainer import Trainer
 
 @pytest.fixture(scope="module")
 def capture(tmp_path_factory):
-    from mogaface.core.data.generator import CaptureSettings, make_capture
-
-    root = tmp_path_factory.mktemp("refine_capture")
-    make_capture(root, CaptureSettings(views=3, timesteps=16, size=48, supersample=1, camera_noise=1.0),
-                 progress=False)
-    return root
+    return tiny_capture_like(tmp_path_factory, "refine_capture", camera_noise=1.0)
 
 
 @pytest.fixture(scope="module")

@@ -4,7 +4,15 @@ import json
 
 import numpy as np
 import pytest
-from test_evaluate_fixtures import EXPR_NUDGE, driver_capture, fake_run, render_np, tiny_capture
+from test_evaluate_fixtures import (  # noqa: F401 (fixtures)
+    EXPR_NUDGE,
+    capture_fixture,
+    driver_capture,
+    fake_run,
+    render_np,
+    run_fixture,
+    tiny_capture,
+)
 
 from mogaface.core.cli import main
 from mogaface.core.data.capture import Capture
@@ -20,16 +28,6 @@ from mogaface.core.evaluate.protocols import (
 )
 from mogaface.core.metrics import images as metrics
 from mogaface.core.run.folder import RunFolder
-
-
-@pytest.fixture(scope="module")
-def capture(tmp_path_factory):
-    return Capture.open(tiny_capture(tmp_path_factory))
-
-
-@pytest.fixture(scope="module")
-def run(tmp_path_factory):
-    return RunFolder(fake_run(tmp_path_factory))
 
 
 def test_protocol_frames(capture):

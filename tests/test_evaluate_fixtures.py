@@ -9,6 +9,7 @@ import pathlib
 import shutil
 
 import numpy as np
+import pytest
 import torch
 
 from mogaface.core.avatar.avatar import Avatar
@@ -17,9 +18,17 @@ from mogaface.core.data import layout
 from mogaface.core.data.capture import Capture
 from mogaface.core.data.generator import CaptureSettings, make_capture
 from mogaface.core.io.npz import save_npz
+from mogaface.core.run.folder import RunFolder
 
 _CACHE: dict = {}
 EXPR_NUDGE = 0.5  # added to expr[0] of the run's timestep-0 parameters, as training would
+
+
+def tiny_capture_like(tmp_path_factory, name: str, **changes) -> pathlib.Path:
+    """A capture of the tiny one's size (3 views, 16 timesteps, 48 px) with other settings, in a new folder."""
+    root = tmp_path_factory.mktemp(name)
+    make_capture(root, CaptureSettings(views=3, timesteps=16, size=48, supersample=1, **changes), progress=False)
+    return root
 
 
 def tiny_capture(tmp_path_factory) -> pathlib.Path:
@@ -97,3 +106,15 @@ def render_np(avatar, params, camera, background=(1.0, 1.0, 1.0)):
     with torch.no_grad():
         out = avatar.render(flame_params_to_torch(params), camera, background)
     return out.rgb.numpy(), out.alpha.numpy()
+
+
+@pytest.fixture(scope="module", name="capture")
+def capture_fixture(tmp_path_factory):
+    """The tiny capture, opened (a test module imports this fixture to use ``capture``)."""
+    return Capture.open(tiny_capture(tmp_path_factory))
+
+
+@pytest.fixture(scope="module", name="run")
+def run_fixture(tmp_path_factory):
+    """A fake run on the tiny capture, opened (imported as ``run_fixture``, used as ``run``)."""
+    return RunFolder(fake_run(tmp_path_factory))

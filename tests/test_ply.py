@@ -117,9 +117,7 @@ def test_float_face_ids_that_are_not_whole_numbers_are_refused(tmp_path, bad):
     count, names = 3, gaussian_property_names(0) + ["binding_0"]
     table = np.zeros(count, dtype=[(n, "<f4") for n in names])
     table["binding_0"] = [0, bad, 2]
-    header = ["ply", "format binary_little_endian 1.0", f"element vertex {count}"]
-    header += [f"property float {n}" for n in names] + ["end_header"]
-    (tmp_path / "bad.ply").write_bytes(("\n".join(header) + "\n").encode() + table.tobytes())
+    write_binary(tmp_path / "bad.ply", count, names, table.tobytes())
     with pytest.raises(InputError, match="binding_0.*non-negative integers; Gaussian 1 holds"):
         read_gaussian_ply(tmp_path / "bad.ply")
 
@@ -129,31 +127,25 @@ def write_raw(path, header_lines, payload=b""):
     return path
 
 
+def write_binary(path, count, names, payload=b"", extra=()):
+    """A binary PLY of ``count`` vertices declaring the float properties ``names``, then the lines ``extra``."""
+    return write_raw(path, ["ply", "format binary_little_endian 1.0", f"element vertex {count}",
+                            *[f"property float {n}" for n in names], *extra, "end_header"], payload)
+
+
 def test_bad_files_name_the_file_and_the_property(tmp_path):
     names = [n for n in gaussian_property_names(0) if n != "opacity"]
-    path = write_raw(
-        tmp_path / "no_opacity.ply",
-        ["ply", "format binary_little_endian 1.0", "element vertex 1", *[f"property float {n}" for n in names], "end_header"],
-        bytes(4 * len(names)),
-    )
+    path = write_binary(tmp_path / "no_opacity.ply", 1, names, bytes(4 * len(names)))
     with pytest.raises(InputError, match=r"no_opacity.ply: field 'opacity': missing property"):
         read_gaussian_ply(path)
     ascii_file = write_raw(tmp_path / "ascii.ply", ["ply", "format ascii 1.0", "element vertex 0", "end_header"])
     with pytest.raises(InputError, match=r"ascii.ply: field 'format': expected binary_little_endian"):
         read_gaussian_ply(ascii_file)
     full = gaussian_property_names(0)
-    short = write_raw(
-        tmp_path / "short.ply",
-        ["ply", "format binary_little_endian 1.0", "element vertex 2", *[f"property float {n}" for n in full], "end_header"],
-        bytes(4 * len(full)),
-    )
+    short = write_binary(tmp_path / "short.ply", 2, full, bytes(4 * len(full)))
     with pytest.raises(InputError, match=r"short.ply: field 'vertex': file ends after"):
         read_gaussian_ply(short)
-    odd = write_raw(
-        tmp_path / "odd.ply",
-        ["ply", "format binary_little_endian 1.0", "element vertex 0", *[f"property float {n}" for n in full],
-         "property float f_rest_0", "end_header"],
-    )  # fmt: skip
+    odd = write_binary(tmp_path / "odd.ply", 0, full, extra=["property float f_rest_0"])
     with pytest.raises(InputError, match=r"odd.ply: field 'f_rest'"):
         read_gaussian_ply(odd)
     (tmp_path / "mesh.obj").write_text("v 0 0 0\n")

@@ -6,7 +6,7 @@ import json
 
 import numpy as np
 import pytest
-from test_evaluate_fixtures import fake_run, random_avatar, tiny_capture
+from test_evaluate_fixtures import capture_fixture, fake_run, random_avatar, run_fixture, tiny_capture  # noqa: F401 (fixtures)
 
 from mogaface.core.avatar.avatar import render_frame
 from mogaface.core.data.capture import Capture
@@ -20,16 +20,6 @@ from mogaface.core.evaluate.sources.smoothed import SmoothedParams, choose_sigma
 from mogaface.core.evaluate.sources.true import TrueParams, true_params
 from mogaface.core.run.cameras import ScoringCameras
 from mogaface.core.run.folder import MOTION_KEYS, RunFolder
-
-
-@pytest.fixture(scope="module")
-def capture(tmp_path_factory):
-    return Capture.open(tiny_capture(tmp_path_factory))
-
-
-@pytest.fixture(scope="module")
-def run(tmp_path_factory):
-    return RunFolder(fake_run(tmp_path_factory))
 
 
 class Offset:
