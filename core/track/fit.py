@@ -14,8 +14,10 @@ The fit (torch, float64, every frame at once, L-BFGS): a rigid start (the mean h
 frame's landmarks, then turned and moved onto them), then every parameter together on a robust
 (Huber) reprojection loss weighted by confidence, Gaussian priors on shape, expression and jaw, and a
 smoothness term on second differences over time (a clip's motion is smooth; a detector's noise is
-not). Only the vertices the landmarks sit on are posed (:class:`LandmarkHead`): the same linear
-blend skinning as :class:`~mogaface.core.flame.model.FlameModel`, on a few hundred vertices.
+not); for a video, then the photometric stage (:mod:`.photometric`: skin points whose brightness
+must agree between frames). Only the vertices the landmarks sit on are posed (:class:`LandmarkHead`):
+the same linear blend skinning as :class:`~mogaface.core.flame.model.FlameModel`, on a few hundred
+vertices.
 """
 
 from __future__ import annotations

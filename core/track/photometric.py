@@ -67,8 +67,7 @@ def seen_points(model: FlameModel, params: dict, camera: Camera, points: np.ndar
     ``params`` (a fit's, per frame arrays and one ``shape``): see the module's docstring."""
     frames = len(params["expr"])
     faces = model.faces.numpy()
-    w2c = camera.w2c
-    centre = -w2c[:3, :3].T @ w2c[:3, 3]
+    centre = -camera.R.T @ camera.t
     cells_x = int(np.ceil(camera.width / DEPTH_CELL_PX)) + 1
     cells_y = int(np.ceil(camera.height / DEPTH_CELL_PX)) + 1
     seen = np.zeros((frames, len(points)), bool)
@@ -81,19 +80,18 @@ def seen_points(model: FlameModel, params: dict, camera: Camera, points: np.ndar
             vertices, _ = model.evaluate(shape=torch.as_tensor(params["shape"], dtype=dtype)[None].expand(n, -1), **given)
         vertices = vertices.double().numpy()
         normals = _vertex_normals(vertices, faces)
-        in_camera = vertices @ w2c[:3, :3].T + w2c[:3, 3]
-        depth = in_camera[..., 2]
-        x = camera.fx * in_camera[..., 0] / np.maximum(depth, 1e-3) + camera.cx
-        y = camera.fy * in_camera[..., 1] / np.maximum(depth, 1e-3) + camera.cy
-        cx = np.clip((x // DEPTH_CELL_PX).astype(np.int64), 0, cells_x - 1)
-        cy = np.clip((y // DEPTH_CELL_PX).astype(np.int64), 0, cells_y - 1)
         for i in range(n):
+            pixels, depth = camera.project(vertices[i])
+            ahead = depth > 1e-3
+            cells = np.where(ahead[:, None], pixels, -1.0) // DEPTH_CELL_PX  # behind the camera: no cell
+            cx = np.clip(cells[:, 0].astype(np.int64), 0, cells_x - 1)
+            cy = np.clip(cells[:, 1].astype(np.int64), 0, cells_y - 1)
             nearest = np.full((cells_y, cells_x), np.inf)
-            np.minimum.at(nearest, (cy[i], cx[i]), depth[i])
+            np.minimum.at(nearest, (cy[ahead], cx[ahead]), depth[ahead])
             sight = centre - vertices[i, points]
             facing = (normals[i, points] * sight).sum(1) > FACING * np.linalg.norm(sight, axis=1)
-            front = depth[i, points] <= nearest[cy[i, points], cx[i, points]] + DEPTH_SLACK_M
-            seen[start + i] = facing & front & (depth[i, points] > 1e-3)
+            front = depth[points] <= nearest[cy[points], cx[points]] + DEPTH_SLACK_M
+            seen[start + i] = facing & front & ahead[points]
     return seen
 
 
