@@ -598,6 +598,7 @@ def drive_from_footage_stages(head):
     camera = next(o for o in scene.objects if o.get("mogaface_resolution") is not None)
     check(module("operators.import_capture").apply_render_settings(scene, camera), "capture camera")
     scene.frame_set(scene.frame_start)
+    yield 1.5  # the avatar's first draws through the new camera (the check's change) before the job is timed
     out = WORK / "performance"
     with override():
         result = bpy.ops.mogaface.drive_from_footage("INVOKE_DEFAULT", filepath=ARGS["performance"], out=str(out),
