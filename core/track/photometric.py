@@ -111,10 +111,8 @@ class BrightnessAgreement:
 
     def __init__(self, brightness: np.ndarray, seen: np.ndarray, settings: PhotometricSettings):
         frames, height, width = brightness.shape
-        blurred = _blur(torch.as_tensor(brightness, dtype=torch.float32)[:, None], settings.blur_px)
-        self.images = blurred
+        self.images = _blur(torch.as_tensor(brightness, dtype=torch.float32)[:, None], settings.blur_px)
         self.size = torch.tensor([width, height], dtype=torch.float64)
-        self.seen = torch.as_tensor(seen)
         self.pairs = [(gap, torch.as_tensor(seen[:-gap] & seen[gap:]))
                       for gap in settings.gaps if gap < frames]
         self.huber = settings.huber
@@ -137,7 +135,8 @@ class BrightnessAgreement:
 
 
 def _blur(images: torch.Tensor, sigma: float) -> torch.Tensor:
-    """Gaussian blur of ``(T,1,H,W)`` (separable, reflected at the edges)."""
+    """Gaussian blur of ``(T,1,H,W)`` (separable, reflected at the edges: the frame keeps its size,
+    unlike the SSIM window's valid-area blur in ``train/losses.py``)."""
     if sigma <= 0:
         return images
     radius = max(1, int(round(3 * sigma)))
