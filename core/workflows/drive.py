@@ -219,7 +219,8 @@ def thinned(values: np.ndarray, tolerance: float) -> tuple[np.ndarray, int]:
 
 
 def _tracked_params(capture: pathlib.Path, frames: int) -> dict[str, np.ndarray]:
-    """The channels of a tracked capture's ``flame_param`` files, ``(T, n)`` each."""
+    """The channels of a tracked capture's ``flame_param`` files, ``(T, n)`` each, every timestep
+    (``Capture.flame_params_stacked`` reads only timesteps with a frame; lost ones have none)."""
     from ..data import layout
     from ..run.folder import load_flame_file
 
