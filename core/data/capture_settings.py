@@ -8,6 +8,8 @@ import dataclasses
 from ..errors import InputError
 from .sequences import NOISE_GROUPS, GroupNoise, TrackingNoise
 
+RENDERERS = ("mesh", "cycles")
+
 
 @dataclasses.dataclass(frozen=True)
 class CaptureSettings:
@@ -41,17 +43,30 @@ class CaptureSettings:
     # constant per camera and landmark (a detector errs alike on alike views).
     landmark_noise: float = 0.5
     landmark_bias: float = 0.5
+    # Cameras that disagree in colour (white balance, exposure, vignetting): the spread, 1.0 a
+    # real uncalibrated rig's (:mod:`.camera_colour`); 0 every camera exact.
+    camera_colour: float = 0.0
     seed: int = 0
-    supersample: int = 3
+    # Who renders the images: "mesh", the fast reference rasteriser (diffuse shading of the painted
+    # texture), or "cycles", Blender's path tracer with skin, wrinkles, wet eyes and hair
+    # (:mod:`.cycles_job`; needs the bpy module).
+    renderer: str = "mesh"
+    supersample: int = 3  # the mesh renderer's samples per pixel along each axis
+    samples: int = 64  # Cycles' samples per pixel (denoised)
 
     def check(self) -> None:
-        limits = {"views": (2, 64), "timesteps": (16, 100000), "size": (32, 4096), "supersample": (1, 8)}
+        limits = {"views": (2, 64), "timesteps": (16, 100000), "size": (32, 4096), "supersample": (1, 8),
+                  "samples": (1, 4096)}
         for name, (low, high) in limits.items():
             value = getattr(self, name)
             if not low <= value <= high:
                 raise InputError(None, name, f"must lie in [{low}, {high}], got {value}")
         if self.height is not None and not 32 <= self.height <= 4096:
             raise InputError(None, "height", f"must lie in [32, 4096], got {self.height}")
+        if self.renderer not in RENDERERS:
+            raise InputError(None, "renderer", f"must be one of {', '.join(RENDERERS)}, got {self.renderer!r}")
+        if not 0 <= self.camera_colour <= 2:
+            raise InputError(None, "camera_colour", f"must lie in [0, 2], got {self.camera_colour}")
         for name in ("camera_noise", "camera_centre_noise", "camera_delay", "landmark_noise", "landmark_bias"):
             if getattr(self, name) is not None and not getattr(self, name) >= 0:
                 raise InputError(None, name, f"must be >= 0, got {getattr(self, name)}")

@@ -1,6 +1,7 @@
 """The synthetic multi-view capture: the procedural head performing, seen by a camera dome.
 
-Ground truth comes from the independent mesh renderer (never from the splat engine). The
+Ground truth comes from an independent renderer (never from the splat engine): the mesh
+renderer, or Blender's Cycles in child processes (``renderer="cycles"``, :mod:`.cycles_job`). The
 capture is written in the GaussianAvatars/VHAP layout with *tracked* parameters (the truth
 plus tracker-like noise) in ``flame_param/`` and the truth in ``flame_param_gt/``, so how
 well a method recovers the true expressions can be measured. See docs/data-format.md.
@@ -27,6 +28,7 @@ from ..io.atomic import atomic_path, write_json
 from ..io.npz import save_npz
 from ..progress import ProgressBar
 from . import layout
+from .camera_colour import GT_COLOUR_FILE, composite, draw_camera_colours, foreground
 from .camera_file import write_cameras
 from .capture_info import INFO_FILE
 from .capture_settings import CaptureSettings
@@ -152,6 +154,24 @@ def params_at(params: dict[str, np.ndarray], moment: float) -> dict[str, np.ndar
     return {k: (1 - weight) * v[low] + weight * v[high] for k, v in params.items()}
 
 
+def pose(model: FlameModel, params: dict[str, np.ndarray]) -> np.ndarray:
+    """The model's (V,3) float64 vertices for one set of FLAME parameters."""
+    with torch.no_grad():
+        return model(**{k: torch.from_numpy(v)[None] for k, v in params.items()})[0].double().numpy()
+
+
+def moments(sequences, delays: list[float]):
+    """Every (timestep, delay) a camera sees, in timestep order: ``(timestep, sequence, local,
+    {delay: true parameters at that moment})``."""
+    timestep = 0
+    for sequence in sequences:
+        for local in range(sequence.length):
+            truth = {k: v[local] for k, v in sequence.params.items()}
+            yield timestep, sequence, local, {
+                d: truth if d == 0 else params_at(sequence.params, local + d) for d in sorted(set(delays))}
+            timestep += 1
+
+
 def _write_gt_params(root: pathlib.Path, timestep: int, params: dict[str, np.ndarray]) -> None:
     path = root / GT_FLAME_DIR / f"{timestep:05d}.npz"
     save_npz(path, layout.batched_flame_params(layout.normalize_flame_params(params, path)))
@@ -182,8 +202,10 @@ def make_capture(
     settings: CaptureSettings = CaptureSettings(),
     model_path: str | os.PathLike | None = None,
     progress: bool = True,
+    threads: int | None = None,
 ) -> pathlib.Path:
-    """Render and write a synthetic capture into ``out``; returns the folder."""
+    """Render and write a synthetic capture into ``out``; returns the folder. ``threads``: Cycles'
+    render threads (default: all cores)."""
     settings.check()
     out = pathlib.Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -205,45 +227,55 @@ def make_capture(
     biases = tracking_biases(sequences[0].params, noise, rng)  # one tracker, one bias per capture
 
     delays = camera_delays(settings, len(cameras), frontal)
+    colours = draw_camera_colours(len(cameras), settings.camera_colour,
+                                  np.random.default_rng([settings.seed, settings.subject, 11]))
     detector = LandmarkDetector(settings, model, cameras)
+    if settings.renderer == "cycles":
+        from .cycles_job import render_with_cycles
+
+        cycles = render_with_cycles(out, model, cameras, moments(sequences, delays), delays, settings,
+                                    threads=threads, progress=progress)
     total = sum(s.length for s in sequences)
     bar = ProgressBar(total * len(cameras), "make-capture") if progress else None
-    timestep = 0
     ranges = {}
     with CaptureWriter(out, n_vertices=model.n_vertices) as writer:
-        for sequence in sequences:
-            tracked = add_tracking_noise(sequence.params, noise, rng, biases)
-            ranges[sequence.name] = [timestep, timestep + sequence.length]
-            for local in range(sequence.length):
-                truth = {k: v[local] for k, v in sequence.params.items()}
-                writer.write_flame_params(timestep, {k: v[local] for k, v in tracked.items()})
-                _write_gt_params(out, timestep, truth)
-                seen = {}  # moment → (vertices, normals): shared by the views that see it
-                for delay in sorted(set(delays)):
-                    moment = truth if delay == 0 else params_at(sequence.params, local + delay)
-                    with torch.no_grad():
-                        posed = model(**{k: torch.from_numpy(v)[None] for k, v in moment.items()})[0].double().numpy()
-                    seen[delay] = (posed, vertex_normals(posed, arrays.faces))
-                detector.detect([seen[d][0] for d in delays], [seen[d][1] for d in delays])
-                for index, (camera, written) in enumerate(zip(cameras, reported)):
+        for timestep, sequence, local, at in moments(sequences, delays):
+            if local == 0:
+                tracked = add_tracking_noise(sequence.params, noise, rng, biases)
+                ranges[sequence.name] = [timestep, timestep + sequence.length]
+            writer.write_flame_params(timestep, {k: v[local] for k, v in tracked.items()})
+            _write_gt_params(out, timestep, at[0.0])  # the frontal camera keeps the rig's clock
+            seen = {}  # moment → (vertices, normals): shared by the views that see it
+            for delay, params in at.items():
+                posed = pose(model, params)
+                seen[delay] = (posed, vertex_normals(posed, arrays.faces))
+            detector.detect([seen[d][0] for d in delays], [seen[d][1] for d in delays])
+            for index, (camera, written) in enumerate(zip(cameras, reported)):
+                if settings.renderer == "cycles":
+                    linear, alpha = cycles.image(timestep, index)
+                    rgb = composite(colours[index].seen(linear), alpha, BACKGROUND)
+                else:
                     vertices, normals = seen[delays[index]]
                     rgb, alpha = render_mesh(
                         vertices, arrays.faces, arrays.vt, arrays.ft, texture, camera, BACKGROUND,
                         supersample=settings.supersample, normals=normals,
                     )
-                    held_out = sequence.name in (TEST_SEQUENCE, VAL_SEQUENCE)  # never trained on: the test split
-                    split = "test" if held_out else ("val" if index == frontal else "train")
-                    writer.add_frame(
-                        timestep, written, rgb, alpha, split=split, sequence=sequence.name,
-                        timestep_id=f"{sequence.name}_{local:04d}", camera_index=index,
-                    )
-                    if bar:
-                        bar.update()
-                timestep += 1
+                    if settings.camera_colour:
+                        rgb = composite(colours[index].seen(foreground(rgb, alpha, BACKGROUND)), alpha, BACKGROUND)
+                held_out = sequence.name in (TEST_SEQUENCE, VAL_SEQUENCE)  # never trained on: the test split
+                split = "test" if held_out else ("val" if index == frontal else "train")
+                writer.add_frame(
+                    timestep, written, rgb, alpha, split=split, sequence=sequence.name,
+                    timestep_id=f"{sequence.name}_{local:04d}", camera_index=index,
+                )
+                if bar:
+                    bar.update()
         zeros = {k: np.zeros_like(v[0]) for k, v in sequences[0].params.items()}
         writer.write_canonical_flame_params(zeros)
     detector.write(out)
     write_cameras(out / GT_CAMERAS_FILE, {c.camera_id: c for c in cameras})
+    if settings.camera_colour:
+        write_json(out / GT_COLOUR_FILE, {c.camera_id: dataclasses.asdict(k) for c, k in zip(cameras, colours)})
     write_json(
         out / INFO_FILE,
         {
@@ -255,7 +287,8 @@ def make_capture(
             "test_sequence": TEST_SEQUENCE,
             "val_sequence": VAL_SEQUENCE,
             "sequences": ranges,
-            "ground_truth": {"flame_param": GT_FLAME_DIR, "cameras": GT_CAMERAS_FILE},
+            "ground_truth": {"flame_param": GT_FLAME_DIR, "cameras": GT_CAMERAS_FILE,
+                             **({"camera_colour": GT_COLOUR_FILE} if settings.camera_colour else {})},
             **({"camera_delays": {c.camera_id: d for c, d in zip(cameras, delays)}} if any(delays) else {}),
         },
     )
