@@ -292,4 +292,6 @@ def make_capture(
             **({"camera_delays": {c.camera_id: d for c, d in zip(cameras, delays)}} if any(delays) else {}),
         },
     )
+    if settings.renderer == "cycles":
+        cycles.finish()
     return out
