@@ -27,7 +27,7 @@ ADAPTIVE_THRESHOLD = 0.02  # Cycles' noise level at which a pixel stops sampling
 
 
 def _image(name: str, pixels: np.ndarray, colour: bool):
-    """A packed float image from (H,W,C) rows top to bottom (Blender stores them bottom up)."""
+    """A generated image (kept in memory, never saved) from (H,W,C) rows top to bottom (Blender stores them bottom up)."""
     height, width = pixels.shape[:2]
     rgba = np.ones((height, width, 4), np.float32)
     rgba[..., :pixels.shape[2]] = pixels
@@ -37,7 +37,6 @@ def _image(name: str, pixels: np.ndarray, colour: bool):
     image.colorspace_settings.name = "sRGB" if colour else "Non-Color"
     image.alpha_mode = "CHANNEL_PACKED"
     image.pixels.foreach_set(np.ascontiguousarray(rgba[::-1]).ravel())
-    image.pack()
     return image
 
 

@@ -83,7 +83,8 @@ def grow_strands(arrays, rest: np.ndarray, texel_face: np.ndarray, texel_bary: n
     on_skin[on_skin] = skin_faces[texel_face[on_skin]]
     rows, cols = np.nonzero(on_skin)
     where = np.einsum("nk,nkc->nc", texel_bary[rows, cols], rest[faces[texel_face[rows, cols]]])
-    colour = texture[rows, cols]
+    size = texel_face.shape[0]
+    colour = texture[rows * texture.shape[0] // size, cols * texture.shape[1] // size]
     top = where[:, 1] > np.quantile(where[:, 1], 0.97)
     hair_colour = np.median(colour[top], 0)
     forehead = colour[np.linalg.norm(where - marks[27] - [0, 0.04, 0], axis=1) < 0.01]
@@ -93,7 +94,8 @@ def grow_strands(arrays, rest: np.ndarray, texel_face: np.ndarray, texel_bary: n
         picks.append(rng.choice(np.flatnonzero(hairy), min(scalp, int(hairy.sum())), replace=False))
         kinds.append(np.zeros(len(picks[-1]), int))
     brows = marks[17:27]
-    near = np.min(np.linalg.norm(where[:, None, :2] - brows[None, :, :2], axis=2), 1) < 0.005
+    near = (np.abs(where - brows.mean(0)) < [0.08, 0.02, 0.04]).all(1)
+    near[near] = np.min(np.linalg.norm(where[near][:, None, :2] - brows[None, :, :2], axis=2), 1) < 0.005
     near &= where[:, 2] > brows[:, 2].min() - 0.01
     if near.any():
         dark = near & (colour.mean(1) <= np.quantile(colour[near].mean(1), 0.35))

@@ -35,7 +35,6 @@ from .cycles_skin import MATERIALS, SKIN, WrinkleDriver, face_materials, surface
 
 JOB_DIR = ".cycles"
 CHILD_MODULE = "mogaface.cycles_capture"
-MAP_SIZE = 1024
 # A capture dome's soft boxes around the head (FLAME axes: x across, y up, z toward the face):
 # (direction from the head, distance m, size m, power W). A key and a fill in front, one above,
 # two behind for the rim; the surroundings a dim grey.
@@ -57,6 +56,13 @@ def image_name(timestep: int, camera_index: int) -> str:
     return f"{timestep:05d}_{camera_index:02d}.exr"
 
 
+def map_size(settings) -> int:
+    """Texels a side of the wrinkle and roughness maps: about four per image pixel across the
+    image's longer side (1024 at 256²), at least 256, at most 2048."""
+    longest = max(settings.size, settings.image_height)
+    return int(np.clip(2 ** np.ceil(np.log2(4 * longest)), 256, 2048))
+
+
 def check_bpy() -> None:
     """Refuse early, naming what is missing, when this Python cannot run the renderer."""
     if importlib.util.find_spec("bpy") is None:
@@ -66,18 +72,16 @@ def check_bpy() -> None:
 
 def write_job(root: pathlib.Path, model, cameras, moments, delays, settings) -> list[dict]:
     """Write the job into ``root``; its frames (the images to render, in render order)."""
-    from .generator import pose
-
     arrays = model.arrays
     fingerprint = dataclasses.asdict(settings)
     job_file = root / "job.json"
     if job_file.exists() and json.loads(job_file.read_text()).get("settings") != fingerprint:
         shutil.rmtree(root)  # another capture's job: nothing of it may be reused
     (root / "moments").mkdir(parents=True, exist_ok=True)
-    rest = pose(model, {})
-    maps = surface_maps(arrays, rest, MAP_SIZE)
-    materials = face_materials(arrays)
+    rest = model.posed({})
     marks = model_landmarks(arrays.faces).positions(rest, arrays.faces)
+    maps = surface_maps(arrays, rest, marks, map_size(settings))
+    materials = face_materials(arrays)
     strands = grow_strands(arrays, rest, maps["texel_face"], maps["texel_bary"], marks, materials == SKIN,
                            np.random.default_rng([settings.seed, settings.subject, 5]))
     save_npz(root / "scene.npz", {
@@ -93,7 +97,7 @@ def write_job(root: pathlib.Path, model, cameras, moments, delays, settings) -> 
             name = moment_name(timestep, delay)
             path = root / "moments" / f"{name}.npz"
             if not path.exists():
-                save_npz(path, {"vertices": pose(model, params).astype(np.float32),
+                save_npz(path, {"vertices": model.posed(params).astype(np.float32),
                                 "wrinkle": driver.weights(params.get("expr", np.zeros(0)))})
             frames += [{"moment": name, "camera": k, "image": image_name(timestep, k)}
                        for k, d in enumerate(delays) if d == delay]
@@ -108,21 +112,24 @@ def write_job(root: pathlib.Path, model, cameras, moments, delays, settings) -> 
     return frames
 
 
-def run_child(root: pathlib.Path, total: int, threads: int | None, progress: bool) -> None:
-    """Run the renderer on the job in ``root`` with a progress bar; Ctrl-C stops it and keeps what
-    it rendered; a failure raises with the child's last lines."""
+def run_child(root: pathlib.Path, total: int, threads: int | None, progress: bool) -> int:
+    """Run the renderer on the job in ``root`` with a progress bar; how many images it rendered
+    (those already there are kept). Ctrl-C stops it and keeps what it rendered; a failure raises
+    with the child's last lines."""
     command = [sys.executable, "-m", CHILD_MODULE, os.fspath(root), "--threads", str(threads or 0)]
     done = sum((root / "renders" / f["image"]).exists() for f in json.loads((root / "job.json").read_text())["frames"])
     bar = ProgressBar(total, "make-capture (cycles)") if progress else None
     if bar:
         bar.update(done)
     tail: list[str] = []
+    rendered = 0
     child = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                              env={**os.environ, "PYTHONUNBUFFERED": "1"})
     try:
         for line in child.stdout:
             if line.startswith('{"event"'):
                 event = json.loads(line)
+                rendered += event["event"] == "rendered"
                 if bar and event["event"] == "rendered":
                     bar.update(1, f"{event['seconds']:.1f} s/image")
             else:
@@ -136,6 +143,7 @@ def run_child(root: pathlib.Path, total: int, threads: int | None, progress: boo
         raise
     if code != 0:
         raise CaptureError(root, "renderer", "the Cycles renderer failed:\n" + "\n".join(tail))
+    return rendered
 
 
 class CyclesImages:

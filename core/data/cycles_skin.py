@@ -4,7 +4,7 @@ triangle gets, the expression-driven wrinkle maps and the skin's roughness map.
 Wrinkles work as a production face rig's wrinkle maps do: four height maps in texture space
 (forehead lines, crow's feet, nasolabial folds, frown lines between the brows), each blended in by
 how far the expressions that make it are active, per side of the face. The maps are drawn on the
-rest head around its landmarks (the iBUG 68 points of :func:`~mogaface.core.flame.landmarks.model_landmarks`),
+rest head around its landmarks (the iBUG 68 points of ``model_landmarks``),
 so they fit any head in the FLAME layout; which expressions drive them is read from the model's
 component names, so a model without names (the real FLAME's PCA components) gets no wrinkles.
 """
@@ -14,9 +14,9 @@ from __future__ import annotations
 import numpy as np
 
 from ..flame.expression_roles import LEFT_EYE, RIGHT_EYE, has_component_names
-from ..flame.landmarks import model_landmarks
 from ..flame.procedural_uv import LID_LINING_UV_BOX, MOUTH_UV_BOX
 from ..flame.teeth import TEETH_VERTEX_COUNT
+from . import mesh_raster
 
 SKIN, EYE, MOUTH, LINING = 0, 1, 2, 3
 MATERIALS = ("skin", "eye", "mouth", "lining")
@@ -57,28 +57,18 @@ def _has_teeth(arrays) -> bool:
 
 def texel_surface(arrays, size: int) -> tuple[np.ndarray, np.ndarray]:
     """Which triangle lies under each texel of a ``size``² texture, and where: ``(face (H,W), -1
-    for none; barycentric (H,W,3))``. Rows run top to bottom (v = 1 first), as the texture's."""
-    face_of = np.full((size, size), -1, np.int64)
-    bary = np.zeros((size, size, 3), np.float32)
-    corners = arrays.vt[arrays.ft] * size
+    for none; barycentric (H,W,3))``. Rows run top to bottom (v = 1 first), as the texture's.
+
+    The mesh renderer's rasteriser draws the UV layout: corners at depth 1 seen by a camera with
+    unit focal length project to their own texel coordinates."""
+    corners = np.ones(arrays.ft.shape + (3,))
+    corners[..., :2] = arrays.vt[arrays.ft] * size
     corners[..., 1] = size - corners[..., 1]
-    for f, (a, b, c) in enumerate(corners):
-        x0, y0 = np.floor(np.minimum(np.minimum(a, b), c)).astype(int)
-        x1, y1 = np.ceil(np.maximum(np.maximum(a, b), c)).astype(int)
-        x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, size), min(y1, size)
-        if x1 <= x0 or y1 <= y0:
-            continue
-        y, x = np.mgrid[y0:y1, x0:x1] + 0.5
-        det = (b[1] - c[1]) * (a[0] - c[0]) + (c[0] - b[0]) * (a[1] - c[1])
-        if abs(det) < 1e-12:
-            continue
-        w0 = ((b[1] - c[1]) * (x - c[0]) + (c[0] - b[0]) * (y - c[1])) / det
-        w1 = ((c[1] - a[1]) * (x - c[0]) + (a[0] - c[0]) * (y - c[1])) / det
-        w2 = 1.0 - w0 - w1
-        inside = (w0 >= -1e-6) & (w1 >= -1e-6) & (w2 >= -1e-6)
-        face_of[y0:y1, x0:x1][inside] = f
-        bary[y0:y1, x0:x1][inside] = np.stack([w0, w1, w2], -1)[inside]
-    return face_of, bary
+    xy, iz, bbox, _ = mesh_raster.setup_triangles(corners, 1.0, 1.0, 0.0, 0.0, size, size, False)
+    start, tris = mesh_raster.bin_to_bands(bbox, (size + mesh_raster.BAND - 1) // mesh_raster.BAND)
+    face_of, b12 = mesh_raster.rasterize(xy, iz, bbox, start, tris, size, size)
+    bary = np.concatenate([1.0 - b12.sum(-1, keepdims=True), b12], -1)
+    return face_of.astype(np.int64), np.where(face_of[..., None] >= 0, bary, 0.0).astype(np.float32)
 
 
 def _groove(distance, width):
@@ -139,16 +129,18 @@ def roughness(p: np.ndarray, marks: np.ndarray) -> np.ndarray:
     are shinier than the cheeks; a slow variation over the whole face."""
     x, y = p[..., 0], p[..., 1]
     t_zone = np.exp(-((x / 0.018) ** 2)) * _smoothstep(y, marks[33, 1] - 0.005, marks[33, 1] + 0.005)
-    lips = np.exp(-((np.linalg.norm(p[..., None, :] - marks[48:60], axis=-1).min(-1) / 0.004) ** 2))
+    lips = np.zeros_like(x)
+    near = (np.abs(p - marks[48:60].mean(0)) < [0.05, 0.03, 0.03]).all(-1)
+    lips[near] = np.exp(-((np.linalg.norm(p[near][:, None, :] - marks[48:60], axis=-1).min(-1) / 0.004) ** 2))
     slow = 0.04 * np.sin(x / 0.013) * np.cos(y / 0.017)
     return np.clip(0.55 - 0.17 * t_zone - 0.25 * lips + slow, 0.2, 0.8)
 
 
-def surface_maps(arrays, rest: np.ndarray, size: int = 1024) -> dict[str, np.ndarray]:
-    """The maps of one head: ``wrinkles`` (size,size,4) and ``roughness`` (size,size), both rows top
-    to bottom, zero wrinkles and roughness 0.5 where no skin lies."""
+def surface_maps(arrays, rest: np.ndarray, marks: np.ndarray, size: int = 1024) -> dict[str, np.ndarray]:
+    """The maps of one head (``rest`` vertices, ``marks`` its 68 landmarks): ``wrinkles``
+    (size,size,4) and ``roughness`` (size,size), rows top to bottom, zero wrinkles and roughness 0.5
+    where no skin lies; and which triangle lies under each texel (:func:`texel_surface`)."""
     face_of, bary = texel_surface(arrays, size)
-    marks = model_landmarks(arrays.faces).positions(rest, arrays.faces)
     skin = face_of >= 0
     skin[skin] = face_materials(arrays)[face_of[skin]] == SKIN
     p = np.einsum("nk,nkc->nc", bary[skin], rest[arrays.faces[face_of[skin]]])
