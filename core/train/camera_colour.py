@@ -13,8 +13,10 @@ the mean change over the training cameras is removed, so the **mean** camera see
 own colours: no camera is privileged, and the avatar carries the rig's average colour, the best
 guess for a camera that has no map of its own (the held-out one). Pinning one camera to the
 identity would give the avatar that camera's error, and the held-out camera would pay it in full.
-A small penalty ``‖M − I‖² + ‖b‖²`` per view keeps the directions the images hardly pin (a camera
-that sees few colours) at the identity.
+A penalty ``‖M − I‖² + ‖b‖²`` per view (``[cameras] colour_weight``) holds the maps at the
+identity where the images hardly pin them: the directions of a camera that sees few distinct
+colours, and the part of the head a camera sees nearly alone, where its map and the avatar's
+colours trade as the whole rig's do. Too weak, the maps take up the avatar's own errors there.
 """
 
 from __future__ import annotations

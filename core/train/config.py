@@ -139,8 +139,8 @@ class CamerasSection:
     colour_lr: float = _setting(1e-3, "learning rate of the camera colours (matrix entries and offsets)")
     colour_begin: float = _setting(0.1, "fraction of the steps after which the camera colours move (before, they "
                                         "hold still while the avatar's colours form)")
-    colour_weight: float = _setting(0.01, "weight of the penalty ‖M − I‖² + ‖b‖² on the camera colour of each "
-                                          "view")
+    colour_weight: float = _setting(1.0, "weight of the penalty ‖M − I‖² + ‖b‖² on the camera colour of each view "
+                                         "(weaker, the colours take up the avatar's own errors: docs/training.md)")
     settle_at: int = _setting(0, "step at which a cameras-only phase starts: the avatar and the FLAME parameters "
                                  "hold still while the cameras align to it (0: no such phase)")
     settle_steps: int = _setting(0, "steps of the cameras-only phase")
