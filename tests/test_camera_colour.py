@@ -144,6 +144,17 @@ def test_the_colours_reach_the_checkpoint_and_the_run_folder_and_resume_exactly(
     assert np.allclose(straight["cam00"], -straight["cam02"], atol=1e-6)  # two cameras, mean at the identity
     assert all(np.array_equal(straight[c], split[c]) for c in straight)
 
+    # A run (a camera round) whose cameras start from a file starts from the colours beside it.
+    from mogaface.core.data.camera_file import write_cameras
+
+    cameras = Capture.open(capture)
+    beside = tmp_path / "round1"
+    beside.mkdir()
+    write_cameras(beside / "cameras_refined.json", {f.camera_id: cameras.camera(f) for f in cameras.frames("train")})
+    shutil.copyfile(tmp_path / "straight" / COLOURS_FILE, beside / COLOURS_FILE)
+    started = Trainer(capture, tmp_path / "round2", _config(8, True, refine=True, start=str(beside / "cameras_refined.json")))
+    assert all(np.allclose(started.camera_colours.values()[c].numpy(), straight[c], atol=1e-6) for c in straight)
+
 
 @pytest.fixture(scope="module")
 def recoloured(tmp_path_factory):
