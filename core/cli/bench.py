@@ -13,6 +13,8 @@ BENCHMARKS = {
     "cancel_latency": "SIGINT to exit while a raster kernel runs, at the largest allowed frame and in train",
     "camera_search": "choose camera refinement's settings (rates, start, gauge, rounds) on validation frames: a "
                      "training run per setting tried on a capture whose cameras are off",
+    "cycles": "Cycles captures: seconds per image at 256², 512² and 802x550, hours for a whole capture, and the "
+              "noise at 8-64 samples against a 1 024-sample reference",
     "converge": "time to quality at a real capture's scale (802x550, 16 cameras): the held-out camera's PSNR, SSIM "
                 "and LPIPS against minutes of training, Freeze + fine-tuning and the full method",
     "distributed": "data-parallel training: ranks against threads, all-reduce volume and time per step",

@@ -61,6 +61,20 @@ def add_arguments(parser):
         "--landmark-bias", type=float, default=d.landmark_bias,
         help="pixels of its constant error per camera and landmark (default %(default)s)",
     )
+    parser.add_argument(
+        "--camera-colour", type=float, metavar="SPREAD",
+        help="cameras that disagree in white balance, exposure and vignetting: 1 is an uncalibrated rig's "
+        "spread, 0 none; the truth goes to camera_colour_gt.json (default: 1 with --renderer cycles, else 0)",
+    )
+    parser.add_argument(
+        "--renderer", choices=("mesh", "cycles"), default=d.renderer,
+        help="mesh: the fast reference rasteriser (diffuse shading of the painted texture); cycles: Blender's "
+        "path tracer with skin, expression wrinkles, wet eyes and hair, in a child process that resumes where "
+        "it stopped (needs the bpy module; default %(default)s)",
+    )
+    parser.add_argument("--samples", type=int, default=d.samples,
+                        help="Cycles' samples per pixel, denoised (default %(default)s)")
+    parser.add_argument("--threads", type=int, help="Cycles' render threads (default: all cores)")
     parser.add_argument("--seed", type=int, default=d.seed, help="seed (default %(default)s)")
     parser.add_argument("--model", type=pathlib.Path, help="use this FLAME-format model (with UVs and texture) instead")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -84,10 +98,11 @@ def run(args) -> int:
         subject=args.subject, views=args.views, timesteps=args.timesteps, size=args.size, height=args.height,
         camera_noise=args.camera_noise, camera_centre_noise=args.camera_centre_noise,
         camera_delay=args.camera_delay, landmark_noise=args.landmark_noise, landmark_bias=args.landmark_bias,
-        seed=args.seed, **noise,
+        camera_colour=(1.0 if args.renderer == "cycles" else 0.0) if args.camera_colour is None else args.camera_colour,
+        renderer=args.renderer, samples=args.samples, seed=args.seed, **noise,
     )
     start = time.monotonic()
-    make_capture(args.out, settings, model_path=args.model, progress=not args.quiet)
+    make_capture(args.out, settings, model_path=args.model, progress=not args.quiet, threads=args.threads)
     elapsed = time.monotonic() - start
     for line in validate_capture(args.out).lines():
         print(line)

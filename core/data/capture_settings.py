@@ -52,7 +52,7 @@ class CaptureSettings:
     # (:mod:`.cycles_job`; needs the bpy module).
     renderer: str = "mesh"
     supersample: int = 3  # the mesh renderer's samples per pixel along each axis
-    samples: int = 64  # Cycles' samples per pixel (denoised)
+    samples: int = 32  # Cycles' samples per pixel (adaptive, denoised)
 
     def check(self) -> None:
         limits = {"views": (2, 64), "timesteps": (16, 100000), "size": (32, 4096), "supersample": (1, 8),

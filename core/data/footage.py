@@ -275,8 +275,7 @@ class FootageScene:
 
     def mesh(self, i: int) -> tuple[np.ndarray, np.ndarray]:
         """Posed vertices and their normals at frame ``i``."""
-        with torch.no_grad():
-            posed = self.model(**{k: torch.from_numpy(v)[None] for k, v in self.params(i).items()})[0].double().numpy()
+        posed = self.model.posed(self.params(i))
         return posed, vertex_normals(posed, self.model.arrays.faces)
 
     def render(self, mesh, camera: Camera, background) -> tuple[np.ndarray, np.ndarray]:

@@ -154,12 +154,6 @@ def params_at(params: dict[str, np.ndarray], moment: float) -> dict[str, np.ndar
     return {k: (1 - weight) * v[low] + weight * v[high] for k, v in params.items()}
 
 
-def pose(model: FlameModel, params: dict[str, np.ndarray]) -> np.ndarray:
-    """The model's (V,3) float64 vertices for one set of FLAME parameters."""
-    with torch.no_grad():
-        return model(**{k: torch.from_numpy(v)[None] for k, v in params.items()})[0].double().numpy()
-
-
 def moments(sequences, delays: list[float]):
     """Every (timestep, delay) a camera sees, in timestep order: ``(timestep, sequence, local,
     {delay: true parameters at that moment})``."""
@@ -247,7 +241,7 @@ def make_capture(
             _write_gt_params(out, timestep, at[0.0])  # the frontal camera keeps the rig's clock
             seen = {}  # moment → (vertices, normals): shared by the views that see it
             for delay, params in at.items():
-                posed = pose(model, params)
+                posed = model.posed(params)
                 seen[delay] = (posed, vertex_normals(posed, arrays.faces))
             detector.detect([seen[d][0] for d in delays], [seen[d][1] for d in delays])
             for index, (camera, written) in enumerate(zip(cameras, reported)):
@@ -292,4 +286,6 @@ def make_capture(
             **({"camera_delays": {c.camera_id: d for c, d in zip(cameras, delays)}} if any(delays) else {}),
         },
     )
+    if settings.renderer == "cycles":
+        cycles.finish()
     return out

@@ -88,6 +88,11 @@ class FlameModel(torch.nn.Module):
     def forward(self, **params: torch.Tensor | None) -> torch.Tensor:
         return self.evaluate(**params)[0]
 
+    def posed(self, params) -> np.ndarray:
+        """(V,3) float64 vertices for one timestep's parameters given as numpy arrays (no batch axis)."""
+        with torch.no_grad():
+            return self(**{k: torch.as_tensor(np.asarray(v))[None] for k, v in params.items()})[0].double().numpy()
+
     def evaluate(self, **params: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor]:
         """Like calling the model, but also returns the rest-pose joints ``(B,5,3)``."""
         p = self._complete(params)
