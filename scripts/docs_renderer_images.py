@@ -20,8 +20,8 @@ import numpy as np
 
 def _strongest(capture, names) -> int:
     """The timestep whose true expression most activates ``names`` (substrings of component names)."""
-    from mogaface.core.io.npz import load_npz
     from mogaface.core.flame.model import FlameModel
+    from mogaface.core.io.npz import load_npz
 
     model = FlameModel.load(capture / "head.pkl")
     picked = [k for k, n in enumerate(model.expression_names) if any(s in n for s in names)]
