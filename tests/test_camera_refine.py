@@ -237,7 +237,8 @@ def test_camera_rates_decay_to_their_final_ratio(capture, tmp_path):
 
     config = refine_config(steps=6)
     config.cameras.final_ratio = 0.01
-    assert camera_lrs(config, 0) == {"cameras.rotation": 1e-3, "cameras.translation": 1e-4, "cameras.delay": 1e-2}
+    assert camera_lrs(config, 0) == {"cameras.rotation": 1e-3, "cameras.translation": 1e-4, "cameras.delay": 1e-2,
+                                     "cameras.colour": 1e-3}
     assert camera_lrs(config, 3)["cameras.rotation"] == pytest.approx(1e-4)  # halfway: the geometric mean
     assert camera_lrs(config, 6)["cameras.translation"] == pytest.approx(1e-6)
     trainer = Trainer(capture, tmp_path / "run", config)

@@ -20,6 +20,7 @@ from ..io.atomic import atomic_path
 from ..io.files import check_plain_name
 from ..io.torch_file import check_format, load_torch_state, save_torch_state
 from ..splat import SplatOutput, rasterize
+from .camera_colour import recolour
 from .gaussians import PARAMETER_NAMES, BoundGaussians
 
 AVATAR_FORMAT = "mogaface-avatar"
@@ -37,7 +38,9 @@ class Avatar(torch.nn.Module):
     ``head_file`` is the model file the avatar was trained on (kept beside a saved avatar so
     the avatar is self-contained). ``source`` and ``field``: the file the Gaussians were read from and
     its name for their triangle ids (``avatar.pt``'s ``gaussians.binding``, a PLY's ``binding_0``),
-    named by errors; the head model file when the Gaussians were made here.
+    named by errors; the head model file when the Gaussians were made here. ``camera_colours``: the
+    colours its run learned for its training cameras (camera id → change, :mod:`.camera_colour`),
+    set by the run's loader; None otherwise.
     """
 
     def __init__(self, flame: FlameModel, gaussians: BoundGaussians, head_file: str | os.PathLike,
@@ -55,6 +58,7 @@ class Avatar(torch.nn.Module):
         self.flame = flame
         self.gaussians = gaussians
         self.head_file = pathlib.Path(head_file)
+        self.camera_colours: dict | None = None
 
     @classmethod
     def initial(cls, head_file: str | os.PathLike, max_sh_degree: int = 3, n_vertices: int | None = None) -> "Avatar":
@@ -169,19 +173,22 @@ def flame_params_to_torch(params: dict[str, np.ndarray]) -> dict[str, torch.Tens
 
 
 def render_arrays(avatar, params: dict[str, np.ndarray], camera: Camera, background,
-                  vertex_shift=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                  vertex_shift=None, colour=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(rgb (H,W,3), alpha (H,W), depth (H,W))`` float32 of ``avatar`` posed by ``params``, without
     gradients: rgb as rendered (SH can overshoot [0, 1]), alpha clamped to [0, 1], depth the
-    alpha-weighted one. ``vertex_shift``: a move of the posed mesh (a camera's delay), or None."""
+    alpha-weighted one. ``vertex_shift``: a move of the posed mesh (a camera's delay), or None.
+    ``colour``: a camera's colour (change ``[M − I | b]``, :mod:`.camera_colour`) its foreground is
+    seen in, or None."""
     with torch.no_grad():
         out = avatar.render(flame_params_to_torch(params), camera, background, vertex_shift=vertex_shift)
-    return (out.rgb.numpy().astype(np.float32), out.alpha.clamp(0.0, 1.0).numpy().astype(np.float32),
+        rgb = out.rgb if colour is None else recolour(out.rgb, out.alpha, background, colour)
+    return (rgb.numpy().astype(np.float32), out.alpha.clamp(0.0, 1.0).numpy().astype(np.float32),
             out.depth.numpy().astype(np.float32))
 
 
 def render_frame(avatar, params: dict[str, np.ndarray], camera: Camera, background, clamp: bool = True,
-                 vertex_shift=None) -> tuple[np.ndarray, np.ndarray]:
+                 vertex_shift=None, colour=None) -> tuple[np.ndarray, np.ndarray]:
     """``(rgb (H,W,3), alpha (H,W))`` of :func:`render_arrays`; ``clamp=False`` keeps colours outside
     [0, 1] for compositing later."""
-    rgb, alpha, _ = render_arrays(avatar, params, camera, background, vertex_shift)
+    rgb, alpha, _ = render_arrays(avatar, params, camera, background, vertex_shift, colour)
     return (np.clip(rgb, 0.0, 1.0) if clamp else rgb), alpha

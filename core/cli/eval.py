@@ -14,7 +14,8 @@ def add_arguments(parser) -> None:
     parser.add_argument(
         "--protocols", nargs="+", choices=ALL_PROTOCOLS, default=list(PROTOCOLS),
         help=f"protocols to score (default: {' '.join(PROTOCOLS)}); novel_view_aligned scores half the novel "
-             "view's frames after aligning the held-out camera to the avatar on the other half",
+             "view's frames after aligning the held-out camera to the avatar on the other half, "
+             "novel_view_colour_aligned after fitting the held-out camera's affine colour there",
     )
     parser.add_argument("--max-frames", type=int, help="score at most this many frames per protocol, evenly spread")
     parser.add_argument("--no-lpips", action="store_true", help="skip LPIPS (PSNR and SSIM only)")

@@ -44,6 +44,10 @@ def add_arguments(parser):
     parser.add_argument("--camera-delays", action="store_true",
                         help="learn each training camera's time offset against the tracking, for a rig whose "
                              "cameras are not triggered together (docs/training.md; overrides the config)")
+    parser.add_argument("--camera-colour", action="store_true",
+                        help="learn each training camera's affine colour of the rendered avatar, for a rig whose "
+                             "cameras disagree in white balance or exposure (docs/training.md; overrides the "
+                             "config)")
     parser.add_argument("--landmark-embedding", metavar="FILE", type=pathlib.Path,
                         help="with --cameras-start landmarks: where the landmarks lie on the head model (VHAP's "
                              "landmark_embedding_with_eyes.npy, FLAME's flame_static_embedding.pkl); default: the "
@@ -111,6 +115,8 @@ def _overrides(args) -> dict:
         overrides.setdefault("cameras", {})["gauge"] = args.camera_gauge
     if args.camera_delays:
         overrides.setdefault("cameras", {})["delays"] = True
+    if args.camera_colour:
+        overrides.setdefault("cameras", {})["colour"] = True
     if args.landmark_embedding is not None:
         overrides.setdefault("cameras", {})["embedding"] = str(args.landmark_embedding.resolve())
     return overrides

@@ -1,4 +1,5 @@
-"""The held-out camera aligned to the avatar before it is scored (protocol ``novel_view_aligned``).
+"""The held-out camera aligned to the avatar before it is scored: in pose (protocol
+``novel_view_aligned``) or in colour (``novel_view_colour_aligned``).
 
 With cameras whose calibration was off, a novel-view score mixes two things: how good the avatar
 is, and how far its world sits from where the held-out camera's pose says. The second is not all
@@ -8,6 +9,12 @@ therefore also scored after a test-time alignment of each held-out camera: a 6-D
 about its centre and a shift of it) is fitted to the avatar on **half** of that camera's frames,
 and the **other half** is scored. No scored image is an input to anything; the offset sees only
 the other timesteps. ``novel_view`` stays the score at the scoring camera's own pose.
+
+The colour is aligned the same way: a held-out camera has no colour learned in training (a run with
+``[cameras] colour`` learns one per training camera, their mean held at the avatar's own colours),
+so an affine colour of the rendered foreground (:mod:`..avatar.camera_colour`) is fitted in closed
+form, by least squares on the foreground pixels of the renders of half its frames against their
+images, and the other half is scored through it.
 """
 
 from __future__ import annotations
@@ -23,6 +30,7 @@ from ..data.capture import Frame
 
 ALIGNMENT_STEPS = 150
 MAX_FIT_FRAMES = 8  # the fit's views are posed once and kept; enough to pin six numbers
+MIN_COLOUR_PIXELS = 64  # fewer foreground pixels than this pin no affine colour: the identity is kept
 ROTATION_RATE = 2e-3  # radians per Adam step at the start (decays tenfold over the fit)
 SHIFT_RATE = 2e-4  # metres per Adam step at the start
 
@@ -89,3 +97,46 @@ def align_camera(avatar, camera: Camera, views: list[tuple[dict, np.ndarray]], b
         "shift_mm": 1000.0 * float(shift[0].norm()) if kept else 0.0,
     }
     return aligned, info
+
+
+def fit_colour(renders: list[tuple[np.ndarray, np.ndarray]], targets: list[np.ndarray], background
+               ) -> tuple[np.ndarray, dict]:
+    """The affine colour (change ``[M − I | b]``, ``(3, 4)``) that best maps the foreground of
+    ``renders`` (``(rgb, alpha)`` over ``background``, rgb as rendered, not clamped) to ``targets``,
+    and what was fitted.
+
+    Least squares over the pixels the avatar covers (alpha ≥ 0.5), in the premultiplied form of
+    :func:`~..avatar.camera_colour.recolour`, ``target − (1 − α)·bg − F = (M − I)·F + α·b``
+    (``F = rgb − (1 − α)·bg``), solved for the change: exact for targets that are such a map of the
+    renders, and the identity in any direction the pixels do not pin (the least-norm solution). It
+    is kept only if it lowers the mean L1 error of the clamped images over all fit views.
+    """
+    from ..avatar.camera_colour import matrix_and_offset, recolour
+
+    if not renders or len(renders) != len(targets):
+        raise ValueError("fitting a colour needs at least one render and its target")
+    bg = np.asarray(background, np.float64).reshape(1, 3)
+    inputs, outputs = [], []
+    for (rgb, alpha), target in zip(renders, targets):
+        keep = alpha >= 0.5
+        a = alpha[keep].astype(np.float64)[:, None]
+        foreground = rgb[keep].astype(np.float64) - (1.0 - a) * bg
+        inputs.append(np.concatenate([foreground, a], axis=1))
+        outputs.append(target[keep].astype(np.float64) - (1.0 - a) * bg - foreground)
+    design, wanted = np.concatenate(inputs), np.concatenate(outputs)
+    change = np.zeros((3, 4))
+    if len(design) >= MIN_COLOUR_PIXELS:
+        change = np.linalg.lstsq(design, wanted, rcond=None)[0].T
+
+    def mean_error(candidate) -> float:
+        with torch.no_grad():
+            return float(np.mean([np.abs(np.clip(recolour(torch.from_numpy(rgb), torch.from_numpy(alpha), background,
+                                                          candidate).numpy(), 0.0, 1.0) - target).mean()
+                                  for (rgb, alpha), target in zip(renders, targets)]))
+
+    before, after = mean_error(np.zeros((3, 4))), mean_error(change)
+    kept = after < before
+    matrix, offset = matrix_and_offset(change if kept else np.zeros((3, 4)))
+    info = {"fit_frames": len(renders), "fit_pixels": len(design), "fit_l1_before": before, "fit_l1_after": after,
+            "kept": kept, "matrix": matrix.tolist(), "offset": offset.tolist()}
+    return (change if kept else np.zeros((3, 4))), info

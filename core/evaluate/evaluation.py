@@ -14,6 +14,7 @@ from ..run.folder import RunFolder
 from ..train.camera_delays import delayed_views
 from . import report
 from .camera_alignment import split_frames
+from .protocol_names import ALIGNED_PROTOCOLS
 from .protocols import (
     PROTOCOLS,
     DrivenParams,
@@ -24,6 +25,7 @@ from .protocols import (
     check_split,
     cross_identity,
     novel_view_aligned,
+    novel_view_colour_aligned,
     protocol_frames,
     protocol_unavailable,
     run_protocol,
@@ -91,7 +93,7 @@ def evaluate_run(
     if skipped and len(skipped) == len(protocols):
         raise InputError(cap.root, "protocols", "; ".join(f"{k}: {v}" for k, v in skipped.items()))
     plans = {name: protocol_frames(cap, name, max_frames, split) for name in protocols if name not in skipped}
-    total = sum(len(split_frames(f)[1]) if name == "novel_view_aligned" else len(f) for name, f in plans.items())
+    total = sum(len(split_frames(f)[1]) if name in ALIGNED_PROTOCOLS else len(f) for name, f in plans.items())
     bar = ProgressBar(total, "eval") if progress and total else None
     if lpips:
         check_lpips_size(cap)
@@ -108,8 +110,9 @@ def evaluate_run(
     }
     for name, frames in plans.items():
         rows, alignment, scored = [], None, []
-        if name == "novel_view_aligned":
-            items, alignment = novel_view_aligned(avatar, cap, source, run.background, frames)
+        if name in ALIGNED_PROTOCOLS:
+            align = novel_view_aligned if name == "novel_view_aligned" else novel_view_colour_aligned
+            items, alignment = align(avatar, cap, source, run.background, frames)
         else:
             items = run_protocol(avatar, cap, source, frames, run.background, shift=shift)
         for index, item in enumerate(items):

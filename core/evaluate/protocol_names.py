@@ -7,7 +7,9 @@ Plain values, no torch: the command line lists them in its ``--help``
 from __future__ import annotations
 
 PROTOCOLS = ("novel_view", "self_reenactment")  # scored by default
-OPTIONAL_PROTOCOLS = ("novel_view_aligned",)  # scored when asked for
+OPTIONAL_PROTOCOLS = ("novel_view_aligned", "novel_view_colour_aligned")  # scored when asked for
+# The held-out camera aligned (in pose, in colour) on half its frames, the other half scored.
+ALIGNED_PROTOCOLS = OPTIONAL_PROTOCOLS
 ALL_PROTOCOLS = PROTOCOLS + OPTIONAL_PROTOCOLS
 # Which unseen frames the protocols score: ``test``, the held-out sequence (FREE), scored once
 # with settings chosen on ``validation``, the validation sequence (VAL), where only

@@ -4,13 +4,16 @@
 - **self-reenactment**: the held-out sequence from every camera (the ``test`` split);
 - **cross-identity reenactment**: subject A driven by subject B's tracked motion; renders only;
 - **novel view, aligned** (on request): the held-out camera aligned to the avatar on half its
-  frames, the other half scored (:mod:`.camera_alignment`), for runs whose cameras were refined.
+  frames, the other half scored (:mod:`.camera_alignment`), for runs whose cameras were refined;
+- **novel view, colour aligned** (on request): the same halves, the held-out camera's affine colour
+  fitted on the first, for captures whose cameras disagree in colour.
 
 Images are full frames on the training background colour. Where an avatar's FLAME parameters
 come from is a parameter source (:mod:`.sources`): each protocol asks it for one frame's
 parameters and names the view being scored as ``exclude_view``, so a source that looks at images
 must leave that view out. The scored image is never an input to anything. A frame is rendered
-from its true camera where the capture keeps one (:class:`~..run.cameras.ScoringCameras`).
+from its true camera where the capture keeps one (:class:`~..run.cameras.ScoringCameras`), a
+training camera's in the colours the run learned for it (``camera_colours``).
 """
 
 from __future__ import annotations
@@ -27,14 +30,14 @@ from ..data.capture_info import capture_info
 from ..data.target import target_image
 from ..errors import InputError
 from ..run.cameras import ScoringCameras
-from .protocol_names import ALL_PROTOCOLS, OPTIONAL_PROTOCOLS, PROTOCOLS, SCORE_SPLITS
+from .protocol_names import ALIGNED_PROTOCOLS, ALL_PROTOCOLS, OPTIONAL_PROTOCOLS, PROTOCOLS, SCORE_SPLITS
 from .sources.base import ParamSource, views_at
 from .sources.driven import DrivenParams
 from .sources.tracked import TrackedParams
 
 __all__ = ["ALL_PROTOCOLS", "OPTIONAL_PROTOCOLS", "PROTOCOLS", "SCORE_SPLITS", "check_protocol", "check_split",
            "DrivenParams", "ParamSource", "Scored", "TrackedParams", "cross_identity", "novel_view",
-           "novel_view_aligned", "protocol_frames", "run_protocol", "score", "scored_views",
+           "novel_view_aligned", "novel_view_colour_aligned", "protocol_frames", "run_protocol", "score", "scored_views",
            "self_reenactment", "target_image", "views_at"]
 
 
@@ -60,11 +63,11 @@ def protocol_unavailable(capture: Capture, protocol: str, split: str = "test") -
             return ("the validation frames are a sequence of their own: only self_reenactment scores them "
                     "(the held-out camera at training timesteps has no validation counterpart)")
         return "capture_info.json names no validation sequence (val_sequence), or it has no frames"
-    if frames and protocol == "novel_view_aligned" and len(frames) == len({f.camera_id for f in frames}):
+    if frames and protocol in ALIGNED_PROTOCOLS and len(frames) == len({f.camera_id for f in frames}):
         return "the held-out camera has a single frame: aligning it on some frames and scoring others needs two"
     if frames:
         return None
-    split = {"novel_view": "val", "novel_view_aligned": "val", "self_reenactment": "test"}[protocol]
+    split = "test" if protocol == "self_reenactment" else "val"
     what = "a held-out sequence" if protocol == "self_reenactment" else "a held-out camera"
     if split in capture.empty_splits:
         return f"the {split} split is empty ({capture.empty_splits[split]}), so there is no {what} to score"
@@ -78,7 +81,7 @@ def _protocol_candidates(capture: Capture, protocol: str, split: str = "test") -
         if check_protocol(protocol) != "self_reenactment" or not validation:
             return []
         return [f for f in capture.frames() if f.sequence == validation]
-    if check_protocol(protocol) in ("novel_view", "novel_view_aligned"):
+    if check_protocol(protocol) in ("novel_view", *ALIGNED_PROTOCOLS):
         if "val" in capture.splits:
             return capture.frames("val")
         camera = info.get("val_camera")
@@ -163,20 +166,28 @@ class Scored:
 
 
 def run_protocol(
-    avatar, capture: Capture, source: ParamSource, frames: Iterable[Frame], background, cameras=None, shift=None
+    avatar, capture: Capture, source: ParamSource, frames: Iterable[Frame], background, cameras=None, shift=None,
+    colour=None,
 ) -> Iterator[Scored]:
     """Render each frame from parameters that never saw its image, and pair it with the truth.
 
     ``cameras``: frame → the camera it is rendered from (default :class:`~..run.cameras.ScoringCameras`).
-    ``shift``: frame → the move of its posed mesh (a run's camera delays), or None."""
+    ``shift``: frame → the move of its posed mesh (a run's camera delays), or None. ``colour``:
+    frame → the colour its camera sees in (a change ``[M − I | b]``) or None; default: the colours
+    the run learned for its training cameras (the avatar's ``camera_colours``), none for others."""
     recorded = capture_info(capture.root).get("background")
     cameras = ScoringCameras(capture) if cameras is None else cameras
+    if colour is None:
+        learned = getattr(avatar, "camera_colours", None) or {}
+
+        def colour(frame):
+            return learned.get(frame.camera_id)
     for frame in frames:
         start = time.perf_counter()
         params = source.params_for(frame, exclude_view=frame.camera_id)
         middle = time.perf_counter()
         prediction, alpha = render_frame(avatar, params, cameras(frame), background,
-                                         vertex_shift=None if shift is None else shift(frame))
+                                         vertex_shift=None if shift is None else shift(frame), colour=colour(frame))
         end = time.perf_counter()
         yield Scored(frame, prediction, alpha, target_image(capture, frame, background, recorded), params,
                      middle - start, end - middle)
@@ -212,6 +223,31 @@ def novel_view_aligned(avatar, capture, source, background, frames: list[Frame])
                  for f in own]
         aligned[camera_id], report[camera_id] = align_camera(avatar, camera, views, background)
     return run_protocol(avatar, capture, source, scored, background, lambda f: aligned[f.camera_id]), report
+
+
+def novel_view_colour_aligned(avatar, capture, source, background, frames: list[Frame]
+                              ) -> tuple[Iterator[Scored], dict]:
+    """The scored half of ``frames`` (novel-view frames), each held-out camera seen through the affine
+    colour fitted on the other half (:func:`.camera_alignment.fit_colour`); returns the scored items
+    and, per camera, what the fit found. The fit renders from the scoring cameras, as the scored
+    half is rendered."""
+    from .camera_alignment import MAX_FIT_FRAMES, fit_colour, split_frames
+
+    fit, scored = split_frames(frames)
+    if not scored:
+        raise InputError(capture.root, "novel_view_colour_aligned", "needs two or more frames of the held-out "
+                                                                    "camera (one to fit on, one to score): raise "
+                                                                    "--max-frames")
+    recorded = capture_info(capture.root).get("background")
+    truth = ScoringCameras(capture)
+    fitted, report = {}, {}
+    for camera_id in sorted({f.camera_id for f in scored}):
+        own = _spread([f for f in fit if f.camera_id == camera_id], MAX_FIT_FRAMES)
+        renders = [render_frame(avatar, source.params_for(f, exclude_view=f.camera_id), truth(f), background,
+                                clamp=False) for f in own]
+        targets = [target_image(capture, f, background, recorded) for f in own]
+        fitted[camera_id], report[camera_id] = fit_colour(renders, targets, background)
+    return run_protocol(avatar, capture, source, scored, background, colour=lambda f: fitted[f.camera_id]), report
 
 
 def cross_identity(

@@ -1,7 +1,8 @@
 """Render a run's avatar at chosen timesteps and cameras into image files.
 
 PNG: sRGB on the training background, what the evaluation scores. EXR: RGBA, linear light,
-premultiplied by alpha (the EXR convention compositors such as Blender's expect).
+premultiplied by alpha (the EXR convention compositors such as Blender's expect). A training
+camera whose colour the run learned is rendered in that colour, as evaluation scores it.
 """
 
 from __future__ import annotations
@@ -63,6 +64,7 @@ def render_run(
     avatar = (modulated or run.load_avatar()) if avatar is None else avatar
     source = modules_source or TrackedParams(cap, run, avatar.flame)
     background = np.asarray(run.background, dtype=np.float32)
+    colours = getattr(avatar, "camera_colours", None) or {}
     written = []
     for timestep in timesteps:
         if params_dir is not None:
@@ -75,7 +77,8 @@ def render_run(
             params = source.params_for(timestep)
         for camera_id in cameras:
             camera = cap.camera_at(camera_id, timestep)  # its pose at that timestep (per sequence in unions)
-            rgb_black, alpha = render_frame(avatar, params, camera, (0.0, 0.0, 0.0), clamp=False)
+            rgb_black, alpha = render_frame(avatar, params, camera, (0.0, 0.0, 0.0), clamp=False,
+                                            colour=colours.get(camera_id))
             stem = f"{timestep:05d}_{camera_id}"
             write_png(out / f"{stem}.png", np.clip(rgb_black + (1.0 - alpha[..., None]) * background, 0.0, 1.0))
             written.append(out / f"{stem}.png")

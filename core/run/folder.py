@@ -134,6 +134,10 @@ class RunFolder:
     def delays_path(self) -> pathlib.Path:
         return self.root / names.DELAYS_FILE
 
+    @property
+    def colours_path(self) -> pathlib.Path:
+        return self.root / names.COLOURS_FILE
+
     def head_path(self, suffix: str = ".pkl") -> pathlib.Path:
         return self.root / f"{names.HEAD_STEM}{suffix}"
 
@@ -197,17 +201,33 @@ class RunFolder:
         params = self.flame_params(self.trained_timesteps[0])
         return {k: v for k, v in params.items() if k in IDENTITY_KEYS}
 
+    def _own_avatar(self) -> bool:
+        """Whether the avatar is the run's own ``avatar.pt`` (what the run's other files belong to)."""
+        return self.avatar_path.name == names.AVATAR_FILE and self.avatar_path.parent == self.root
+
     def has_modules(self) -> bool:
         """Whether the avatar renders with MoGaFace modules (``mogaface.pt`` beside ``avatar.pt``)."""
-        return self.avatar_path.name == names.AVATAR_FILE and self.avatar_path.parent == self.root \
-            and self.modules_path.is_file()
+        return self._own_avatar() and self.modules_path.is_file()
+
+    def camera_colours(self) -> dict[str, np.ndarray] | None:
+        """The training cameras' learned colours (``camera_colours.json``), camera id → change
+        ``[M − I | b]`` (:mod:`..avatar.camera_colour`); None for a run without them."""
+        if not (self._own_avatar() and self.colours_path.is_file()):
+            return None
+        from ..avatar.camera_colour import read_camera_colours
+
+        return read_camera_colours(self.colours_path)
 
     def load_avatar(self):
         """The run's avatar as ``render`` draws it: :class:`~..avatar.avatar.Avatar`, wrapped in
-        :class:`~..correction.avatar.ModulatedAvatar` when the run has MoGaFace modules."""
+        :class:`~..correction.avatar.ModulatedAvatar` when the run has MoGaFace modules. Its
+        ``camera_colours`` are the run's learned camera colours (or None), for renders that show a
+        training camera's view in that camera's colours (:func:`~..avatar.avatar.render_frame`'s
+        ``colour``)."""
         from ..avatar.avatar import Avatar
 
         avatar = Avatar.load(self.avatar_path)
+        avatar.camera_colours = self.camera_colours()
         if not self.has_modules():
             return avatar
         from ..correction.avatar import ModulatedAvatar

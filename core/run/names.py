@@ -15,6 +15,7 @@
     RUN/metrics_train_end.json    quick val-split metrics after training
     RUN/cameras_refined.json      learned camera poses (camera refinement)
     RUN/camera_delays.json        learned camera delays (camera id → timesteps)
+    RUN/camera_colours.json       learned camera colours (camera id → affine matrix and offset)
     RUN/cameras_landmarks.json    cameras solved from landmarks (a run that started from them)
     RUN/.lock                     the one writer's lock (holds its pid)
 """
@@ -35,5 +36,6 @@ CORRECTED_DIR = "flame_param_corrected"
 METRICS_TRAIN_END_FILE = "metrics_train_end.json"
 REFINED_CAMERAS_FILE = "cameras_refined.json"
 DELAYS_FILE = "camera_delays.json"
+COLOURS_FILE = "camera_colours.json"
 LANDMARK_CAMERAS_FILE = "cameras_landmarks.json"
 LOCK_FILE = ".lock"

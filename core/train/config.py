@@ -133,6 +133,14 @@ class CamerasSection:
                                        "rounds move them from the first step); sooner than the offsets, so the "
                                        "per-timestep FLAME fine-tuning and the Gaussians form on views at their "
                                        "own moments")
+    colour: bool = _setting(False, "learn each training camera's affine colour (3×3 matrix and offset of the rendered "
+                                   "foreground, identity at the start; their mean held at the identity) for a rig "
+                                   "whose cameras disagree in colour; writes RUN/camera_colours.json")
+    colour_lr: float = _setting(1e-3, "learning rate of the camera colours (matrix entries and offsets)")
+    colour_begin: float = _setting(0.1, "fraction of the steps after which the camera colours move (before, they "
+                                        "hold still while the avatar's colours form)")
+    colour_weight: float = _setting(1.0, "weight of the penalty ‖M − I‖² + ‖b‖² on the camera colour of each view "
+                                         "(weaker, the colours take up the avatar's own errors: docs/training.md)")
     settle_at: int = _setting(0, "step at which a cameras-only phase starts: the avatar and the FLAME parameters "
                                  "hold still while the cameras align to it (0: no such phase)")
     settle_steps: int = _setting(0, "steps of the cameras-only phase")
@@ -275,7 +283,7 @@ STEP_COUNTS = ("train.steps", "train.checkpoint_every", "densify.start", "densif
 # cameras', the MoGaFace modules'.
 RATES = ("lr.position", "lr.scaling", "lr.opacity", "lr.rotation", "lr.color", "flame.expression_lr",
          "flame.joints_lr", "flame.translation_lr", "cameras.rotation_lr", "cameras.translation_lr",
-         "cameras.delay_lr", "mogaface.lr", "mogaface.texture_lr")
+         "cameras.delay_lr", "cameras.colour_lr", "mogaface.lr", "mogaface.texture_lr")
 BATCH_RULES = ("sqrt", "none")  # the rates times √B (the square-root rule for Adam, as gsplat's batches), or as given
 # The rule of a run started through a launcher (one image per rank): the one that kept the quality
 # per image seen in ``bench batch`` (docs/training.md).

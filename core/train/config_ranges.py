@@ -28,6 +28,7 @@ RANGES: dict[str, tuple[float, float]] = {
     "cameras.rotation_lr": (0, 1), "cameras.translation_lr": (0, 1), "cameras.begin": (0, 0.99),
     "cameras.settle_at": (0, BIG), "cameras.settle_steps": (0, BIG), "cameras.rounds": (1, 16),
     "cameras.final_ratio": (1e-12, 1), "cameras.delay_lr": (0, 1), "cameras.delay_begin": (0, 0.99),
+    "cameras.colour_lr": (0, 1), "cameras.colour_weight": (0, 1e6), "cameras.colour_begin": (0, 0.99),
     "eval.max_frames": (0, BIG), "eval.every": (0, BIG), "eval.every_frames": (0, 100_000),
     "mogaface.encoder_views": (1, 256), "mogaface.momentum_start": (0, 0.999999), "mogaface.momentum_end": (0, 0.999999),
     "mogaface.consistency_weight": (0, 1e6), "mogaface.centring_weight": (0, 1e6), "mogaface.rendered_weight": (0, 1e6),

@@ -16,17 +16,20 @@ import time
 from ..data import layout
 from ..io.atomic import write_json
 from ..io.npz import save_npz
-from ..run.names import DELAYS_FILE, REFINED_CAMERAS_FILE, RUN_FORMAT, RUN_VERSION
+from ..run.names import COLOURS_FILE, DELAYS_FILE, REFINED_CAMERAS_FILE, RUN_FORMAT, RUN_VERSION
 from .camera_refine import write_refined_cameras
 from .correction_part import corrected_avatar, finish_mogaface
 
 
-def write_learned_cameras(root: pathlib.Path, offsets, delays) -> None:
-    """``RUN/cameras_refined.json`` and ``RUN/camera_delays.json``, for the parts a run learns."""
+def write_learned_cameras(root: pathlib.Path, offsets, delays, colours=None) -> None:
+    """``RUN/cameras_refined.json``, ``RUN/camera_delays.json`` and ``RUN/camera_colours.json``, for
+    the parts a run learns."""
     if offsets is not None:
         write_refined_cameras(root / REFINED_CAMERAS_FILE, offsets)
     if delays is not None:
         delays.write(root / DELAYS_FILE)
+    if colours is not None:
+        colours.write(root / COLOURS_FILE)
 
 
 #: What a ``not_scored`` key of :meth:`RunOutputs.score_at_end` names, for its warning.
@@ -50,7 +53,7 @@ class RunOutputs:
 
     def write_final(self, avatar, table, mogaface, cameras: tuple, step: int, elapsed: float, events) -> None:
         """Write the final avatar, the FLAME parameters used, the learned ``cameras`` (offsets,
-        delays), run.json and the val metrics; emit ``done``."""
+        delays, colours), run.json and the val metrics; emit ``done``."""
         run_folder = self.run_folder
         avatar.save(run_folder.avatar_path)
         write_learned_cameras(run_folder.root, *cameras)

@@ -35,7 +35,7 @@ def camera_lrs(config: TrainConfig, step: int) -> dict[str, float]:
     cams = config.cameras
     return {f"cameras.{name}": decayed(rate, cams.final_ratio, step, config.train.steps)
             for name, rate in (("rotation", cams.rotation_lr), ("translation", cams.translation_lr),
-                               ("delay", cams.delay_lr))}
+                               ("delay", cams.delay_lr), ("colour", cams.colour_lr))}
 
 
 def rates_at(config: TrainConfig, extent: float, step: int) -> dict[str, float]:
@@ -75,7 +75,7 @@ def cameras_settling(config: TrainConfig, step: int) -> bool:
 def hold_still(optimizer, config: TrainConfig, step: int, settling: bool) -> None:
     """Drop the gradients of the optimiser groups that hold still at ``step`` (Adam skips them this
     step): the camera offsets before ``cameras.begin``, the delays before ``cameras.delay_begin``,
-    and everything but the cameras while they settle (:func:`cameras_settling`)."""
+    the colours before ``cameras.colour_begin``, and everything but the cameras while they settle (:func:`cameras_settling`)."""
     cams, steps = config.cameras, config.train.steps
 
     def holds(name: str) -> bool:
@@ -83,6 +83,8 @@ def hold_still(optimizer, config: TrainConfig, step: int, settling: bool) -> Non
             return settling
         if name == "cameras.delay":
             return step < cams.delay_begin * steps
+        if name == "cameras.colour":
+            return step < cams.colour_begin * steps
         return name in ("cameras.rotation", "cameras.translation") and step < cams.begin * steps
 
     for group in optimizer.param_groups:

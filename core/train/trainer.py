@@ -4,10 +4,10 @@ correction modules (expression correction, bank, texture attention) where ``[mog
 One step renders ``train.batch`` random training images (a timestep and a camera each) and takes
 an Adam step on ``0.8·L1 + 0.2·(1 − SSIM)`` plus the position and scaling hinges of the Gaussians
 visible; the :class:`~mogaface.core.avatar.densify.DensifyStrategy` then densifies, prunes, resets
-opacities and raises the SH degree on its schedule. Optionally the per-timestep FLAME
-parameters and the cameras are fine-tuned too. Everything that decides what happens next (step, parameters,
-Adam moments, densification statistics, random state, frame order) is in :meth:`Trainer.state`,
-so a resumed run continues exactly where its checkpoint left it.
+opacities and raises the SH degree on its schedule. Optionally the per-timestep FLAME parameters
+and the cameras (poses, delays, colours) are learned too. Everything that decides what happens next
+(step, parameters, Adam moments, densification statistics, random state, frame order) is in
+:meth:`Trainer.state`, so a resumed run continues exactly where its checkpoint left it.
 
 The trainer holds the loop and gathers the parts: each trainable part gives its own optimiser
 groups (``param_groups``), :mod:`.schedule` gives each rate and size at a step, :mod:`.training_view`
@@ -37,7 +37,7 @@ from ..run.names import LANDMARK_CAMERAS_FILE
 from ..splat import cancel
 from ..splat.cancel import RenderCancelled
 from . import config as config_module
-from .camera_start import build_camera_delays, build_camera_offsets, load_cameras
+from .camera_start import build_cameras, camera_state, load_cameras
 from .checkpoint import save_checkpoint, starting_state
 from .config import TrainConfig
 from .correction_part import build_mogaface
@@ -96,8 +96,8 @@ class Trainer:
         else:
             self._restore(checkpoint)
         self._scheduled_through = int(self._schedule_position(self.step))  # scheduled passes done up to here
-        self.views = ViewRenderer(self.config, self.data, self.avatar, self.table, self.background,
-                                  self.camera_offsets, self.camera_delays, self.mogaface)
+        self.views = ViewRenderer(self.config, self.data, self.avatar, self.table, self.background, self.camera_offsets,
+                                  self.camera_delays, self.mogaface, self.camera_colours)
         self.events = EventLog(self.run_folder.events_path if writer else None, listeners if writer else None)
         for note in self._notes:
             self.events.emit("warning", message=note)
@@ -119,8 +119,8 @@ class Trainer:
         self.avatar = Avatar.initial(head, self.config.densify.max_sh_degree, n_vertices=self.table.n_vertices)
         self.data.check_counts(self.table, self.avatar.flame)
         landmarks_file = self.run_folder.root / LANDMARK_CAMERAS_FILE if self.comm.is_writer else None
-        self.camera_offsets = build_camera_offsets(self.config, self.data, source, landmarks_file)
-        self.camera_delays = build_camera_delays(self.config, self.data, self.table.timesteps, fresh=True)
+        self.camera_offsets, self.camera_delays, self.camera_colours = build_cameras(
+            self.config, self.data, self.table.timesteps, source, landmarks_file)
         self._build_optimizer()
         self.mogaface = build_mogaface(self.config, self.data, self.table, self.avatar)
         self.strategy = DensifyStrategy(densify_schedule(self.config), len(self.avatar.gaussians),
@@ -139,9 +139,9 @@ class Trainer:
         with torch.no_grad():
             for name, value in self.table.trainable().items():
                 value.copy_(state["table"][name])
-        self.camera_offsets = build_camera_offsets(self.config, self.data)
-        self.camera_delays = build_camera_delays(self.config, self.data, self.table.timesteps)
-        load_cameras(state, self.camera_offsets, self.camera_delays, self.run_folder.checkpoint_dir)
+        self.camera_offsets, self.camera_delays, self.camera_colours = build_cameras(self.config, self.data,
+                                                                                     self.table.timesteps)
+        load_cameras(state, self._camera_parts(), self.run_folder.checkpoint_dir)
         self._build_optimizer()
         self.optimizer.load_state_dict(state["optimizer"])
         self.mogaface = build_mogaface(self.config, self.data, self.table, self.avatar)
@@ -164,7 +164,7 @@ class Trainer:
         """One Adam over the groups each trainable part gives (Gaussians, FLAME table, cameras)."""
         position = rates_at(self.config, self.extent, self.step)["local_position"]
         groups = [*self.avatar.gaussians.param_groups(self.config.lr, position), *self.table.param_groups(self.config.flame)]
-        for cameras in (self.camera_offsets, self.camera_delays):
+        for cameras in self._camera_parts():
             if cameras is not None:
                 groups += cameras.param_groups(self.config.cameras)
         self.optimizer = torch.optim.Adam(groups, lr=0.0, eps=1e-15, fused=True)  # one kernel per group
@@ -184,9 +184,11 @@ class Trainer:
             "rng": {"torch": self.generator.get_state()},
             "sampler": self.frame_order.state(),
             **({"mogaface": self.mogaface.state_dict()} if self.mogaface is not None else {}),
-            **({"cameras": self.camera_offsets.state()} if self.camera_offsets is not None else {}),
-            **({"delays": self.camera_delays.state()} if self.camera_delays is not None else {}),
+            **camera_state(*self._camera_parts()),
         }
+
+    def _camera_parts(self) -> tuple:  # the learned camera parts, each None where the run has it off
+        return self.camera_offsets, self.camera_delays, self.camera_colours
 
     def checkpoint(self) -> pathlib.Path | None:
         """Write a checkpoint (rank 0; every rank must call this at the same step). Returns its path."""
@@ -195,7 +197,7 @@ class Trainer:
         if self.comm.is_writer:
             path = save_checkpoint(self.run_folder.checkpoint_dir, self.step, self.state(),
                                    keep=self.config.train.keep_checkpoints)
-            write_learned_cameras(self.run_folder.root, self.camera_offsets, self.camera_delays)
+            write_learned_cameras(self.run_folder.root, *self._camera_parts())
             self.events.emit("checkpoint", step=self.step, path=str(path.relative_to(self.run_folder.root)))
         self.comm.keep_statistics_once(self.strategy)
         return path
@@ -284,8 +286,8 @@ class Trainer:
         hold_still(self.optimizer, cfg, at, settling)
         self.optimizer.step()
         self.optimizer.zero_grad(set_to_none=True)
-        if self.camera_offsets is not None:
-            self.camera_offsets.fix_gauge()
+        for part in (p for p in (self.camera_offsets, self.camera_colours) if p is not None):
+            part.fix_gauge()
         if self.mogaface is not None:
             if settling:
                 self.mogaface.optimizer.zero_grad(set_to_none=True)
@@ -444,5 +446,5 @@ class Trainer:
     def finish(self) -> None:
         """Write the final avatar, the FLAME parameters used, run.json and the quick val metrics."""
         self._set_sh_degree()
-        self.outputs.write_final(self.avatar, self.table, self.mogaface, (self.camera_offsets, self.camera_delays),
-                                 self.step, self.elapsed, self.events)
+        self.outputs.write_final(self.avatar, self.table, self.mogaface, self._camera_parts(), self.step, self.elapsed,
+                                 self.events)

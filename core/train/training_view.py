@@ -25,12 +25,14 @@ IMAGE_TERMS = ("l1", "ssim", "rgb")  # ``rgb`` = (1 − λ)·l1 + λ·(1 − ssi
 
 
 class LossTerms:
-    """The weighted terms added to a view's image loss ``rgb``: the position and scaling hinges and,
-    with the MoGaFace modules, the correction's consistency, centring and rendered losses (those
-    whose weight is not zero: consistency always)."""
+    """The weighted terms added to a view's image loss ``rgb``: the position and scaling hinges,
+    with camera colours their penalty, and with the MoGaFace modules the correction's consistency,
+    centring and rendered losses (those whose weight is not zero: consistency always)."""
 
     def __init__(self, config: TrainConfig, mogaface: bool):
         self.weights = {"position": config.loss.position_weight, "scaling": config.loss.scaling_weight}
+        if config.cameras.colour:
+            self.weights["colour"] = config.cameras.colour_weight
         if mogaface:
             settings = config.mogaface
             self.weights["consistency"] = settings.consistency_weight
@@ -77,11 +79,13 @@ class ViewRenderer:
 
     Holds the meshes of the timesteps: for good when the FLAME parameters are fixed, for one step
     when they are fine-tuned (each timestep posed once per step, shared by its views; call
-    :meth:`step_done` after the step's ``backward``).
+    :meth:`step_done` after the step's ``backward``). With camera colours, a render is recoloured
+    by its camera's map before it is scored.
     """
 
     def __init__(self, config: TrainConfig, data, avatar, table, background: torch.Tensor,
-                 camera_offsets=None, camera_delays=None, mogaface: CorrectionTraining | None = None):
+                 camera_offsets=None, camera_delays=None, mogaface: CorrectionTraining | None = None,
+                 camera_colours=None):
         self.config = config
         self.data = data
         self.avatar = avatar
@@ -90,6 +94,7 @@ class ViewRenderer:
         self.camera_offsets = camera_offsets
         self.camera_delays = camera_delays
         self.mogaface = mogaface
+        self.camera_colours = camera_colours
         self.terms = LossTerms(config, mogaface is not None)
         self._posed_cache: dict[int, torch.Tensor] = {}
         self._step_posed: dict[int, torch.Tensor] = {}
@@ -138,15 +143,23 @@ class ViewRenderer:
         else:
             _, render, correction = mogaface_render(self.mogaface, self.avatar, self.table, frame, camera,
                                                     self.background, step, generator, move, shift)
-        return ViewResult(camera, target, render, self.score(render, target, correction), correction)
+        colours = self.camera_colours
+        if colours is not None:  # the camera's colours, over the background as it is
+            render = dataclasses.replace(render, rgb=colours.apply(frame.camera_id, render.rgb, render.alpha,
+                                                                   self.background))
+        losses = self.score(render, target, correction, frame.camera_id)
+        return ViewResult(camera, target, render, losses, correction)
 
-    def score(self, render: SplatOutput, target: torch.Tensor, correction: StepCorrection | None) -> dict:
+    def score(self, render: SplatOutput, target: torch.Tensor, correction: StepCorrection | None,
+              camera_id: str | None = None) -> dict:
         """The view's losses by name: the image terms, the weighted terms, ``loss`` (their total)."""
         settings = self.config.loss
         gaussians = self.avatar.gaussians
         losses = image_loss(render.rgb, target, settings.ssim_weight)
         losses["position"] = position_hinge(gaussians.local_position, settings.position_threshold, render.visible)
         losses["scaling"] = scaling_hinge(gaussians.local_log_scale, settings.scaling_threshold, render.visible)
+        if self.camera_colours is not None:
+            losses["colour"] = self.camera_colours.penalty(camera_id)
         for name in self.terms.weights:
             if name not in losses:  # the correction's terms
                 losses[name] = getattr(correction, name)
