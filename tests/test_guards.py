@@ -1,5 +1,5 @@
 """Guards of the measurements: no image-assisted source and no part of the refiner reads a
-synthetic capture's answers (``flame_param_gt/``, ``cameras_gt.json``); scores kept by the ablation
+synthetic capture's answers (``flame_param_gt/``, ``cameras_gt.json``, ``camera_colour_gt.json``); scores kept by the ablation
 are not used again once the scoring code changed; the seed statistics never call a difference
 "beyond noise" they cannot test."""
 
@@ -14,6 +14,7 @@ import pytest
 import torch
 from test_evaluate_fixtures import fake_run, tiny_capture
 
+from mogaface.core.data.camera_colour import GT_COLOUR_FILE
 from mogaface.core.data.capture import Capture
 from mogaface.core.data.generator import GT_CAMERAS_FILE, GT_FLAME_DIR
 from mogaface.core.evaluate import benchmark
@@ -53,7 +54,8 @@ def opened_files():
 
 def answers(paths: list[str]) -> list[str]:
     """The paths among ``paths`` that are a synthetic capture's answers."""
-    return [p for p in paths if GT_FLAME_DIR in pathlib.PurePath(p).parts or pathlib.PurePath(p).name == GT_CAMERAS_FILE]
+    return [p for p in paths if GT_FLAME_DIR in pathlib.PurePath(p).parts
+            or pathlib.PurePath(p).name in (GT_CAMERAS_FILE, GT_COLOUR_FILE)]
 
 
 @pytest.fixture(scope="module")
