@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 import torch
-from test_evaluate_fixtures import fake_run, render_np, tiny_capture
+from test_evaluate_fixtures import fake_run, render_np, tiny_capture, watch_target_images
 
 from mogaface.core.cli import main
 from mogaface.core.data.capture import Capture
@@ -78,14 +78,7 @@ def test_split_alternates_within_each_camera(tmp_path_factory):
 
 def test_the_aligned_protocol_scores_only_what_its_alignment_never_saw(tmp_path_factory, tmp_path, monkeypatch):
     root = fake_run(tmp_path_factory)
-    loaded = []
-    real_target = protocols.target_image
-
-    def spy(capture, frame, *args):
-        loaded.append((frame.camera_id, frame.timestep_index))
-        return real_target(capture, frame, *args)
-
-    monkeypatch.setattr(protocols, "target_image", spy)
+    loaded = watch_target_images(monkeypatch)
     result = evaluate_run(root, ["novel_view", "novel_view_aligned"], 6, lpips=False, out_dir=tmp_path)
     capture = Capture.open(tiny_capture(tmp_path_factory))
     frames = protocol_frames(capture, "novel_view", max_frames=6)

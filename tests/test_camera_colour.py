@@ -9,12 +9,11 @@ import shutil
 import numpy as np
 import pytest
 import torch
-from test_evaluate_fixtures import fake_run, render_np, tiny_capture
+from test_evaluate_fixtures import fake_run, render_np, tiny_capture, watch_target_images
 
 from mogaface.core.avatar.camera_colour import matrix_and_offset, read_camera_colours, recolour
 from mogaface.core.data.capture import Capture
 from mogaface.core.errors import InputError
-from mogaface.core.evaluate import protocols
 from mogaface.core.evaluate.camera_alignment import fit_colour, split_frames
 from mogaface.core.evaluate.protocols import TrackedParams, protocol_frames, run_protocol
 from mogaface.core.io.image import write_png
@@ -249,14 +248,7 @@ def test_the_colour_aligned_protocol_scores_only_what_its_fit_never_saw(held_out
     for frame, (rgb, alpha) in zip(frames, renders):
         seen = recolour(torch.from_numpy(rgb), torch.from_numpy(alpha), (1.0, 1.0, 1.0), KNOWN)
         write_png(root / frame.file_path, seen.clamp(0, 1).numpy())
-    loaded = []
-    real_target = protocols.target_image
-
-    def spy(capture, frame, *args):
-        loaded.append((frame.camera_id, frame.timestep_index))
-        return real_target(capture, frame, *args)
-
-    monkeypatch.setattr(protocols, "target_image", spy)
+    loaded = watch_target_images(monkeypatch)
     result = evaluate_run(run.root, ["novel_view", "novel_view_colour_aligned"], 6, lpips=False,
                           out_dir=tmp_path / "eval", capture=root)
     fit, scored = split_frames(frames)

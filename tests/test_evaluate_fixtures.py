@@ -118,3 +118,18 @@ def capture_fixture(tmp_path_factory):
 def run_fixture(tmp_path_factory):
     """A fake run on the tiny capture, opened (imported as ``run_fixture``, used as ``run``)."""
     return RunFolder(fake_run(tmp_path_factory))
+
+
+def watch_target_images(monkeypatch) -> list[tuple[str, int]]:
+    """Record ``(camera id, timestep)`` of every target image the evaluation protocols load."""
+    from mogaface.core.evaluate import protocols
+
+    loaded = []
+    real_target = protocols.target_image
+
+    def spy(capture, frame, *args):
+        loaded.append((frame.camera_id, frame.timestep_index))
+        return real_target(capture, frame, *args)
+
+    monkeypatch.setattr(protocols, "target_image", spy)
+    return loaded

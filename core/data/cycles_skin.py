@@ -14,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..flame.expression_roles import LEFT_EYE, RIGHT_EYE, has_component_names
+from ..flame.procedural_rig import smoothstep
 from ..flame.procedural_uv import LID_LINING_UV_BOX, MOUTH_UV_BOX
 from ..flame.teeth import TEETH_VERTEX_COUNT
 from . import mesh_raster
@@ -75,11 +76,6 @@ def _groove(distance, width):
     return np.exp(-((distance / width) ** 2))
 
 
-def _smoothstep(x, low, high):
-    t = np.clip((x - low) / (high - low), 0.0, 1.0)
-    return t * t * (3 - 2 * t)
-
-
 def _segment_distance(p, a, b):
     ab = b - a
     t = np.clip(((p - a) @ ab) / (ab @ ab), 0.0, 1.0)
@@ -106,7 +102,7 @@ def wrinkle_heights(p: np.ndarray, marks: np.ndarray) -> np.ndarray:
         r = np.linalg.norm(d[..., :2], axis=-1)
         angle = np.arctan2(d[..., 1], np.maximum(lateral, 1e-9))
         lines = sum(_groove(r * np.abs(np.sin(angle - a)), 0.0005) for a in (-0.45, -0.1, 0.25, 0.55))
-        reach = _smoothstep(r, 0.004, 0.008) * (1 - _smoothstep(r, 0.016, 0.022))
+        reach = smoothstep(r, 0.004, 0.008) * (1 - smoothstep(r, 0.016, 0.022))
         crows += lines * reach * (lateral > 0.002) * (z > corner[2] - 0.025)
 
     fold = np.zeros_like(x)
@@ -115,11 +111,11 @@ def wrinkle_heights(p: np.ndarray, marks: np.ndarray) -> np.ndarray:
         start = wing + np.array([0.004 * out, 0.002, -0.002])
         end = mouth + np.array([0.007 * out, -0.010, -0.004])
         distance, t = _segment_distance(p[..., :2], start[:2], end[:2])  # across the face, not into it
-        fold += 1.5 * _groove(distance, 0.0012) * _smoothstep(t, 0.0, 0.15) * front
+        fold += 1.5 * _groove(distance, 0.0012) * smoothstep(t, 0.0, 0.15) * front
 
     inner = 0.5 * (marks[21] + marks[22])
     frown = sum(_groove(x - inner[0] - dx, 0.0005) for dx in (-0.007, -0.003, 0.003, 0.007))
-    frown = frown * _smoothstep(y, inner[1] - 0.008, inner[1] - 0.004) * (1 - _smoothstep(y, inner[1] + 0.010, inner[1] + 0.016))
+    frown = frown * smoothstep(y, inner[1] - 0.008, inner[1] - 0.004) * (1 - smoothstep(y, inner[1] + 0.010, inner[1] + 0.016))
     frown = frown * front * (np.abs(x - inner[0]) < 0.012)
     return np.clip(np.stack([forehead, crows, fold, frown], -1), 0.0, 1.0)
 
@@ -128,7 +124,7 @@ def roughness(p: np.ndarray, marks: np.ndarray) -> np.ndarray:
     """(…) skin roughness at rest positions: an oily T-zone (forehead centre, nose) and wet lips
     are shinier than the cheeks; a slow variation over the whole face."""
     x, y = p[..., 0], p[..., 1]
-    t_zone = np.exp(-((x / 0.018) ** 2)) * _smoothstep(y, marks[33, 1] - 0.005, marks[33, 1] + 0.005)
+    t_zone = np.exp(-((x / 0.018) ** 2)) * smoothstep(y, marks[33, 1] - 0.005, marks[33, 1] + 0.005)
     lips = np.zeros_like(x)
     near = (np.abs(p - marks[48:60].mean(0)) < [0.05, 0.03, 0.03]).all(-1)
     lips[near] = np.exp(-((np.linalg.norm(p[near][:, None, :] - marks[48:60], axis=-1).min(-1) / 0.004) ** 2))
@@ -173,6 +169,6 @@ class WrinkleDriver:
         active = np.clip(np.asarray(expr, np.float64).reshape(-1) / FULL_ACTIVATION, 0.0, 1.0)
         for column, wrinkle in enumerate(WRINKLES):
             for k, side in self.terms[wrinkle]:
-                reach = 1.0 if side == 0 else _smoothstep(side * self.x, -0.004, 0.004)
+                reach = 1.0 if side == 0 else smoothstep(side * self.x, -0.004, 0.004)
                 out[:, column] += active[k] * reach
         return np.clip(out, 0.0, 1.0)
