@@ -75,8 +75,8 @@ def test_later_rungs_are_set_against_freeze_and_against_fine_tuning():
     from mogaface.core.workflows.ablation_table import markdown
 
     def seeds(psnrs):
-        return {str(s): {"protocols": {p: {"tracked": {"psnr": v, "vertex_mm": 1.0}} for p in
-                                       ("self_reenactment", "novel_view")}} for s, v in enumerate(psnrs)}
+        return {str(s): {"protocols": {p: {"tracked": {"psnr": v, "ssim": v / 50, "vertex_mm": 1.0}}
+                                       for p in ("self_reenactment", "novel_view")}} for s, v in enumerate(psnrs)}
 
     results = {"split": "test", "variants": {
         "freeze": {"label": "Freeze", "seeds": seeds([26.0, 26.2])},
@@ -84,9 +84,12 @@ def test_later_rungs_are_set_against_freeze_and_against_fine_tuning():
         "full_prior": {"label": "Full", "seeds": seeds([30.5, 30.8])}}}
     table = markdown(results).split("**Held-out camera**")[1].split("**Training")[0]
     header = next(line for line in table.splitlines() if line.startswith("| variant"))
-    assert header.endswith("| Δ PSNR vs Freeze (same source) | Δ PSNR vs fine-tuning (same source) |")
+    assert header.endswith("| Δ PSNR / SSIM / LPIPS vs Freeze (same source) "
+                           "| Δ PSNR / SSIM / LPIPS vs fine-tuning (same source) |")
     rows = {cells[0]: cells for cells in ([c.strip() for c in line.strip("|").split("|")]
                                           for line in table.splitlines() if line.startswith("| ") and "---" not in line)}
     assert rows["Freeze"][-2:] == ["", ""]  # no reference for the first rung
     assert rows["Fine-tuning"][-2].startswith("+4.10 ± 0.14") and rows["Fine-tuning"][-1] == ""
-    assert rows["Full"][-2].startswith("+4.55") and rows["Full"][-1] == "+0.45 ± 0.07 (n.s.)"
+    psnr, ssim, lpips = rows["Full"][-1].split(" / ")  # paired by seed, each metric on its own
+    assert rows["Full"][-2].startswith("+4.55") and psnr == "+0.45 ± 0.07 (n.s.)"
+    assert ssim == "+0.0090 ± 0.0014 (n.s.)" and lpips == "–"  # no LPIPS in these results

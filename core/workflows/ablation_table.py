@@ -12,6 +12,7 @@ SOURCE_LABELS = {"tracked": "tracked", "tracked_aligned": "tracked + the run's m
 # The rungs every later variant is also set against, paired by seed and source: Freeze (the
 # paper's baseline) and fine-tuning (what the paper's modules add over per-timestep fine-tuning).
 REFERENCES = {"freeze": "Freeze", "finetune": "fine-tuning"}
+REFERENCE_METRICS = (("psnr", 2), ("ssim", 4), ("lpips", 4))
 
 
 def source_label(name: str) -> str:
@@ -51,7 +52,7 @@ def _table(results: dict, protocol: str, columns: list[tuple[str, str, int]]) ->
     order = list(variants)
     references = [r for r in REFERENCES if r in variants]
     header = ["variant", "source", *[c[0] for c in columns], "Δ PSNR vs tracked", "Δ mesh mm vs tracked"]
-    header += [f"Δ PSNR vs {REFERENCES[r]} (same source)" for r in references]
+    header += [f"Δ PSNR / SSIM / LPIPS vs {REFERENCES[r]} (same source)" for r in references]
     lines = ["| " + " | ".join(header) + " |", "|---|---|" + "---:|" * (len(header) - 2)]
     for name, entry in variants.items():
         for source in _sources(entry, protocol):
@@ -69,9 +70,11 @@ def _table(results: dict, protocol: str, columns: list[tuple[str, str, int]]) ->
                 if order.index(name) <= order.index(reference):
                     cells.append("")
                     continue
-                diff = paired_difference(_values(entry, "protocols", protocol, source, "psnr"),
-                                         _values(variants[reference], "protocols", protocol, source, "psnr"))
-                cells.append(format_difference(diff, 2))
+                cells.append(" / ".join(
+                    format_difference(paired_difference(_values(entry, "protocols", protocol, source, key),
+                                                        _values(variants[reference], "protocols", protocol, source,
+                                                                key)), digits)
+                    for key, digits in REFERENCE_METRICS))
             lines.append("| " + " | ".join(cells) + " |")
     return lines
 
