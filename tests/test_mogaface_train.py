@@ -5,6 +5,7 @@ import pytest
 import torch
 
 from mogaface.core.correction.model import MoGaFace
+from mogaface.core.correction.training import centring_loss
 from mogaface.core.data.capture import Capture
 from mogaface.core.run.folder import load_flame_file
 from mogaface.core.train import config as C
@@ -154,17 +155,32 @@ def test_evaluation_never_feeds_the_scored_view(full_run, tiny_capture, monkeypa
 
 def test_centring_prior_pushes_against_the_running_mean(tiny_capture, tmp_path):
     trainer = Trainer(tiny_capture, tmp_path / "run", config(centring_weight=1.0))
+    decay = trainer.config.mogaface.centring_decay
     trainer.mogaface.model.correction_mean.fill_(0.5)
     frame = trainer.data.frames[0]
     _, _, correction = mogaface_world(trainer.mogaface, trainer.avatar, trainer.table, frame,
                                       trainer.background, 0, trainer.generator)
-    assert correction.centring.item() == 0.0  # the correction starts at zero
     expr_delta = correction.expr_delta
+    blended = decay * 0.5 + (1 - decay) * expr_delta.detach()
     gradient, = torch.autograd.grad(correction.centring, expr_delta, retain_graph=True)
-    assert torch.allclose(gradient, torch.full_like(gradient, 0.5))
+    assert torch.allclose(gradient, blended)  # the push is the mean as this step leaves it
+    assert correction.centring.item() == pytest.approx(float((blended ** 2).sum()) / (2 * (1 - decay)))
     assert "centring" in trainer.train_step()["losses"]
     with pytest.raises(Exception, match="centring_weight"):
         config(centring_weight=-1.0)
+    with pytest.raises(Exception, match="centring_decay"):
+        config(centring_decay=1.0)
+
+
+def test_centring_prior_is_bounded_below_and_stops_at_a_zero_mean():
+    running_mean = torch.tensor([0.3, -0.2])
+    delta = torch.zeros(2, requires_grad=True)
+    for _ in range(200):  # descent on Δψ alone: it settles where the running mean it leaves is zero
+        loss = centring_loss(running_mean, delta, 0.9)
+        assert loss.item() >= 0.0
+        gradient, = torch.autograd.grad(loss, delta)
+        delta = (delta - 5.0 * gradient).detach().requires_grad_(True)
+    assert torch.allclose(0.9 * running_mean + 0.1 * delta.detach(), torch.zeros(2), atol=1e-5)
 
 
 def test_rendered_targets_regress_a_known_offset(tiny_capture, tmp_path):

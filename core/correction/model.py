@@ -94,7 +94,7 @@ class MoGaFace(nn.Module):
         return self.head(fused, tracked_expr), fused.mean(0)
 
     @torch.no_grad()
-    def observe_correction(self, delta: torch.Tensor, decay: float = 0.99) -> None:
+    def observe_correction(self, delta: torch.Tensor, decay: float) -> None:
         """Running mean of the mesh corrections over training steps (its drift is penalised)."""
         self.correction_mean.mul_(decay).add_((1.0 - decay) * delta.detach())
 

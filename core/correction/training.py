@@ -25,7 +25,7 @@ class StepCorrection:
 
     expr_delta: torch.Tensor  # (n_expr,) differentiable
     consistency: torch.Tensor  # scalar
-    centring: torch.Tensor  # scalar: the correction's drift against its running mean
+    centring: torch.Tensor  # scalar: the squared running mean of the corrections, this step's included
     inputs: list  # the encoder's frames
     row: int  # the timestamp's bank row
     slots: torch.Tensor | None  # the bank slots written (None without the bank)
@@ -40,6 +40,17 @@ def spec_from_settings(settings, n_expr: int) -> dict:
             "encoder_width": settings.encoder_width, "heads": settings.heads, "hidden": settings.hidden,
             "plane_size": settings.plane_size, "plane_dim": settings.plane_dim,
             "texture_hidden": settings.texture_hidden, "n_expr": n_expr}
+
+
+def centring_loss(running_mean: torch.Tensor, delta: torch.Tensor, decay: float) -> torch.Tensor:
+    """The zero-mean prior: ``‖m'‖² / 2(1 − decay)`` with ``m' = decay·m + (1 − decay)·Δψ``.
+
+    ``m'`` is the running mean as this step will leave it, so the push on ``Δψ`` is ``m'``:
+    proportional to the shared offset and bounded below by zero. (A linear ``m · Δψ`` against a
+    slow mean is unbounded below and, under Adam, oscillates with a growing amplitude.)
+    """
+    blended = decay * running_mean + (1.0 - decay) * delta
+    return (blended * blended).sum() / (2.0 * (1.0 - decay))
 
 
 class CorrectionTraining:
@@ -86,7 +97,7 @@ class CorrectionTraining:
             momentum = momentum_at(step, self.total_steps, self.settings.momentum_start, self.settings.momentum_end)
             blended = bank.blend(row, slots, per_view, momentum)
             delta = bank.mean_with(row, slots, blended)
-        centring = (model.correction_mean.detach().clone() * delta).sum()
+        centring = centring_loss(model.correction_mean.detach().clone(), delta, self.settings.centring_decay)
         return StepCorrection(delta, consistency, centring, inputs, row, slots, blended)
 
     # -- what a step leaves behind (bank writes, running means) ----------------------------------
@@ -120,7 +131,7 @@ class CorrectionTraining:
         if model.bank is not None and mask.any():
             slots = torch.nonzero(mask)[:, 0]
             model.bank.store(row, slots, values[slots])
-        model.observe_correction(rest[:n_expr])
+        model.observe_correction(rest[:n_expr], self.settings.centring_decay)
 
     def rendered_loss(self, avatar, params: dict, inputs: list, background, generator: torch.Generator):
         """The self-supervised correction loss on renders from the first ``rendered_views`` encoder cameras."""

@@ -166,6 +166,8 @@ class MogafaceSection:
     consistency_weight: float = _setting(0.1, "weight of the per-view consistency loss against the bank's mean")
     centring_weight: float = _setting(0.0, "weight of a zero-mean prior on the correction over timestamps "
                                            "(pushes against its running mean; 0: off, as in the paper)")
+    centring_decay: float = _setting(0.9, "decay per step of that running mean (its lag: about 1 / (1 - decay) "
+                                          "steps)")
     rendered_weight: float = _setting(0.0, "weight of the self-supervised correction loss: the avatar rendered at "
                                           "the tracked expression plus a known offset, regressed back (0: off, "
                                           "as in the paper)")
@@ -260,7 +262,7 @@ def _check_mogaface(m: MogafaceSection, source) -> None:
                 "encoder_width", "heads", "hidden", "rendered_views"):
         if getattr(m, key) <= 0:
             raise InputError(source, f"mogaface.{key}", f"must be positive (got {getattr(m, key)})")
-    for key in ("momentum_start", "momentum_end"):
+    for key in ("momentum_start", "momentum_end", "centring_decay"):
         if not 0 <= getattr(m, key) < 1:
             raise InputError(source, f"mogaface.{key}", f"must lie in [0, 1) (got {getattr(m, key)})")
     if m.feature_dim % m.heads:
