@@ -322,7 +322,7 @@ def test_a_schedule_in_minutes_runs_through_the_budget_whatever_the_speed(tiny_c
 
 
 def test_only_the_time_ends_a_run_whose_schedule_is_in_minutes(tiny_capture, tmp_path):
-    config = tiny_config(train={"steps": 2, "max_minutes": 0.004, "schedule": "minutes", "checkpoint_every": 0})
+    config = tiny_config(train={"steps": 2, "max_minutes": 0.02, "schedule": "minutes", "checkpoint_every": 0})
     run = tmp_path / "run"
     result = Trainer(tiny_capture, run, config).run()
     assert result["complete"] and result["step"] > 2  # more steps than the schedule's length
