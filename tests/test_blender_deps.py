@@ -25,7 +25,8 @@ def test_pins_match_requirements_txt():
     pinned = pinned_in_requirements_txt()
     for name, version in dependencies.PINNED.items():
         assert pinned[name] == version, name
-    assert set(dependencies.PINNED) | {"numpy"} == set(pinned) - {"bpy", "pytest", "ruff"}  # the test environment's own
+    test_tools = {"bpy", "pytest", "pytest-xdist", "execnet", "ruff"}  # the test environment's own
+    assert set(dependencies.PINNED) | {"numpy"} == set(pinned) - test_tools
     assert dependencies.numpy_pin((3, 11)) == pinned["numpy"]  # the tested environment's numpy
 
 
@@ -138,7 +139,7 @@ def test_a_job_installs_what_the_python_lacks_into_a_fresh_folder(tmp_path):
 
 
 def test_a_job_runs_in_the_background_and_cancel_keeps_the_old_folder(tmp_path):
-    python, _ = fake_python(tmp_path, delay=2.0)
+    python, log = fake_python(tmp_path, delay=2.0)
     target = tmp_path / "site-packages"
     (target / "old").mkdir(parents=True)
     started = time.monotonic()
@@ -149,7 +150,9 @@ def test_a_job_runs_in_the_background_and_cancel_keeps_the_old_folder(tmp_path):
         time.sleep(0.05)
     job.cancel()
     progress = job.wait(interval=0.05)
-    assert progress.state == "cancelled" and time.monotonic() - started < 10
+    assert progress.state == "cancelled"
+    calls = [json.loads(line) for line in log.read_text().splitlines()]
+    assert not [c for c in calls if c[:4] == ["-I", "-m", "pip", "download"]]  # stopped where it was
     assert (target / "old").is_dir() and not (target / "installed.txt").exists()
     assert not pathlib.Path(str(target) + ".new").exists()
 
