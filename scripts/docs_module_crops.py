@@ -34,23 +34,14 @@ def _items(capture, run_dir: pathlib.Path, frames: int) -> list:
     return list(run_protocol(avatar, capture, TrackedParams(capture, run), chosen, run.background))
 
 
-def _box_filter(image: np.ndarray, size: int) -> np.ndarray:
-    """Mean over a ``size``-square window (cumulative sums; edges use the part inside)."""
-    padded = np.pad(image, ((1, 0), (1, 0)))
-    sums = padded.cumsum(0).cumsum(1)
-    h, w = image.shape
-    r = size // 2
-    y0, y1 = np.clip(np.arange(h) - r, 0, h), np.clip(np.arange(h) + r + 1, 0, h)
-    x0, x1 = np.clip(np.arange(w) - r, 0, w), np.clip(np.arange(w) + r + 1, 0, w)
-    total = sums[y1][:, x1] - sums[y0][:, x1] - sums[y1][:, x0] + sums[y0][:, x0]
-    return total / ((y1 - y0)[:, None] * (x1 - x0)[None, :])
-
-
 def _row(truth: np.ndarray, finetune: np.ndarray, full: np.ndarray) -> np.ndarray:
-    error_change = np.abs(finetune - truth).mean(-1) - np.abs(full - truth).mean(-1)
+    from scipy.ndimage import uniform_filter
+
+    errors = [np.abs(image - truth).mean(-1) for image in (finetune, full)]
+    error_change = errors[0] - errors[1]
     h, w = truth.shape[:2]
     side = int(CROP * min(h, w))
-    weight = _box_filter(np.abs(finetune - truth).mean(-1) + np.abs(full - truth).mean(-1), side)
+    weight = uniform_filter(errors[0] + errors[1], side, mode="nearest")
     y, x = np.unravel_index(np.argmax(weight), weight.shape)
     y0, x0 = int(np.clip(y - side // 2, 0, h - side)), int(np.clip(x - side // 2, 0, w - side))
     change = np.zeros((h, w, 3), np.float32)
