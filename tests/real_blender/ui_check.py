@@ -41,6 +41,15 @@ def check_at_end(condition, message):
         RESULTS.setdefault("failures", []).append(message)
 
 
+def check_responsive(longest_block, idle_block, message):
+    """The interface kept answering: its longest block under max(1 s, twice the idle window's).
+    What the extension does on the interface thread is 3-30 ms an event; the rest of a block is
+    Blender's own software-OpenGL redraw, which grows with the machine's load (idle blocks of
+    0.2-0.6 s), so a fixed margin over idle failed on load alone. A freeze, work that waits on the
+    interface thread, blocked 5.3 s and more before the child processes and worker threads."""
+    check_at_end(longest_block < max(1.0, 2.0 * idle_block), message)
+
+
 def window_and_view():
     window = bpy.context.window_manager.windows[0]
     area = max((a for a in window.screen.areas if a.type == "VIEW_3D"), key=lambda a: a.width * a.height)
@@ -335,8 +344,8 @@ def scene_stages():
         "longest_block_in_2_s_after_s": round(max([g for g, at in gaps if at >= link] or [0.0]), 3),
         "blocks_over_0.1_s": [[round(g, 3), round(at - ticks[0], 2)] for g, at in gaps if g > 0.1]}
     log(f"Load Avatar: {RESULTS['load_avatar']}")
-    check_at_end(RESULTS["load_avatar"]["longest_ui_block_s"] < max(0.5, idle_block + 0.3),
-                 f"Load Avatar froze the UI: {RESULTS['load_avatar']}")
+    check_responsive(RESULTS["load_avatar"]["longest_ui_block_s"], idle_block,
+                     f"Load Avatar froze the UI: {RESULTS['load_avatar']}")
     scene = bpy.context.scene
     camera = next(o for o in scene.objects if o.get("mogaface_resolution") is not None)
     check(module("operators.import_capture").apply_render_settings(scene, camera), "capture camera")
@@ -585,7 +594,7 @@ def follow_footage_job(what, screenshot):
     RESULTS.setdefault("footage", {})[what] = {"seconds": round(ticks[-1] - ticks[0], 1),
                                                "longest_ui_block_s": round(longest, 3), "idle_block_s": idle}
     log(f"{what}: {RESULTS['footage'][what]}")
-    check_at_end(longest < max(0.5, idle + 0.3), f"{what} froze the UI: {RESULTS['footage'][what]}")
+    check_responsive(longest, idle, f"{what} froze the UI: {RESULTS['footage'][what]}")
 
 
 def drive_from_footage_stages(head):
@@ -987,7 +996,7 @@ def orbit_blocks(head, viewport):
                         "mean_block_s": round(sum(g for g in gaps if g > 0.05) / max(1, sum(g > 0.05 for g in gaps)), 3),
                         "profile": profile.report(steps), "load_average_1min": round(os.getloadavg()[0], 2)}
     log(f"orbit with Draw: Both: {RESULTS['orbit']}")
-    check_at_end(max(gaps) < max(0.5, idle + 0.3), f"orbiting froze the UI: {RESULTS['orbit']}")
+    check_responsive(max(gaps), idle, f"orbiting froze the UI: {RESULTS['orbit']}")
     area.tag_redraw()
     yield 1.0
 
@@ -996,8 +1005,8 @@ def scrub_blocks(head, viewport):
     """Scrub the timeline: the longest block of Blender's event loop (a 20 ms timer) while frames
     change, each change followed by a redraw, with the draw a user has (Both: on a software OpenGL,
     the CPU image rendered off the interface thread), then with the GPU draw forced (for the
-    record: under software OpenGL it rasterises every Gaussian on the interface thread). Both fails
-    over max(0.5 s, the idle window's longest redraw + 0.3 s), as Load Avatar does."""
+    record: under software OpenGL it rasterises every Gaussian on the interface thread). Both is
+    held to :func:`check_responsive`, as Load Avatar is."""
     _, area, _ = window_and_view()
     scene = bpy.context.scene
     frames = list(range(scene.frame_start, min(scene.frame_end, scene.frame_start + 11) + 1))
@@ -1015,7 +1024,7 @@ def scrub_blocks(head, viewport):
         RESULTS[f"scrub_{mode.lower()}"] = result
         log(f"scrubbing with Draw: {mode}: {result}")
         if mode == "BOTH":
-            check_at_end(max(gaps) < max(0.5, idle + 0.3), f"scrubbing froze the UI: {result}")
+            check_responsive(max(gaps), idle, f"scrubbing froze the UI: {result}")
         scene.frame_set(frames[0])
         yield 1.0
     setattr(head, viewport.DRAW_PROPERTY, "BOTH")
