@@ -35,6 +35,9 @@ class DensifySchedule:
     max_gaussians: int = 60000
     sh_degree_interval: int = 400
     max_sh_degree: int = 3
+    strategy: str = "adaptive"  # or "budget" (:mod:`.budget`)
+    growth: float = 1.05
+    noise: float = 0.1
 
     def densifies_at(self, step: int) -> bool:
         return self.start < step <= self.stop and step % self.interval == 0
@@ -180,6 +183,9 @@ class DensifyStrategy:
         self.grad_accum += torch.where(visible, norms, 0.0)
         self.grad_count += visible
         self.max_radii = torch.maximum(self.max_radii, torch.where(visible, radii.float(), 0.0))
+
+    def perturb(self, gaussians: BoundGaussians, rate_share: float, generator: torch.Generator) -> None:
+        """After each optimiser step: nothing here (the budget strategy moves faint Gaussians)."""
 
     def after_step(self, step: int, gaussians: BoundGaussians, optimizer, face_scale: torch.Tensor,
                    extent: float, generator: torch.Generator) -> dict:

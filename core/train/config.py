@@ -23,6 +23,8 @@ def _setting(default, doc: str):
 
 #: What the schedules follow (``train.schedule``), the default first.
 SCHEDULES = ("steps", "minutes")
+#: The densification strategies (``densify.strategy``), the default first.
+DENSIFY_STRATEGIES = ("adaptive", "budget")
 
 
 @dataclasses.dataclass
@@ -54,6 +56,10 @@ class LossSection:
     position_threshold: float = _setting(1.0, "distance from the triangle centre (in triangle units) that is free")
     scaling_weight: float = _setting(1.0, "weight of relu(exp(s_local) − scaling_threshold) on visible Gaussians")
     scaling_threshold: float = _setting(0.6, "local scale (in triangle units) that is free")
+    opacity_weight: float = _setting(0.0, "weight of the mean opacity of every Gaussian (0: off; with "
+                                          "densify.strategy = 'budget', unneeded Gaussians fade and are moved)")
+    size_weight: float = _setting(0.0, "weight of the mean local scale (triangle units) of every Gaussian (0: off; "
+                                       "small splats, fewer of them over each pixel)")
 
 
 @dataclasses.dataclass
@@ -85,6 +91,13 @@ class DensifySection:
     max_gaussians: int = _setting(60000, "no densification beyond this many Gaussians")
     sh_degree_interval: int = _setting(400, "steps between raising the active SH degree by one")
     max_sh_degree: int = _setting(3, "highest SH degree")
+    strategy: str = _setting("adaptive", "'adaptive': clone and split where the screen gradient is large, prune "
+                                         "the faint (3DGS); 'budget': a fixed budget of max_gaussians, dead ones "
+                                         "moved onto live ones and growth toward the budget every interval, no "
+                                         "opacity resets (3DGS as MCMC)")
+    growth: float = _setting(1.05, "'budget': each pass grows the Gaussians by this factor, up to max_gaussians")
+    noise: float = _setting(0.1, "'budget': a nearly transparent Gaussian moves by this share of its own spread "
+                                 "a step (times the position rate's decay), so it explores before it is moved")
 
 
 @dataclasses.dataclass
@@ -220,6 +233,9 @@ class TrainConfig:
         if self.train.schedule == "minutes" and self.train.max_minutes <= 0:
             raise InputError(source, "train.schedule", "'minutes' needs train.max_minutes > 0 (the time to run "
                                                        "the schedule through)")
+        if self.densify.strategy not in DENSIFY_STRATEGIES:
+            raise InputError(source, "densify.strategy", f"must be one of {', '.join(DENSIFY_STRATEGIES)} "
+                                                         f"(got {self.densify.strategy!r})")
         if not 0 <= self.densify.max_sh_degree <= 3:
             raise InputError(source, "densify.max_sh_degree", f"must lie in [0, 3] (got {self.densify.max_sh_degree})")
         if not 0 < self.lr.position_final_ratio <= 1:

@@ -136,6 +136,18 @@ def scaling_hinge(local_log_scale: torch.Tensor, threshold: float = 0.6,
     return _masked_mean(F.relu(torch.exp(local_log_scale) - threshold).norm(dim=-1), mask)
 
 
+def opacity_mean(opacity_logit: torch.Tensor) -> torch.Tensor:
+    """The mean opacity of every Gaussian: with a budget of Gaussians, the ones the images do not
+    need fade until the next pass moves them where they are needed."""
+    return torch.sigmoid(opacity_logit).mean()
+
+
+def size_mean(local_log_scale: torch.Tensor) -> torch.Tensor:
+    """The mean local scale (triangle units) of every Gaussian: small splats where the face is flat,
+    fewer of them covering each pixel."""
+    return torch.exp(local_log_scale).mean()
+
+
 def psnr(pred: torch.Tensor, target: torch.Tensor) -> float:
     """PSNR in dB (data range 1), for progress reports only."""
     mse = float(((pred.detach() - target) ** 2).mean())

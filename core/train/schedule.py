@@ -9,7 +9,8 @@ from __future__ import annotations
 
 import math
 
-from ..avatar.densify import DensifySchedule
+from ..avatar.budget import BudgetStrategy
+from ..avatar.densify import DensifySchedule, DensifyStrategy
 from .config import TrainConfig
 
 
@@ -17,6 +18,12 @@ def densify_schedule(config: TrainConfig) -> DensifySchedule:
     """The ``[densify]`` settings as the densification strategy's schedule."""
     d = config.densify
     return DensifySchedule(**{name: getattr(d, name) for name in DensifySchedule.__dataclass_fields__})
+
+
+def densify_strategy(config: TrainConfig, n_gaussians: int, n_faces: int) -> DensifyStrategy:
+    """The ``densify.strategy`` the settings name, fresh, for ``n_gaussians`` on ``n_faces`` triangles."""
+    kind = BudgetStrategy if config.densify.strategy == "budget" else DensifyStrategy
+    return kind(densify_schedule(config), n_gaussians, n_faces)
 
 
 def decayed(rate: float, final_ratio: float, step: int, steps: int) -> float:

@@ -3,8 +3,9 @@ correction modules (expression correction, bank, texture attention) where ``[mog
 
 One step renders ``train.batch`` random training images (a timestep and a camera each) and takes
 an Adam step on ``0.8·L1 + 0.2·(1 − SSIM)`` plus the position and scaling hinges of the Gaussians
-visible; the :class:`~mogaface.core.avatar.densify.DensifyStrategy` then densifies, prunes, resets
-opacities and raises the SH degree on its schedule. Optionally the per-timestep FLAME parameters
+visible; the densification strategy (:mod:`..avatar.densify`'s clone and split, or
+:mod:`..avatar.budget`'s fixed budget) then densifies, prunes or relocates, resets opacities and
+raises the SH degree on its schedule. Optionally the per-timestep FLAME parameters
 and the cameras (poses, delays, colours) are learned too. Everything that decides what happens next
 (step, parameters, Adam moments, densification statistics, random state, frame order) is in
 :meth:`Trainer.state`, so a resumed run continues exactly where its checkpoint left it.
@@ -28,7 +29,6 @@ import torch
 
 from ..avatar.avatar import Avatar
 from ..avatar.binding import triangle_frames
-from ..avatar.densify import DensifyStrategy
 from ..data.capture_info import capture_head_file
 from ..errors import InputError, MogafaceError
 from ..io.atomic import atomic_path, write_text
@@ -46,7 +46,7 @@ from .distributed import Communicator
 from .events import EventLog, Listener
 from .results import RunOutputs, write_learned_cameras, written_avatar
 from .run_lock import take_run_folder
-from .schedule import cameras_settling, densify_schedule, hold_still, image_scale, rates_at, schedule_position
+from .schedule import cameras_settling, densify_strategy, hold_still, image_scale, rates_at, schedule_position
 from .training_view import ViewRenderer, ViewResult
 
 
@@ -123,8 +123,7 @@ class Trainer:
             self.config, self.data, self.table.timesteps, source, landmarks_file)
         self._build_optimizer()
         self.mogaface = build_mogaface(self.config, self.data, self.table, self.avatar)
-        self.strategy = DensifyStrategy(densify_schedule(self.config), len(self.avatar.gaussians),
-                                        len(self.avatar.flame.faces))
+        self.strategy = densify_strategy(self.config, len(self.avatar.gaussians), len(self.avatar.flame.faces))
         if self.comm.is_writer:
             self.outputs.write_run_json(self.avatar, self.table, self.step, self.elapsed, complete=False)
             self._notes.extend(principal_point_notes(self.data.capture, head))
@@ -149,8 +148,7 @@ class Trainer:
             if "mogaface" not in state:
                 raise InputError(self.run_folder.checkpoint_dir, "mogaface", "the checkpoint holds no MoGaFace modules")
             self.mogaface.load_state_dict(state["mogaface"])
-        self.strategy = DensifyStrategy(densify_schedule(self.config), len(self.avatar.gaussians),
-                                        len(self.avatar.flame.faces))
+        self.strategy = densify_strategy(self.config, len(self.avatar.gaussians), len(self.avatar.flame.faces))
         self.strategy.load_state_dict(state["densify"])
         self.comm.keep_statistics_once(self.strategy)  # the checkpoint's totals count once (rank 0)
         self.generator.set_state(state["rng"]["torch"])
@@ -286,6 +284,9 @@ class Trainer:
         hold_still(self.optimizer, cfg, at, settling)
         self.optimizer.step()
         self.optimizer.zero_grad(set_to_none=True)
+        if not settling:
+            self.strategy.perturb(gaussians, rates["local_position"] / rates_at(cfg, self.extent, 0)["local_position"],
+                                  self.generator)
         for part in (p for p in (self.camera_offsets, self.camera_colours) if p is not None):
             part.fix_gauge()
         if self.mogaface is not None:

@@ -19,18 +19,22 @@ from ..data.target import area_resized
 from ..splat.api import SplatOutput
 from .config import TrainConfig
 from .correction_part import mogaface_render
-from .losses import image_loss, position_hinge, psnr, scaling_hinge
+from .losses import image_loss, opacity_mean, position_hinge, psnr, scaling_hinge, size_mean
 
 IMAGE_TERMS = ("l1", "ssim", "rgb")  # ``rgb`` = (1 − λ)·l1 + λ·(1 − ssim): the image term of the total
 
 
 class LossTerms:
-    """The weighted terms added to a view's image loss ``rgb``: the position and scaling hinges,
-    with camera colours their penalty, and with the MoGaFace modules the correction's consistency,
-    centring and rendered losses (those whose weight is not zero: consistency always)."""
+    """The weighted terms added to a view's image loss ``rgb``: the position and scaling hinges, the
+    mean opacity and size (where their weights are not zero), with camera colours their penalty, and
+    with the MoGaFace modules the correction's consistency, centring and rendered losses (those whose
+    weight is not zero: consistency always)."""
 
     def __init__(self, config: TrainConfig, mogaface: bool):
         self.weights = {"position": config.loss.position_weight, "scaling": config.loss.scaling_weight}
+        for name in ("opacity", "size"):
+            if getattr(config.loss, f"{name}_weight"):
+                self.weights[name] = getattr(config.loss, f"{name}_weight")
         if config.cameras.colour:
             self.weights["colour"] = config.cameras.colour_weight
         if mogaface:
@@ -158,6 +162,10 @@ class ViewRenderer:
         losses = image_loss(render.rgb, target, settings.ssim_weight)
         losses["position"] = position_hinge(gaussians.local_position, settings.position_threshold, render.visible)
         losses["scaling"] = scaling_hinge(gaussians.local_log_scale, settings.scaling_threshold, render.visible)
+        if "opacity" in self.terms.weights:
+            losses["opacity"] = opacity_mean(gaussians.opacity_logit)
+        if "size" in self.terms.weights:
+            losses["size"] = size_mean(gaussians.local_log_scale)
         if self.camera_colours is not None:
             losses["colour"] = self.camera_colours.penalty(camera_id)
         for name in self.terms.weights:

@@ -1,0 +1,135 @@
+"""The fixed-budget densification: stacked copies that render what their parent did, relocation of
+dead Gaussians, growth to the budget, the noise on faint ones, and the strategy in a training run."""
+
+import math
+
+import pytest
+import torch
+
+from mogaface.core.avatar.budget import BudgetStrategy, stacked_equivalent
+from mogaface.core.avatar.gaussians import PARAMETER_NAMES
+from mogaface.core.errors import InputError
+from mogaface.core.train import config as C
+from test_densify import make_gaussians, make_optimizer, schedule
+from test_train_run import final_tensors, read_events, tiny_capture, tiny_config  # noqa: F401 - a fixture
+
+
+@pytest.mark.parametrize("opacity,count", [(0.3, 2), (0.9, 3), (0.05, 7), (0.99, 30), (0.6, 51)])
+def test_stacked_copies_render_what_the_parent_did(opacity, count):
+    """Against a quadrature of the footprint (1D, as the formula is): the stack's alpha at the
+    centre is the parent's opacity, and its integral over the footprint is the parent's."""
+    new_opacity, factor = stacked_equivalent(torch.tensor([opacity]), torch.tensor([count]))
+    x = torch.linspace(-12.0, 12.0, 200_001, dtype=torch.float64)
+    parent = opacity * torch.exp(-0.5 * x ** 2)
+    stack = 1.0 - (1.0 - float(new_opacity) * torch.exp(-0.5 * (x / float(factor)) ** 2)) ** count
+    assert float(stack[len(x) // 2]) == pytest.approx(opacity, rel=1e-5)
+    assert float(torch.trapezoid(stack, x)) == pytest.approx(float(torch.trapezoid(parent, x)), rel=1e-4)
+    assert float(factor) < 1.0  # each copy is narrower than its parent
+
+
+def test_one_copy_is_the_parent_itself():
+    opacity = torch.tensor([0.01, 0.5, 0.97])
+    new_opacity, factor = stacked_equivalent(opacity, torch.ones(3, dtype=torch.long))
+    assert torch.allclose(new_opacity, opacity) and torch.allclose(factor, torch.ones(3))
+
+
+def budget_gaussians(dead_rows, n_faces=4, per_face=3):
+    g = make_gaussians(n_faces=n_faces, per_face=per_face)
+    with torch.no_grad():
+        g.opacity_logit[:] = 2.0
+        g.opacity_logit[dead_rows] = -12.0  # far below the dead line
+    return g
+
+
+def test_relocation_moves_the_dead_onto_live_ones_and_forgets_their_moments():
+    g = budget_gaussians([0, 1, 4, 9])  # rows 0, 1 of face 0; row 4 of face 1; row 9 of face 3
+    optimizer = make_optimizer(g)
+    live_before = {name: getattr(g, name).detach()[[2, 3, 5, 6, 7, 8, 10, 11]].clone()
+                   for name in ("binding", "local_position", "sh_dc")}
+    strategy = BudgetStrategy(schedule(), len(g), 4)
+    moved = strategy.relocate(g, optimizer, torch.Generator().manual_seed(0))
+    assert moved == 4 and len(g) == 12
+    opacity = torch.sigmoid(g.opacity_logit.detach())
+    assert bool((opacity > 0.005).all())
+    # The live rows kept their order and their places; the moved ones sit on a live one's triangle
+    # and position, as copies of it.
+    for name, before in live_before.items():
+        assert torch.equal(getattr(g, name).detach()[:8], before), name
+    for row in range(8, 12):
+        same = (g.local_position.detach()[:8] == g.local_position.detach()[row]).all(-1)
+        assert same.any() and g.binding[row] == g.binding[:8][same][0]
+    # Each source and its copies are a stack: the sources' and copies' opacity moments start over.
+    for name in PARAMETER_NAMES:
+        assert not optimizer.state[getattr(g, name)]["exp_avg"][8:].any(), name
+    sources = [i for i in range(8) if bool((g.local_position.detach()[8:] == g.local_position.detach()[i]).all(-1).any())]
+    assert not optimizer.state[g.opacity_logit]["exp_avg"][sources].any()
+    untouched = [i for i in range(8) if i not in sources]
+    assert optimizer.state[g.opacity_logit]["exp_avg"][untouched].all()
+
+
+def test_a_triangle_keeps_its_last_gaussian_dead_or_not():
+    g = budget_gaussians([3, 4, 5])  # every Gaussian of face 1
+    strategy = BudgetStrategy(schedule(), len(g), 4)
+    assert strategy.relocate(g, make_optimizer(g), torch.Generator().manual_seed(1)) == 2
+    assert int((g.binding == 1).sum()) == 1
+
+
+def test_growth_adds_a_share_up_to_the_budget():
+    g = budget_gaussians([], n_faces=10, per_face=4)  # 40
+    strategy = BudgetStrategy(schedule(growth=1.1, max_gaussians=47), len(g), 10)
+    generator = torch.Generator().manual_seed(2)
+    total_opacity = float(torch.sigmoid(g.opacity_logit.detach()).sum())
+    assert strategy.grow(g, make_optimizer(g), generator) == 4 and len(g) == 44
+    assert strategy.grow(g, None, generator) == 3 and len(g) == 47
+    assert strategy.grow(g, None, generator) == 0 and len(g) == 47
+    # the opacity is shared out, not added: the stacks' centres composite to their parents'
+    assert float(torch.sigmoid(g.opacity_logit.detach()).sum()) > total_opacity
+
+
+def test_a_pass_relocates_then_grows_on_its_schedule():
+    g = budget_gaussians([0, 7])
+    strategy = BudgetStrategy(schedule(interval=10, growth=1.25), len(g), 4)
+    generator = torch.Generator().manual_seed(3)
+    assert strategy.after_step(9, g, None, torch.ones(4), 1.0, generator) == {}
+    assert strategy.after_step(10, g, None, torch.ones(4), 1.0, generator) == {"relocated": 2, "added": 3,
+                                                                               "gaussians": 15}
+
+
+def test_noise_moves_the_faint_along_their_axes_and_leaves_the_opaque():
+    g = budget_gaussians([0, 5])
+    before = g.local_position.detach().clone()
+    strategy = BudgetStrategy(schedule(noise=0.5), len(g), 4)
+    strategy.perturb(g, 1.0, torch.Generator().manual_seed(4))
+    moved = (g.local_position.detach() - before).norm(dim=-1)
+    assert bool((moved[[0, 5]] > 1e-3).all())
+    assert float(moved[[i for i in range(12) if i not in (0, 5)]].max()) < 1e-12
+    # the same draw, half the rate: half the step
+    again = budget_gaussians([0, 5])
+    strategy.perturb(again, 0.5, torch.Generator().manual_seed(4))
+    assert torch.allclose((again.local_position.detach() - before)[0], (g.local_position.detach() - before)[0] / 2)
+
+
+def test_an_unknown_strategy_is_refused():
+    with pytest.raises(InputError, match="densify.strategy"):
+        C.resolve(overrides={"densify": {"strategy": "mcmc"}})
+
+
+def test_a_budget_run_resumes_exactly_and_holds_its_budget(tiny_capture, tmp_path):
+    from mogaface.core.train.trainer import Trainer
+
+    capture = tiny_capture
+    config = tiny_config(densify={"strategy": "budget", "growth": 1.02, "max_gaussians": 12900},
+                         loss={"opacity_weight": 0.01, "size_weight": 0.01})
+    straight, split = tmp_path / "straight", tmp_path / "split"
+    Trainer(capture, straight, config).run()
+    Trainer(capture, split, config).run(until=7)
+    Trainer(capture, split, resume=True).run()
+    a, a_moments, _ = final_tensors(straight)
+    b, b_moments, _ = final_tensors(split)
+    for name in a:
+        assert torch.equal(a[name], b[name]), name
+    passes = [e for e in read_events(straight) if e["event"] == "densify"]
+    counts = [e["gaussians"] for e in passes]
+    assert len(passes) == 3 and counts[0] == math.floor(1.02 * 12620) and counts[-1] == 12900
+    last = [e for e in read_events(straight) if e["event"] == "iter"][-1]
+    assert last["opacity"] > 0 and last["size"] > 0
