@@ -76,12 +76,12 @@ def test_a_triangle_keeps_its_last_gaussian_dead_or_not():
 
 def test_growth_adds_a_share_up_to_the_budget():
     g = budget_gaussians([], n_faces=10, per_face=4)  # 40
-    strategy = BudgetStrategy(schedule(growth=1.1, max_gaussians=47), len(g), 10)
+    strategy = BudgetStrategy(schedule(max_gaussians=47), len(g), 10)
     generator = torch.Generator().manual_seed(2)
     total_opacity = float(torch.sigmoid(g.opacity_logit.detach()).sum())
-    assert strategy.grow(g, make_optimizer(g), generator) == 4 and len(g) == 44
-    assert strategy.grow(g, None, generator) == 3 and len(g) == 47
-    assert strategy.grow(g, None, generator) == 0 and len(g) == 47
+    assert strategy.grow(g, make_optimizer(g), generator, 1.1) == 4 and len(g) == 44
+    assert strategy.grow(g, None, generator, 1.1) == 3 and len(g) == 47
+    assert strategy.grow(g, None, generator, 1.1) == 0 and len(g) == 47
     # the opacity is shared out, not added: the stacks' centres composite to their parents'
     assert float(torch.sigmoid(g.opacity_logit.detach()).sum()) > total_opacity
 
@@ -93,6 +93,14 @@ def test_a_pass_relocates_then_grows_on_its_schedule():
     assert strategy.after_step(9, g, None, torch.ones(4), 1.0, generator) == {}
     assert strategy.after_step(10, g, None, torch.ones(4), 1.0, generator) == {"relocated": 2, "added": 3,
                                                                                "gaussians": 15}
+
+
+def test_by_default_the_budget_is_reached_at_the_last_pass():
+    g = budget_gaussians([], n_faces=10, per_face=4)  # 40
+    strategy = BudgetStrategy(schedule(start=0, stop=50, interval=10, max_gaussians=400), len(g), 10)
+    counts = [strategy.after_step(step, g, None, torch.ones(10), 1.0, torch.Generator().manual_seed(step))["gaussians"]
+              for step in (10, 20, 30, 40, 50)]
+    assert counts[-1] == 400 and all(b / a == pytest.approx(10 ** 0.2, abs=0.06) for a, b in zip([40, *counts], counts))
 
 
 def test_noise_moves_the_faint_along_their_axes_and_leaves_the_opaque():
@@ -112,6 +120,8 @@ def test_noise_moves_the_faint_along_their_axes_and_leaves_the_opaque():
 def test_an_unknown_strategy_is_refused():
     with pytest.raises(InputError, match="densify.strategy"):
         C.resolve(overrides={"densify": {"strategy": "mcmc"}})
+    with pytest.raises(InputError, match="densify.growth"):
+        C.resolve(overrides={"densify": {"growth": 0.5}})
 
 
 def test_a_budget_run_resumes_exactly_and_holds_its_budget(tiny_capture, tmp_path):

@@ -3,7 +3,8 @@
 Instead of cloning and splitting where the screen gradient is large, :class:`BudgetStrategy` keeps
 the Gaussians as samples of where the picture needs them: every ``interval`` steps it moves the
 dead ones (opacity at most ``min_opacity``) onto live ones drawn in proportion to their opacity,
-then adds ``growth`` − 1 more of them the same way until ``max_gaussians``. A Gaussian that gets
+then adds ``growth`` − 1 more of them the same way until ``max_gaussians`` (by default at the
+growth that reaches it at the schedule's last pass). A Gaussian that gets
 ``n − 1`` copies becomes ``n`` stacked ones that render what it did (:func:`stacked_equivalent`).
 Between passes, nearly transparent Gaussians wander (:meth:`BudgetStrategy.perturb`), so a dead
 one explores before it is moved. There are no opacity resets. As with clone-and-split, a copy
@@ -56,8 +57,17 @@ class BudgetStrategy(DensifyStrategy):
         if not self.schedule.densifies_at(step):
             return {}
         relocated = self.relocate(gaussians, optimizer, generator)
-        added = self.grow(gaussians, optimizer, generator)
+        added = self.grow(gaussians, optimizer, generator, self.growth_at(step, len(gaussians)))
         return {"relocated": relocated, "added": added, "gaussians": len(gaussians)}
+
+    def growth_at(self, step: int, n: int) -> float:
+        """The pass's growth factor: ``growth``, or with ``growth = 0`` the one that reaches
+        ``max_gaussians`` at the schedule's last pass (the same factor every pass from here)."""
+        s = self.schedule
+        if s.growth:
+            return s.growth
+        passes_left = max(s.stop // s.interval - (step - 1) // s.interval, 1)  # this one included
+        return max(s.max_gaussians / max(n, 1), 1.0) ** (1.0 / passes_left)
 
     def perturb(self, gaussians: BoundGaussians, rate_share: float, generator: torch.Generator) -> None:
         """Move each nearly transparent Gaussian by ``noise × rate_share`` of its own spread along
@@ -87,10 +97,10 @@ class BudgetStrategy(DensifyStrategy):
         self._reset_statistics(len(gaussians))
         return n_dead
 
-    def grow(self, gaussians: BoundGaussians, optimizer, generator: torch.Generator) -> int:
+    def grow(self, gaussians: BoundGaussians, optimizer, generator: torch.Generator, growth: float) -> int:
         """Add copies of live Gaussians, ``growth`` times as many in all, up to the budget."""
         n = len(gaussians)
-        n_new = min(self.schedule.max_gaussians, math.floor(self.schedule.growth * n)) - n
+        n_new = min(self.schedule.max_gaussians, math.floor(growth * n + 1e-9)) - n
         if n_new <= 0:
             return 0
         opacity = torch.sigmoid(gaussians.opacity_logit.detach())

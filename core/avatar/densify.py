@@ -36,7 +36,7 @@ class DensifySchedule:
     sh_degree_interval: int = 400
     max_sh_degree: int = 3
     strategy: str = "adaptive"  # or "budget" (:mod:`.budget`)
-    growth: float = 1.05
+    growth: float = 0.0  # 0: reach max_gaussians at the last pass
     noise: float = 0.1
 
     def densifies_at(self, step: int) -> bool:

@@ -95,7 +95,8 @@ class DensifySection:
                                          "the faint (3DGS); 'budget': a fixed budget of max_gaussians, dead ones "
                                          "moved onto live ones and growth toward the budget every interval, no "
                                          "opacity resets (3DGS as MCMC)")
-    growth: float = _setting(1.05, "'budget': each pass grows the Gaussians by this factor, up to max_gaussians")
+    growth: float = _setting(0.0, "'budget': each pass grows the Gaussians by this factor, up to max_gaussians; "
+                                  "0: the factor that reaches max_gaussians at the last pass (densify.stop)")
     noise: float = _setting(0.1, "'budget': a nearly transparent Gaussian moves by this share of its own spread "
                                  "a step (times the position rate's decay), so it explores before it is moved")
 
@@ -236,6 +237,9 @@ class TrainConfig:
         if self.densify.strategy not in DENSIFY_STRATEGIES:
             raise InputError(source, "densify.strategy", f"must be one of {', '.join(DENSIFY_STRATEGIES)} "
                                                          f"(got {self.densify.strategy!r})")
+        if 0 < self.densify.growth < 1:
+            raise InputError(source, "densify.growth", f"must be 0 (reach the budget at the last pass) or at least 1 "
+                                                       f"(got {self.densify.growth})")
         if not 0 <= self.densify.max_sh_degree <= 3:
             raise InputError(source, "densify.max_sh_degree", f"must lie in [0, 3] (got {self.densify.max_sh_degree})")
         if not 0 < self.lr.position_final_ratio <= 1:

@@ -25,7 +25,7 @@ RANGES: dict[str, tuple[float, float]] = {
     "densify.min_opacity": (0, 1), "densify.max_screen_size": (0, 1e6), "densify.max_world_size": (0, 1e6),
     "densify.opacity_reset_interval": (0, BIG), "densify.reset_opacity": (0, 1),
     "densify.max_gaussians": (1, 50_000_000), "densify.sh_degree_interval": (1, BIG), "densify.max_sh_degree": (0, 3),
-    "densify.growth": (1, 10), "densify.noise": (0, 100),
+    "densify.growth": (0, 10), "densify.noise": (0, 100),
     "flame.expression_lr": (0, 10), "flame.joints_lr": (0, 10), "flame.translation_lr": (0, 10),
     "cameras.rotation_lr": (0, 1), "cameras.translation_lr": (0, 1), "cameras.begin": (0, 0.99),
     "cameras.settle_at": (0, BIG), "cameras.settle_steps": (0, BIG), "cameras.rounds": (1, 16),
