@@ -35,7 +35,7 @@ class DensifySchedule:
     max_gaussians: int = 60000
     sh_degree_interval: int = 400
     max_sh_degree: int = 3
-    strategy: str = "adaptive"  # or "budget" (:mod:`.budget`)
+    strategy: str = "adaptive"  # or "mcmc" (:mod:`.mcmc`)
     growth: float = 0.0  # 0: reach max_gaussians at the last pass
     noise: float = 0.1
 
@@ -185,7 +185,7 @@ class DensifyStrategy:
         self.max_radii = torch.maximum(self.max_radii, torch.where(visible, radii.float(), 0.0))
 
     def perturb(self, gaussians: BoundGaussians, rate_share: float, generator: torch.Generator) -> None:
-        """After each optimiser step: nothing here (the budget strategy moves faint Gaussians)."""
+        """After each optimiser step: nothing here (the MCMC strategy moves faint Gaussians)."""
 
     def after_step(self, step: int, gaussians: BoundGaussians, optimizer, face_scale: torch.Tensor,
                    extent: float, generator: torch.Generator) -> dict:

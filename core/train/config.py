@@ -24,7 +24,7 @@ def _setting(default, doc: str):
 #: What the schedules follow (``train.schedule``), the default first.
 SCHEDULES = ("steps", "minutes")
 #: The densification strategies (``densify.strategy``), the default first.
-DENSIFY_STRATEGIES = ("adaptive", "budget")
+DENSIFY_STRATEGIES = ("adaptive", "mcmc")
 
 
 @dataclasses.dataclass
@@ -57,7 +57,7 @@ class LossSection:
     scaling_weight: float = _setting(1.0, "weight of relu(exp(s_local) − scaling_threshold) on visible Gaussians")
     scaling_threshold: float = _setting(0.6, "local scale (in triangle units) that is free")
     opacity_weight: float = _setting(0.0, "weight of the mean opacity of every Gaussian (0: off; with "
-                                          "densify.strategy = 'budget', unneeded Gaussians fade and are moved)")
+                                          "densify.strategy = 'mcmc', unneeded Gaussians fade and are moved)")
     size_weight: float = _setting(0.0, "weight of the mean local scale (triangle units) of every Gaussian (0: off; "
                                        "small splats, fewer of them over each pixel)")
 
@@ -92,12 +92,12 @@ class DensifySection:
     sh_degree_interval: int = _setting(400, "steps between raising the active SH degree by one")
     max_sh_degree: int = _setting(3, "highest SH degree")
     strategy: str = _setting("adaptive", "'adaptive': clone and split where the screen gradient is large, prune "
-                                         "the faint (3DGS); 'budget': a fixed budget of max_gaussians, dead ones "
+                                         "the faint (3DGS); 'mcmc': a fixed budget of max_gaussians, dead ones "
                                          "moved onto live ones and growth toward the budget every interval, no "
                                          "opacity resets (3DGS as MCMC)")
-    growth: float = _setting(0.0, "'budget': each pass grows the Gaussians by this factor, up to max_gaussians; "
+    growth: float = _setting(0.0, "'mcmc': each pass grows the Gaussians by this factor, up to max_gaussians; "
                                   "0: the factor that reaches max_gaussians at the last pass (densify.stop)")
-    noise: float = _setting(0.1, "'budget': a nearly transparent Gaussian moves by this share of its own spread "
+    noise: float = _setting(0.1, "'mcmc': a nearly transparent Gaussian moves by this share of its own spread "
                                  "a step (times the position rate's decay), so it explores before it is moved")
 
 

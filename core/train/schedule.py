@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 
-from ..avatar.budget import BudgetStrategy
+from ..avatar.mcmc import MCMCStrategy
 from ..avatar.densify import DensifySchedule, DensifyStrategy
 from .config import TrainConfig
 
@@ -22,7 +22,7 @@ def densify_schedule(config: TrainConfig) -> DensifySchedule:
 
 def densify_strategy(config: TrainConfig, n_gaussians: int, n_faces: int) -> DensifyStrategy:
     """The ``densify.strategy`` the settings name, fresh, for ``n_gaussians`` on ``n_faces`` triangles."""
-    kind = BudgetStrategy if config.densify.strategy == "budget" else DensifyStrategy
+    kind = MCMCStrategy if config.densify.strategy == "mcmc" else DensifyStrategy
     return kind(densify_schedule(config), n_gaussians, n_faces)
 
 

@@ -1,12 +1,12 @@
 """A fixed Gaussian budget as the densification strategy (3DGS as Markov chain Monte Carlo).
 
-Instead of cloning and splitting where the screen gradient is large, :class:`BudgetStrategy` keeps
+Instead of cloning and splitting where the screen gradient is large, :class:`MCMCStrategy` keeps
 the Gaussians as samples of where the picture needs them: every ``interval`` steps it moves the
 dead ones (opacity at most ``min_opacity``) onto live ones drawn in proportion to their opacity,
 then adds ``growth`` − 1 more of them the same way until ``max_gaussians`` (by default at the
 growth that reaches it at the schedule's last pass). A Gaussian that gets
 ``n − 1`` copies becomes ``n`` stacked ones that render what it did (:func:`stacked_equivalent`).
-Between passes, nearly transparent Gaussians wander (:meth:`BudgetStrategy.perturb`), so a dead
+Between passes, nearly transparent Gaussians wander (:meth:`MCMCStrategy.perturb`), so a dead
 one explores before it is moved. There are no opacity resets. As with clone-and-split, a copy
 inherits its parent's triangle and a triangle's last Gaussian is never taken away.
 
@@ -46,7 +46,7 @@ def stacked_equivalent(opacity: torch.Tensor, count: torch.Tensor) -> tuple[torc
     return o_new.to(opacity.dtype), (o / denominator).to(opacity.dtype)
 
 
-class BudgetStrategy(DensifyStrategy):
+class MCMCStrategy(DensifyStrategy):
     """Relocate dead Gaussians and grow toward ``max_gaussians`` (see the module)."""
 
     def observe(self, step, means2d_grad, radii, width, height) -> None:

@@ -6,7 +6,7 @@ import math
 import pytest
 import torch
 
-from mogaface.core.avatar.budget import BudgetStrategy, stacked_equivalent
+from mogaface.core.avatar.mcmc import MCMCStrategy, stacked_equivalent
 from mogaface.core.avatar.gaussians import PARAMETER_NAMES
 from mogaface.core.errors import InputError
 from mogaface.core.train import config as C
@@ -33,7 +33,7 @@ def test_one_copy_is_the_parent_itself():
     assert torch.allclose(new_opacity, opacity) and torch.allclose(factor, torch.ones(3))
 
 
-def budget_gaussians(dead_rows, n_faces=4, per_face=3):
+def mcmc_gaussians(dead_rows, n_faces=4, per_face=3):
     g = make_gaussians(n_faces=n_faces, per_face=per_face)
     with torch.no_grad():
         g.opacity_logit[:] = 2.0
@@ -42,11 +42,11 @@ def budget_gaussians(dead_rows, n_faces=4, per_face=3):
 
 
 def test_relocation_moves_the_dead_onto_live_ones_and_forgets_their_moments():
-    g = budget_gaussians([0, 1, 4, 9])  # rows 0, 1 of face 0; row 4 of face 1; row 9 of face 3
+    g = mcmc_gaussians([0, 1, 4, 9])  # rows 0, 1 of face 0; row 4 of face 1; row 9 of face 3
     optimizer = make_optimizer(g)
     live_before = {name: getattr(g, name).detach()[[2, 3, 5, 6, 7, 8, 10, 11]].clone()
                    for name in ("binding", "local_position", "sh_dc")}
-    strategy = BudgetStrategy(schedule(), len(g), 4)
+    strategy = MCMCStrategy(schedule(), len(g), 4)
     moved = strategy.relocate(g, optimizer, torch.Generator().manual_seed(0))
     assert moved == 4 and len(g) == 12
     opacity = torch.sigmoid(g.opacity_logit.detach())
@@ -68,15 +68,15 @@ def test_relocation_moves_the_dead_onto_live_ones_and_forgets_their_moments():
 
 
 def test_a_triangle_keeps_its_last_gaussian_dead_or_not():
-    g = budget_gaussians([3, 4, 5])  # every Gaussian of face 1
-    strategy = BudgetStrategy(schedule(), len(g), 4)
+    g = mcmc_gaussians([3, 4, 5])  # every Gaussian of face 1
+    strategy = MCMCStrategy(schedule(), len(g), 4)
     assert strategy.relocate(g, make_optimizer(g), torch.Generator().manual_seed(1)) == 2
     assert int((g.binding == 1).sum()) == 1
 
 
 def test_growth_adds_a_share_up_to_the_budget():
-    g = budget_gaussians([], n_faces=10, per_face=4)  # 40
-    strategy = BudgetStrategy(schedule(max_gaussians=47), len(g), 10)
+    g = mcmc_gaussians([], n_faces=10, per_face=4)  # 40
+    strategy = MCMCStrategy(schedule(max_gaussians=47), len(g), 10)
     generator = torch.Generator().manual_seed(2)
     total_opacity = float(torch.sigmoid(g.opacity_logit.detach()).sum())
     assert strategy.grow(g, make_optimizer(g), generator, 1.1) == 4 and len(g) == 44
@@ -87,8 +87,8 @@ def test_growth_adds_a_share_up_to_the_budget():
 
 
 def test_a_pass_relocates_then_grows_on_its_schedule():
-    g = budget_gaussians([0, 7])
-    strategy = BudgetStrategy(schedule(interval=10, growth=1.25), len(g), 4)
+    g = mcmc_gaussians([0, 7])
+    strategy = MCMCStrategy(schedule(interval=10, growth=1.25), len(g), 4)
     generator = torch.Generator().manual_seed(3)
     assert strategy.after_step(9, g, None, torch.ones(4), 1.0, generator) == {}
     assert strategy.after_step(10, g, None, torch.ones(4), 1.0, generator) == {"relocated": 2, "added": 3,
@@ -96,39 +96,39 @@ def test_a_pass_relocates_then_grows_on_its_schedule():
 
 
 def test_by_default_the_budget_is_reached_at_the_last_pass():
-    g = budget_gaussians([], n_faces=10, per_face=4)  # 40
-    strategy = BudgetStrategy(schedule(start=0, stop=50, interval=10, max_gaussians=400), len(g), 10)
+    g = mcmc_gaussians([], n_faces=10, per_face=4)  # 40
+    strategy = MCMCStrategy(schedule(start=0, stop=50, interval=10, max_gaussians=400), len(g), 10)
     counts = [strategy.after_step(step, g, None, torch.ones(10), 1.0, torch.Generator().manual_seed(step))["gaussians"]
               for step in (10, 20, 30, 40, 50)]
     assert counts[-1] == 400 and all(b / a == pytest.approx(10 ** 0.2, abs=0.06) for a, b in zip([40, *counts], counts))
 
 
 def test_noise_moves_the_faint_along_their_axes_and_leaves_the_opaque():
-    g = budget_gaussians([0, 5])
+    g = mcmc_gaussians([0, 5])
     before = g.local_position.detach().clone()
-    strategy = BudgetStrategy(schedule(noise=0.5), len(g), 4)
+    strategy = MCMCStrategy(schedule(noise=0.5), len(g), 4)
     strategy.perturb(g, 1.0, torch.Generator().manual_seed(4))
     moved = (g.local_position.detach() - before).norm(dim=-1)
     assert bool((moved[[0, 5]] > 1e-3).all())
     assert float(moved[[i for i in range(12) if i not in (0, 5)]].max()) < 1e-12
     # the same draw, half the rate: half the step
-    again = budget_gaussians([0, 5])
+    again = mcmc_gaussians([0, 5])
     strategy.perturb(again, 0.5, torch.Generator().manual_seed(4))
     assert torch.allclose((again.local_position.detach() - before)[0], (g.local_position.detach() - before)[0] / 2)
 
 
 def test_an_unknown_strategy_is_refused():
     with pytest.raises(InputError, match="densify.strategy"):
-        C.resolve(overrides={"densify": {"strategy": "mcmc"}})
+        C.resolve(overrides={"densify": {"strategy": "gsplat"}})
     with pytest.raises(InputError, match="densify.growth"):
         C.resolve(overrides={"densify": {"growth": 0.5}})
 
 
-def test_a_budget_run_resumes_exactly_and_holds_its_budget(tiny_capture, tmp_path):
+def test_an_mcmc_run_resumes_exactly_and_holds_its_budget(tiny_capture, tmp_path):
     from mogaface.core.train.trainer import Trainer
 
     capture = tiny_capture
-    config = tiny_config(densify={"strategy": "budget", "growth": 1.02, "max_gaussians": 12900},
+    config = tiny_config(densify={"strategy": "mcmc", "growth": 1.02, "max_gaussians": 12900},
                          loss={"opacity_weight": 0.01, "size_weight": 0.01})
     straight, split = tmp_path / "straight", tmp_path / "split"
     Trainer(capture, straight, config).run()
