@@ -78,12 +78,18 @@ def test_growth_adds_a_share_up_to_the_budget():
     g = mcmc_gaussians([], n_faces=10, per_face=4)  # 40
     strategy = MCMCStrategy(schedule(max_gaussians=47), len(g), 10)
     generator = torch.Generator().manual_seed(2)
-    total_opacity = float(torch.sigmoid(g.opacity_logit.detach()).sum())
-    assert strategy.grow(g, make_optimizer(g), generator, 1.1) == 4 and len(g) == 44
+    optimizer = make_optimizer(g)  # (one Adam step on every row alike)
+    opacity = float(torch.sigmoid(g.opacity_logit.detach()[0]))  # all alike
+    assert strategy.grow(g, optimizer, generator, 1.1) == 4 and len(g) == 44
+    # the parents share their opacity with their copies: each stack composites to the parent's
+    stacked = torch.sigmoid(g.opacity_logit.detach())
+    assert float(stacked.min()) < opacity and float(stacked[40:].max()) < opacity
+    positions = g.local_position.detach()
+    for row in range(40, 44):  # a stack: the source and its copies, at one position
+        n = int((positions == positions[row]).all(-1).sum())
+        assert float(1 - (1 - stacked[row]) ** n) == pytest.approx(opacity, rel=1e-5)
     assert strategy.grow(g, None, generator, 1.1) == 3 and len(g) == 47
     assert strategy.grow(g, None, generator, 1.1) == 0 and len(g) == 47
-    # the opacity is shared out, not added: the stacks' centres composite to their parents'
-    assert float(torch.sigmoid(g.opacity_logit.detach()).sum()) > total_opacity
 
 
 def test_a_pass_relocates_then_grows_on_its_schedule():
