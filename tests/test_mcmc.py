@@ -5,13 +5,13 @@ import math
 
 import pytest
 import torch
-
-from mogaface.core.avatar.mcmc import MCMCStrategy, stacked_equivalent
-from mogaface.core.avatar.gaussians import PARAMETER_NAMES
-from mogaface.core.errors import InputError
-from mogaface.core.train import config as C
 from test_densify import make_gaussians, make_optimizer, schedule
 from test_train_run import final_tensors, read_events, tiny_capture, tiny_config  # noqa: F401 - a fixture
+
+from mogaface.core.avatar.gaussians import PARAMETER_NAMES
+from mogaface.core.avatar.mcmc import MCMCStrategy, stacked_equivalent
+from mogaface.core.errors import InputError
+from mogaface.core.train import config as C
 
 
 @pytest.mark.parametrize("opacity,count", [(0.3, 2), (0.9, 3), (0.05, 7), (0.99, 30), (0.6, 51)])
@@ -130,7 +130,7 @@ def test_an_unknown_strategy_is_refused():
         C.resolve(overrides={"densify": {"growth": 0.5}})
 
 
-def test_an_mcmc_run_resumes_exactly_and_holds_its_budget(tiny_capture, tmp_path):
+def test_an_mcmc_run_resumes_exactly_and_holds_its_budget(tiny_capture, tmp_path):  # noqa: F811 - the fixture
     from mogaface.core.train.trainer import Trainer
 
     capture = tiny_capture

@@ -78,7 +78,7 @@ class MCMCStrategy(DensifyStrategy):
             return
         with torch.no_grad():
             opacity = torch.sigmoid(gaussians.opacity_logit)
-            gate = torch.sigmoid(100.0 * (s.min_opacity - opacity))  # ½ at the dead line, 1 % at +0.05
+            gate = torch.sigmoid(100.0 * (s.min_opacity - opacity))  # ½ at the dead line, < 1 % from +0.05 above it
             step = torch.randn(gaussians.local_position.shape, generator=generator) * torch.exp(gaussians.local_log_scale)
             step = (quaternion_to_matrix(gaussians.local_rotation) @ step[..., None])[..., 0]
             gaussians.local_position.add_(step * (s.noise * rate_share * gate)[:, None])

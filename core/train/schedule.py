@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import math
 
-from ..avatar.mcmc import MCMCStrategy
 from ..avatar.densify import DensifySchedule, DensifyStrategy
+from ..avatar.mcmc import MCMCStrategy
 from .config import TrainConfig
 
 
@@ -22,8 +22,9 @@ def densify_schedule(config: TrainConfig) -> DensifySchedule:
 
 def densify_strategy(config: TrainConfig, n_gaussians: int, n_faces: int) -> DensifyStrategy:
     """The ``densify.strategy`` the settings name, fresh, for ``n_gaussians`` on ``n_faces`` triangles."""
-    kind = MCMCStrategy if config.densify.strategy == "mcmc" else DensifyStrategy
-    return kind(densify_schedule(config), n_gaussians, n_faces)
+    schedule = densify_schedule(config)
+    kind = MCMCStrategy if schedule.strategy == "mcmc" else DensifyStrategy
+    return kind(schedule, n_gaussians, n_faces)
 
 
 def decayed(rate: float, final_ratio: float, step: int, steps: int) -> float:
