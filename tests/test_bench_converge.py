@@ -95,6 +95,10 @@ def test_the_measured_schedules_load_as_the_bench_gives_them():
 
     folder = pathlib.Path(__file__).resolve().parents[1] / "bench" / "schedules"
     schedules = {path.stem: variant_config("finetune", 15.0, 2, 1, str(path)) for path in folder.glob("*.toml")}
-    assert set(schedules) == {"budget_15", "budget_60"}
+    assert set(schedules) == {"budget_15", "budget_60", "mcmc_15"}
     assert all(c.train.schedule == "minutes" and c.train.resolution_start == 0.5 for c in schedules.values())
     assert schedules["budget_60"].train.steps == 4 * schedules["budget_15"].train.steps
+    # the fixed budget's schedule is budget_15's but for the densification strategy and its cap
+    budget, mcmc = schedules["budget_15"], schedules["mcmc_15"]
+    assert (mcmc.densify.strategy, mcmc.densify.max_gaussians) == ("mcmc", 20000) and budget.densify.strategy == "adaptive"
+    assert mcmc.train == budget.train and mcmc.loss == budget.loss

@@ -3,10 +3,9 @@ correction modules (expression correction, bank, texture attention) where ``[mog
 
 One step renders ``train.batch`` random training images (a timestep and a camera each) and takes
 an Adam step on ``0.8·L1 + 0.2·(1 − SSIM)`` plus the position and scaling hinges of the Gaussians
-visible; the densification strategy (:mod:`..avatar.densify`'s clone and split, or
-:mod:`..avatar.mcmc`'s fixed budget) then densifies, prunes or relocates, resets opacities and
-raises the SH degree on its schedule. Optionally the per-timestep FLAME parameters
-and the cameras (poses, delays, colours) are learned too. Everything that decides what happens next
+visible; the densification strategy (:mod:`..avatar.densify`, :mod:`..avatar.mcmc`) then adds,
+prunes, moves or resets Gaussians and raises the SH degree on its schedule. Optionally the per-timestep
+FLAME parameters and the cameras (poses, delays, colours) are learned too. Everything that decides what happens next
 (step, parameters, Adam moments, densification statistics, random state, frame order) is in
 :meth:`Trainer.state`, so a resumed run continues exactly where its checkpoint left it.
 
