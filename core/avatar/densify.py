@@ -115,12 +115,16 @@ def edit_rows(gaussians: BoundGaussians, optimizer: torch.optim.Optimizer | None
         setattr(gaussians, name, new)
 
 
-def reset_moments(optimizer: torch.optim.Optimizer | None, param: torch.Tensor) -> None:
-    """Zero the Adam moments of ``param`` (after its values were overwritten)."""
+def reset_moments(optimizer: torch.optim.Optimizer | None, param: torch.Tensor,
+                  rows: torch.Tensor | None = None) -> None:
+    """Zero the Adam moments of ``param``, or of its rows ``rows`` (after their values were overwritten)."""
     state = optimizer.state.get(param) if optimizer is not None else None
     if state:
-        state["exp_avg"].zero_()
-        state["exp_avg_sq"].zero_()
+        for key in ("exp_avg", "exp_avg_sq"):
+            if rows is None:
+                state[key].zero_()
+            else:
+                state[key][rows] = 0.0
 
 
 def keep_one_per_triangle(remove: torch.Tensor, binding: torch.Tensor, score: torch.Tensor,

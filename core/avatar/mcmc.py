@@ -21,7 +21,7 @@ import math
 
 import torch
 
-from .densify import DensifyStrategy, edit_rows, keep_one_per_triangle, quaternion_to_matrix
+from .densify import DensifyStrategy, edit_rows, keep_one_per_triangle, quaternion_to_matrix, reset_moments
 from .gaussians import BoundGaussians
 
 MAX_COPIES = 51  # a Gaussian drawn more often in one pass becomes at most this many
@@ -120,13 +120,5 @@ class MCMCStrategy(DensifyStrategy):
             gaussians.opacity_logit[sources] = torch.logit(new_opacity)
             gaussians.local_log_scale[sources] += torch.log(scale_factor)[:, None]
         for param in (gaussians.opacity_logit, gaussians.local_log_scale):
-            forget_rows(optimizer, param, sources)
+            reset_moments(optimizer, param, sources)
         return {name: t.detach()[sources].clone() for name, t in gaussians.tensors().items()}
-
-
-def forget_rows(optimizer: torch.optim.Optimizer | None, param: torch.Tensor, rows: torch.Tensor) -> None:
-    """Zero the Adam moments of ``param``'s rows ``rows`` (their values were rewritten)."""
-    state = optimizer.state.get(param) if optimizer is not None else None
-    if state:
-        state["exp_avg"][rows] = 0.0
-        state["exp_avg_sq"][rows] = 0.0
