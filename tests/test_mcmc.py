@@ -149,3 +149,16 @@ def test_an_mcmc_run_resumes_exactly_and_holds_its_budget(tiny_capture, tmp_path
     assert len(passes) == 3 and counts[0] == math.floor(1.02 * 12620) and counts[-1] == 12900
     last = [e for e in read_events(straight) if e["event"] == "iter"][-1]
     assert last["opacity"] > 0 and last["size"] > 0
+
+
+@pytest.mark.parametrize("strategy", ["adaptive", "mcmc"])
+def test_positions_that_do_not_learn_neither_wander(tiny_capture, tmp_path, strategy):  # noqa: F811 - the fixture
+    """``lr.position = 0`` trains (the noise's share of a zero rate is zero, not a division by it)."""
+    from mogaface.core.train.trainer import Trainer
+
+    config = tiny_config(train={"steps": 4, "checkpoint_every": 4}, lr={"position": 0.0},
+                         densify={"strategy": strategy, "start": 1, "stop": 2, "interval": 2, "max_gaussians": 12700})
+    assert Trainer(tiny_capture, tmp_path / "run", config).run()["complete"]
+    if strategy == "mcmc":  # the copies sit on their sources and nothing moved them
+        position = final_tensors(tmp_path / "run")[0]["local_position"]
+        assert len(position) == 12700 and len(torch.unique(position, dim=0)) < 12700

@@ -283,9 +283,9 @@ class Trainer:
         hold_still(self.optimizer, cfg, at, settling)
         self.optimizer.step()
         self.optimizer.zero_grad(set_to_none=True)
-        if not settling:
-            self.strategy.perturb(gaussians, rates["local_position"] / rates_at(cfg, self.extent, 0)["local_position"],
-                                  self.generator)
+        if not settling:  # the MCMC noise follows the position rate's decay (none where positions do not learn)
+            first = rates_at(cfg, self.extent, 0)["local_position"]
+            self.strategy.perturb(gaussians, rates["local_position"] / first if first else 0.0, self.generator)
         for part in (p for p in (self.camera_offsets, self.camera_colours) if p is not None):
             part.fix_gauge()
         if self.mogaface is not None:
