@@ -20,7 +20,7 @@ def _np(t: torch.Tensor) -> np.ndarray:
     return np.ascontiguousarray(t.detach().numpy())
 
 
-ITEMS_PER_THREAD = 65536
+ITEMS_PER_THREAD = 8192
 
 
 class _threads:

@@ -100,27 +100,33 @@ def _tile_cols(g, ty, means2d, cov2d, opacities, bounds):
 
 
 @njit(cache=True, parallel=True, nogil=True)
-def _count(order, means2d, cov2d, opacities, bounds, counts):
+def _row_columns(order, means2d, cov2d, opacities, bounds, row_offsets, columns, counts):
+    """Each rank's tile columns per tile row it reaches, ``columns[row_offsets[r] + i]`` for its
+    ``i``-th row, and its number of tiles: the ellipse's extent is found once per row."""
     for r in prange(order.shape[0]):
         g = order[r]
         c = 0
+        m = row_offsets[r]
         for ty in range(bounds[g, 2] // TILE, bounds[g, 3] // TILE + 1):
             t0, t1 = _tile_cols(g, ty, means2d, cov2d, opacities, bounds)
+            columns[m, 0] = t0
+            columns[m, 1] = t1
+            m += 1
             c += t1 - t0 + 1
         counts[r] = c
 
 
 @njit(cache=True, parallel=True, nogil=True)
-def _tiles_of_ranks(order, means2d, cov2d, opacities, bounds, tiles_x, rank_offsets, tile_ids):
+def _tiles_of_ranks(order, bounds, row_offsets, columns, tiles_x, rank_offsets, tile_ids):
     """The tiles of each rank, rank-major: ``tile_ids[rank_offsets[r]:rank_offsets[r+1]]``."""
     for r in prange(order.shape[0]):
-        g = order[r]
+        ty = bounds[order[r], 2] // TILE
         m = rank_offsets[r]
-        for ty in range(bounds[g, 2] // TILE, bounds[g, 3] // TILE + 1):
-            t0, t1 = _tile_cols(g, ty, means2d, cov2d, opacities, bounds)
-            for tx in range(t0, t1 + 1):
+        for row in range(row_offsets[r], row_offsets[r + 1]):
+            for tx in range(columns[row, 0], columns[row, 1] + 1):
                 tile_ids[m] = ty * tiles_x + tx
                 m += 1
+            ty += 1
 
 
 @njit(cache=True)
@@ -174,12 +180,16 @@ def bin_gaussians(means2d, cov2d, depths, opacities, radii, width, height) -> Bi
     order = depth_order(depths, idx)
     tiles_x = (width + TILE - 1) // TILE
     tiles_y = (height + TILE - 1) // TILE
+    reached = bounds[order]
+    row_offsets = np.zeros(order.shape[0] + 1, np.int64)
+    np.cumsum(reached[:, 3] // TILE - reached[:, 2] // TILE + 1, out=row_offsets[1:])
+    columns = np.empty((int(row_offsets[-1]), 2), np.int32)
     counts = np.empty(order.shape[0], np.int64)
-    _count(order, means2d, cov2d, opacities, bounds, counts)
+    _row_columns(order, means2d, cov2d, opacities, bounds, row_offsets, columns, counts)
     rank_offsets = np.zeros(order.shape[0] + 1, np.int64)
     np.cumsum(counts, out=rank_offsets[1:])
     tile_ids = np.empty(int(rank_offsets[-1]), np.int32)
-    _tiles_of_ranks(order, means2d, cov2d, opacities, bounds, tiles_x, rank_offsets, tile_ids)
+    _tiles_of_ranks(order, bounds, row_offsets, columns, tiles_x, rank_offsets, tile_ids)
     tile_offsets, ranks, isect_of = _group_by_tile(tile_ids, rank_offsets, tiles_x * tiles_y)
     return Bins(order=order, visible=visible, tiles_x=tiles_x, tiles_y=tiles_y,
                 tile_offsets=tile_offsets, ranks=ranks, rank_offsets=rank_offsets, isect_of=isect_of)
