@@ -141,6 +141,20 @@ def test_lru_cache_stays_bounded(capture_dir):
     assert tiny.cached_bytes == 0
 
 
+def test_the_image_alone_reads_no_mask_and_leaves_the_cache_to_the_loss(capture_dir, monkeypatch):
+    root, _ = capture_dir
+    cap = Capture.open(root)
+    frame = cap.frames()[0]
+    read = []
+    original = cap._read
+    monkeypatch.setattr(cap, "_read", lambda f, name: read.append(name) or original(f, name))
+    rgb = cap.load_rgb(frame)
+    assert read == ["file_path"] and cap.cached_bytes == 0 and not rgb.flags.writeable
+    full, _ = cap.load_image(frame)
+    np.testing.assert_array_equal(rgb, full)
+    assert cap.load_rgb(frame) is full and read == ["file_path", "file_path", "fg_mask_path"]
+
+
 def test_validate_summary_and_cli(capture_dir, capsys):
     root, _ = capture_dir
     summary = validate_capture(root)

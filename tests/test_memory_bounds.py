@@ -1,6 +1,7 @@
 """Memory stays bounded: what training keeps does not grow with the capture's length (lazy, bounded caches),
 and files that declare far more than they hold are refused before anything is allocated."""
 
+import os
 import types
 
 import numpy as np
@@ -15,27 +16,45 @@ class CountingCapture:
     def __init__(self):
         self.loads = 0
 
-    def load_image(self, frame):
+    def load_rgb(self, frame):
         self.loads += 1
         rng = np.random.default_rng(int(frame.file_path))
-        return rng.random((16, 16, 3), dtype=np.float32), np.ones((16, 16), np.float32)
+        return rng.random((16, 16, 3), dtype=np.float32)
 
 
-def test_encoder_views_are_cached_up_to_a_byte_bound():
+def test_encoder_views_are_kept_in_memory_up_to_a_bound_then_on_disk_then_decoded_again():
     capture = CountingCapture()
-    views = ViewImages(capture, size=8, max_bytes=5 * 3 * 8 * 8)
+    view = 3 * 8 * 8
+    views = ViewImages(capture, size=8, max_bytes=5 * view, spill_bytes=20 * view)
     frames = [types.SimpleNamespace(file_path=str(i)) for i in range(40)]
     first = [views.batch([f]) for f in frames]
-    assert len(views._cache) == 5 and capture.loads == 40  # a long capture fills only the bound
+    assert len(views._cache) == 5 and len(views._spilled) == 20 and capture.loads == 40
+    assert os.fstat(views._spill.fileno()).st_size == 20 * view  # the spill file holds exactly its bound
     again = [views.batch([f]) for f in frames]
-    assert capture.loads == 40 + 35  # the 5 cached views are not decoded twice, the rest are
-    assert all(torch.equal(a, b) for a, b in zip(first, again))  # and look the same either way
+    assert capture.loads == 40 + 15  # the 25 kept views are not decoded twice, the rest are
+    assert all(torch.equal(a, b) for a, b in zip(first, again))  # and look the same from either tier
+    views.close()
+    assert views._spill is None and not views._spilled
+    views.batch(frames[10:11])
+    assert capture.loads == 56  # once closed, a spilled view is decoded again
+
+
+def test_a_failed_spill_leaves_the_view_uncached(monkeypatch):
+    capture = CountingCapture()
+    views = ViewImages(capture, size=8, max_bytes=0, spill_bytes=10 * 3 * 8 * 8)
+
+    def full_disk(*args):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(os, "pwrite", full_disk)
+    frame = types.SimpleNamespace(file_path="3")
+    first = views.batch([frame])
+    assert not views._spilled and torch.equal(views.batch([frame]), first) and capture.loads == 2
 
 
 # -- files that declare far more than they hold: refused before anything is allocated ----------
 
 import json
-import os
 import pathlib
 import subprocess
 import sys

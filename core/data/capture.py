@@ -232,29 +232,44 @@ class Capture:
         hit = self._images.get(key)
         if hit is not None:
             return hit
-        camera = self.camera(frame)
-        rgb = self._read(frame, "file_path")
-        channels = rgb.shape[2]
-        alpha = rgb[..., channels - 1] if channels in (2, 4) else None
-        rgb = np.repeat(rgb[..., :1], 3, axis=2) if channels <= 2 else rgb[..., :3]
+        rgb, alpha = self._decode_rgb(frame)
         if frame.fg_mask_path is not None:
             mask = self._read(frame, "fg_mask_path")[..., 0]
+            self._check_size(frame, "fg_mask_path", mask)
         elif alpha is not None:
             mask = alpha
         else:
             mask = np.ones(rgb.shape[:2], np.float32)
-        for name, array in (("file_path", rgb), ("fg_mask_path", mask)):
-            if array.shape[:2] != (camera.height, camera.width):
-                raise CaptureError(
-                    self.path(frame, name), f"{frame.source} {frame.field('w/h')}",
-                    f"image is {array.shape[1]}x{array.shape[0]}, the frame says {camera.width}x{camera.height}",
-                )
-        rgb = np.ascontiguousarray(rgb, dtype=np.float32)
         mask = np.ascontiguousarray(mask, dtype=np.float32)
-        rgb.setflags(write=False)
         mask.setflags(write=False)
         self._images.put(key, (rgb, mask), rgb.nbytes + mask.nbytes)
         return rgb, mask
+
+    def load_rgb(self, frame: Frame) -> np.ndarray:
+        """The image alone, as :meth:`load_image` gives it: from its cache when it holds the frame,
+        else decoded without the mask and not cached (the encoder's small copies need no more, and
+        must not push out the frames the loss reads)."""
+        hit = self._images.get((frame.file_path, frame.fg_mask_path))
+        return hit[0] if hit is not None else self._decode_rgb(frame)[0]
+
+    def _decode_rgb(self, frame: Frame) -> tuple[np.ndarray, np.ndarray | None]:
+        """``(rgb (H,W,3) read-only, the file's alpha channel or None)``, checked against the camera."""
+        rgb = self._read(frame, "file_path")
+        self._check_size(frame, "file_path", rgb)
+        channels = rgb.shape[2]
+        alpha = rgb[..., channels - 1] if channels in (2, 4) else None
+        rgb = np.repeat(rgb[..., :1], 3, axis=2) if channels <= 2 else rgb[..., :3]
+        rgb = np.ascontiguousarray(rgb, dtype=np.float32)
+        rgb.setflags(write=False)
+        return rgb, alpha
+
+    def _check_size(self, frame: Frame, name: str, array: np.ndarray) -> None:
+        camera = self.camera(frame)
+        if array.shape[:2] != (camera.height, camera.width):
+            raise CaptureError(
+                self.path(frame, name), f"{frame.source} {frame.field('w/h')}",
+                f"image is {array.shape[1]}x{array.shape[0]}, the frame says {camera.width}x{camera.height}",
+            )
 
     def _read(self, frame: Frame, name: str) -> np.ndarray:
         path = self.path(frame, name)
