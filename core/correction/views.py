@@ -3,7 +3,8 @@
 The capture's byte-bounded cache holds full frames for the loss; the encoder needs only small
 copies, kept here as uint8 ``(3, S, S)`` arrays (48 KiB each at 128²): in memory up to
 ``max_bytes`` (128 MiB: every training image of a default capture, 2730 views), then in an
-unnamed temporary file up to ``spill_bytes`` (2 GiB), so memory stays flat however long the
+unnamed temporary file up to ``spill_bytes`` (1 GiB, and never more than half the free space of
+the temporary folder), so memory stays flat however long the
 capture is and a view is decoded once per run, not once per use (a full frame at 802×550 takes
 about 9 ms to decode, the eight views of a step 70 ms). Beyond both bounds views are decoded
 each time.
@@ -12,6 +13,7 @@ each time.
 from __future__ import annotations
 
 import os
+import shutil
 import tempfile
 
 import numpy as np
@@ -23,7 +25,7 @@ class ViewImages:
     """``frames → (B, 3, S, S)`` float tensors in [0, 1] for the encoder."""
 
     def __init__(self, capture, size: int = 128, max_bytes: int = 128 * 1024 * 1024,
-                 spill_bytes: int = 2 * 1024 * 1024 * 1024):
+                 spill_bytes: int = 1024 * 1024 * 1024):
         self.capture = capture
         self.size = size
         self.view_bytes = 3 * size * size
@@ -62,6 +64,10 @@ class ViewImages:
         slot = len(self._spilled)
         try:
             if self._spill is None:
+                free = shutil.disk_usage(tempfile.gettempdir()).free
+                self.max_spilled = min(self.max_spilled, free // 2 // self.view_bytes)
+                if slot >= self.max_spilled:
+                    return
                 self._spill = tempfile.TemporaryFile(prefix="mogaface-views-")
             written = os.pwrite(self._spill.fileno(), small.tobytes(), slot * self.view_bytes)
         except OSError:
