@@ -2,12 +2,11 @@
 
 The capture's byte-bounded cache holds full frames for the loss; the encoder needs only small
 copies, kept here as uint8 ``(3, S, S)`` arrays (48 KiB each at 128²): in memory up to
-``max_bytes`` (128 MiB: every training image of a default capture, 2730 views), then in an
-unnamed temporary file up to ``spill_bytes`` (1 GiB, and never more than half the free space of
-the temporary folder), so memory stays flat however long the
-capture is and a view is decoded once per run, not once per use (a full frame at 802×550 takes
-about 9 ms to decode, the eight views of a step 70 ms). Beyond both bounds views are decoded
-each time.
+``max_bytes`` (128 MiB: 2730 views, every training image of a default capture), then in an
+unnamed temporary file up to ``spill_bytes`` (1 GiB, and never more than half the temporary
+folder's free space). Memory stays flat however long the capture is, and a view is decoded once
+per run, not once per use (about 10 ms for a full frame at 802×550: 80 ms for a step's eight
+views). Beyond both bounds views are decoded each time.
 """
 
 from __future__ import annotations
