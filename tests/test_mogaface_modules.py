@@ -138,6 +138,47 @@ def test_texture_offsets_move_with_the_mesh():
     assert not torch.allclose(plain["means"], before["means"])
 
 
+def test_texture_forward_is_the_layers_read_one_by_one_to_float64():
+    """The folded forward with the numba triplane read against the module read layer by layer
+    through ``F.grid_sample`` in float64: offsets and every parameter's gradient, with points on
+    the planes' borders and between texel centres, whatever the number of threads."""
+    import numba
+
+    texture = LatentTextureAttention(8, plane_size=6, plane_dim=4, hidden=8)
+    g = torch.Generator().manual_seed(4)
+    for head in texture.heads.values():
+        torch.nn.init.normal_(head.weight, std=0.3, generator=g)
+    points = (torch.rand(300, 3, generator=g) * 2.4 - 1.2).clamp(-1, 1)
+    points[:6] = torch.tensor([-1.0, 1.0, 1 / 6])[torch.randint(0, 3, (6, 3), generator=g)]
+    code = torch.randn(8, generator=g)
+    upstream = {k: torch.randn(300, v.out_features, generator=g) for k, v in texture.heads.items()}
+
+    def run(module, forward, dtype):
+        module.zero_grad()
+        out = forward(points.to(dtype), code.to(dtype))
+        sum((out[k] * upstream[k].to(dtype)).sum() for k in out).backward()
+        return out, [p.grad.clone() for p in module.parameters()]
+
+    reference = LatentTextureAttention(8, plane_size=6, plane_dim=4, hidden=8).double()
+    reference.load_state_dict(texture.state_dict())
+    expected, expected_grads = run(reference, reference.forward_layers, torch.float64)
+    old_threads = numba.get_num_threads()
+    runs = []
+    try:
+        for threads in (1, min(2, numba.config.NUMBA_NUM_THREADS)):
+            numba.set_num_threads(threads)
+            runs.append(run(texture, texture.forward, torch.float32))
+    finally:
+        numba.set_num_threads(old_threads)
+    (out, grads), (_, grads_again) = runs
+    for k in expected:
+        assert torch.allclose(out[k].double(), expected[k], atol=1e-5), k
+    for (name, _), got, want, again in zip(texture.named_parameters(), grads, expected_grads, grads_again):
+        assert torch.allclose(got.double(), want, rtol=1e-4, atol=1e-5 * want.abs().max().item()), name
+        assert torch.equal(got, again), name  # the same bits on one thread or two
+    assert expected_grads[0].abs().max() > 0 and out["position"].abs().max() > 1e-3
+
+
 def test_model_file_round_trip(tmp_path):
     vertices, _ = _mesh()
     model = MoGaFace(SPEC, [0, 4], ["a", "b"], vertices)
