@@ -179,6 +179,20 @@ def test_texture_forward_is_the_layers_read_one_by_one_to_float64():
     assert expected_grads[0].abs().max() > 0 and out["position"].abs().max() > 1e-3
 
 
+def test_texture_read_at_a_nan_point_stays_inside_the_planes():
+    """A diverged Gaussian (NaN position) changes its own row only (NaN, or a border texel under
+    fast maths): the kernels clamp the texel indices as integers, so nothing is read or written
+    past the planes, and its gradient lands inside them."""
+    texture = LatentTextureAttention(8, plane_size=6, plane_dim=4, hidden=8)
+    points = torch.rand(50, 3) * 2 - 1
+    clean = texture.sample(points)
+    points[7] = float("nan")
+    read = texture.sample(points)
+    assert torch.equal(torch.cat([read[:7], read[8:]]), torch.cat([clean[:7], clean[8:]]))
+    read.sum().backward()
+    assert texture.planes.grad.shape == texture.planes.shape
+
+
 def test_model_file_round_trip(tmp_path):
     vertices, _ = _mesh()
     model = MoGaFace(SPEC, [0, 4], ["a", "b"], vertices)

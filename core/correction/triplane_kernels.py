@@ -26,10 +26,11 @@ _AXES = np.array([[0, 1], [0, 2], [1, 2]], np.int64)
 @njit(inline="always")
 def _corners(u, size):
     """Texel index and weight of the lower corner along one axis, from a coordinate in [-1, 1]
-    (align_corners=False, border padding: clamped to the texel centres at the edge)."""
+    (align_corners=False, border padding: clamped to the texel centres at the edge). The indices
+    are clamped as integers too, so that a NaN coordinate reads a texel, never past the planes."""
     position = ((u + 1.0) * size - 1.0) * 0.5
     position = min(max(position, 0.0), size - 1.0)
-    low = min(int(np.floor(position)), size - 1)
+    low = min(max(int(np.floor(position)), 0), size - 1)
     return low, min(low + 1, size - 1), np.float32(position - low)
 
 
