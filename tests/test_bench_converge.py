@@ -95,9 +95,15 @@ def test_the_measured_schedules_load_as_the_bench_gives_them():
 
     folder = pathlib.Path(__file__).resolve().parents[1] / "bench" / "schedules"
     schedules = {path.stem: variant_config("finetune", 15.0, 2, 1, str(path)) for path in folder.glob("*.toml")}
-    assert set(schedules) == {"budget_15", "budget_60", "mcmc_15"}
+    assert set(schedules) == {"budget_15", "budget_30", "budget_60", "mcmc_15"}
     assert all(c.train.schedule == "minutes" and c.train.resolution_start == 0.5 for c in schedules.values())
     assert schedules["budget_60"].train.steps == 4 * schedules["budget_15"].train.steps
+    # half an hour: the default's step counts times 2, full size from the first quarter on
+    half_hour, quarter = schedules["budget_30"], schedules["budget_15"]
+    assert half_hour.train.steps == 2 * quarter.train.steps and half_hour.train.resolution_full == 0.25
+    for name in ("start", "stop", "opacity_reset_interval", "sh_degree_interval"):
+        assert getattr(half_hour.densify, name) == 2 * getattr(quarter.densify, name), name
+    assert half_hour.densify.interval == quarter.densify.interval
     # the fixed budget's schedule is budget_15's but for the densification strategy and its cap
     budget, mcmc = schedules["budget_15"], schedules["mcmc_15"]
     assert (mcmc.densify.strategy, mcmc.densify.max_gaussians) == ("mcmc", 20000) and budget.densify.strategy == "adaptive"
