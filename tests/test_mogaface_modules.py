@@ -186,11 +186,17 @@ def test_texture_read_at_a_nan_point_stays_inside_the_planes():
     texture = LatentTextureAttention(8, plane_size=6, plane_dim=4, hidden=8)
     points = torch.rand(50, 3) * 2 - 1
     clean = texture.sample(points)
-    points[7] = float("nan")
-    read = texture.sample(points)
+    broken = points.clone()
+    broken[7] = float("nan")
+    read = texture.sample(broken)
     assert torch.equal(torch.cat([read[:7], read[8:]]), torch.cat([clean[:7], clean[8:]]))
     read.sum().backward()
-    assert texture.planes.grad.shape == texture.planes.shape
+    with_nan = texture.planes.grad.clone()
+    texture.planes.grad = None
+    torch.cat([clean[:7], clean[8:]]).sum().backward()
+    # the NaN point's share lands on at most its four texels of each plane, all channels
+    changed = ~torch.isclose(with_nan, texture.planes.grad, atol=1e-6, equal_nan=False)
+    assert changed.any(dim=1).sum() <= 3 * 4
 
 
 def test_model_file_round_trip(tmp_path):

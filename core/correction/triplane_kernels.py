@@ -34,6 +34,15 @@ def _corners(u, size):
     return low, min(low + 1, size - 1), np.float32(position - low)
 
 
+@njit(inline="always")
+def _bilinear(points, n, p, size):
+    """Point ``n``'s four texels on plane ``p`` and their weights:
+    ``x0, x1, y0, y1, w00, w01, w10, w11`` (``wyx``: row y, column x)."""
+    x0, x1, wx = _corners(points[n, _AXES[p, 0]], size)
+    y0, y1, wy = _corners(points[n, _AXES[p, 1]], size)
+    return x0, x1, y0, y1, (1 - wx) * (1 - wy), wx * (1 - wy), (1 - wx) * wy, wx * wy
+
+
 @njit(cache=True, parallel=True, fastmath=True, nogil=True)
 def forward(planes, points, out):
     """``out`` (N, 3·C) = the planes ``(3, S, S, C)`` read at ``points`` (N, 3), plane by plane."""
@@ -41,10 +50,7 @@ def forward(planes, points, out):
     size, channels = planes.shape[1], planes.shape[3]
     for n in prange(n_points):
         for p in range(3):
-            x0, x1, wx = _corners(points[n, _AXES[p, 0]], size)
-            y0, y1, wy = _corners(points[n, _AXES[p, 1]], size)
-            w00, w01 = (1 - wx) * (1 - wy), wx * (1 - wy)
-            w10, w11 = (1 - wx) * wy, wx * wy
+            x0, x1, y0, y1, w00, w01, w10, w11 = _bilinear(points, n, p, size)
             row = out[n, p * channels:(p + 1) * channels]
             for c in range(channels):
                 row[c] = (w00 * planes[p, y0, x0, c] + w01 * planes[p, y0, x1, c]
@@ -62,10 +68,7 @@ def backward(points, grad_out, size, grad_planes):
         into = copies[block]
         for n in range(block * step, min(n_points, (block + 1) * step)):
             for p in range(3):
-                x0, x1, wx = _corners(points[n, _AXES[p, 0]], size)
-                y0, y1, wy = _corners(points[n, _AXES[p, 1]], size)
-                w00, w01 = (1 - wx) * (1 - wy), wx * (1 - wy)
-                w10, w11 = (1 - wx) * wy, wx * wy
+                x0, x1, y0, y1, w00, w01, w10, w11 = _bilinear(points, n, p, size)
                 for c in range(channels):
                     g = grad_out[n, p * channels + c]
                     into[p, y0, x0, c] += w00 * g
