@@ -4,7 +4,8 @@ Speed: the default capture's head at one moment, seen by the dome's cameras, ren
 child process ``make-capture`` runs, at 256², 512² and 802×550 (NeRSemble's size), with the default
 samples: seconds per image (median over the cameras; the first image of a moment also poses the
 head), the child's start, and what a whole capture then takes (the default capture's 2 400 images
-at 256²; a real-scale one, 16 cameras × 400 timesteps at 802×550, as ``bench converge`` trains).
+at 256²; a real-scale one, 16 cameras × 400 timesteps at 802×550, as ``bench converge`` trains);
+and the real-scale size again at 8 and 16 samples, the noise below telling what they cost.
 
 Noise: the frontal camera at 256² rendered with 8, 16, 32 and 64 samples (denoised) against a
 1 024-sample reference, PSNR on the head's pixels (sRGB): the noise must sit well below the
@@ -98,6 +99,11 @@ def run(threads: int = 2, quick: bool = False) -> dict:
                 "seconds_per_image": round(statistics.median(each[1:] or each), 2),
                 "first_image_s": round(each[0], 2), "child_total_s": round(total, 1),
                 "child_start_s": round(total - sum(each), 1), "images": len(each)}
+        largest = sizes[-1]
+        fewer = {}  # the real-scale size at fewer samples: what an overnight capture takes
+        for samples in (s for s in SAMPLES if s < default.samples):
+            _, *each = _render(_job(folder, "fewer", *largest, samples, CAMERAS), threads)
+            fewer[samples] = round(statistics.median(each[1:] or each), 2)
         side = sizes[0]
         reference_samples = 64 if quick else REFERENCE_SAMPLES
         reference = _job(folder, "reference", *side, reference_samples, 1, repeat=2)
@@ -110,8 +116,9 @@ def run(threads: int = 2, quick: bool = False) -> dict:
             first, second = sorted((root / "renders").glob("*.exr"))
             noise[samples] = {"psnr_vs_reference_db": round(_foreground_psnr(first, reference_image), 2),
                               "psnr_between_two_seeds_db": round(_foreground_psnr(first, second), 2)}
-    per_image = speed[f"{sizes[-1][0]}x{sizes[-1][1]}"]["seconds_per_image"]
+    per_image = speed[f"{largest[0]}x{largest[1]}"]["seconds_per_image"]
     small = speed[f"{sizes[0][0]}x{sizes[0][1]}"]["seconds_per_image"]
+    real_scale = 16 * 400 / 3600  # hours a real-scale capture takes per second an image
     return {
         "benchmark": "cycles",
         "threads": threads,
@@ -121,7 +128,9 @@ def run(threads: int = 2, quick: bool = False) -> dict:
         "reference_samples": reference_samples,
         "noise": noise,
         "default_capture_hours": round(small * default.views * default.timesteps / 3600, 2),
-        "real_scale_capture_hours": round(per_image * 16 * 400 / 3600, 2),
+        "real_scale_capture_hours": round(per_image * real_scale, 2),
+        "real_scale_fewer_samples": {samples: {"seconds_per_image": seconds, "capture_hours": round(seconds * real_scale, 2)}
+                                     for samples, seconds in fewer.items()},
         "load_average_before": [round(x, 2) for x in load_before],
         "load_average_after": [round(x, 2) for x in os.getloadavg()],
     }
