@@ -17,18 +17,22 @@ def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="python -m mogaface.cycles_capture")
     parser.add_argument("job", type=pathlib.Path, help="a job folder written by make-capture --renderer cycles")
     parser.add_argument("--threads", type=int, default=0, help="render threads (0: all cores)")
+    parser.add_argument("--part", default="1/1", help="K/N: render only the K-th of N shares of the job's moments "
+                                                      "(every N-th moment from the K-th), one machine's share")
     args = parser.parse_args(argv)
 
     import bpy
 
     from ..core.data.camera_file import read_cameras
+    from ..core.data.cycles_job import in_part, parse_part
     from ..core.progress import emit_event
     from .scene import HeadScene
 
     job = json.loads((args.job / "job.json").read_text())
     renders = args.job / "renders"
     renders.mkdir(exist_ok=True)
-    todo = [(k, f) for k, f in enumerate(job["frames"]) if not (renders / f["image"]).exists()]
+    mine = in_part(job["frames"], parse_part(args.part))
+    todo = [(k, f) for k, f in enumerate(job["frames"]) if mine[k] and not (renders / f["image"]).exists()]
     if not todo:
         return 0
     with np.load(args.job / "scene.npz") as data:

@@ -68,7 +68,7 @@ def test_cycles_images_show_the_head_over_the_background(cycles_capture):
     assert rgb[mask > 0.99].mean() < 0.9  # the head is shaded, not blown out
 
 
-def test_the_renderer_resumes_and_starts_over_for_other_settings(tmp_path, head):
+def test_the_renderer_resumes_shares_between_machines_and_starts_over_for_other_settings(tmp_path, head):
     model, rest = head
     from mogaface.core.data.generator import camera_dome, moments
     from mogaface.core.data.sequences import make_sequences
@@ -79,13 +79,24 @@ def test_the_renderer_resumes_and_starts_over_for_other_settings(tmp_path, head)
     root = tmp_path / cycles_job.JOB_DIR
     settings = dataclasses.replace(TINY, samples=1)
     frames = cycles_job.write_job(root, model, cameras, first_two, [0.0, 0.0], settings)
-    assert cycles_job.run_child(root, len(frames), 2, progress=False) == 4
+    assert cycles_job.run_child(root, len(frames), 2, progress=False, part=(2, 2)) == 2  # one machine's share
+    assert sorted(p.name for p in (root / "renders").glob("*.exr")) == ["00001_00.exr", "00001_01.exr"]
+    assert cycles_job.run_child(root, len(frames), 2, progress=False) == 2  # the rest: what is missing
     (root / "renders" / frames[2]["image"]).unlink()
     assert cycles_job.run_child(root, len(frames), 2, progress=False) == 1  # only the missing image
     linear, alpha = cycles_job.CyclesImages(root).image(0, 1)
     assert linear.shape == (32, 32, 3) and alpha.max() > 0.9 and np.isfinite(linear).all()
     cycles_job.write_job(root, model, cameras, first_two, [0.0, 0.0], dataclasses.replace(settings, samples=2))
     assert not (root / "renders").exists()  # renders of other settings are never reused
+
+
+def test_a_share_is_every_nth_moment_and_a_bad_one_is_refused():
+    frames = [{"moment": m, "camera": c} for m in ("a", "b", "c") for c in (0, 1)]
+    assert cycles_job.in_part(frames, (2, 2)) == [False, False, True, True, False, False]
+    assert cycles_job.parse_part("3/3") == (3, 3)
+    for bad in ("0/2", "3/2", "1", "a/b"):
+        with pytest.raises(InputError, match="render part"):
+            cycles_job.parse_part(bad)
 
 
 def test_without_bpy_the_cycles_renderer_is_refused_naming_the_module(monkeypatch):

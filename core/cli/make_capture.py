@@ -75,6 +75,10 @@ def add_arguments(parser):
     parser.add_argument("--samples", type=int, default=d.samples,
                         help="Cycles' samples per pixel, denoised (default %(default)s)")
     parser.add_argument("--threads", type=int, help="Cycles' render threads (default: all cores)")
+    parser.add_argument("--render-part", metavar="K/N",
+                        help="with --renderer cycles: render only the K-th of N shares of the images (one machine "
+                             "of N), into OUT/.cycles/renders; gather every share's images there and run the same "
+                             "command without it to write the capture")
     parser.add_argument("--seed", type=int, default=d.seed, help="seed (default %(default)s)")
     parser.add_argument("--model", type=pathlib.Path, help="use this FLAME-format model (with UVs and texture) instead")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -101,9 +105,22 @@ def run(args) -> int:
         camera_colour=(1.0 if args.renderer == "cycles" else 0.0) if args.camera_colour is None else args.camera_colour,
         renderer=args.renderer, samples=args.samples, seed=args.seed, **noise,
     )
+    part = (1, 1)
+    if args.render_part is not None:
+        from ..data.cycles_job import JOB_DIR, parse_part
+        from ..errors import InputError
+
+        if args.renderer != "cycles":
+            raise InputError(None, "render part", "splits Cycles' images between machines: give --renderer cycles")
+        part = parse_part(args.render_part)
     start = time.monotonic()
-    make_capture(args.out, settings, model_path=args.model, progress=not args.quiet, threads=args.threads)
+    make_capture(args.out, settings, model_path=args.model, progress=not args.quiet, threads=args.threads,
+                 render_part=part)
     elapsed = time.monotonic() - start
+    if part != (1, 1):
+        print(f"rendered share {part[0]} of {part[1]} into {args.out / JOB_DIR / 'renders'} in {elapsed:.1f} s; "
+              "gather every share's images there and run the same command without --render-part to write the capture")
+        return 0
     for line in validate_capture(args.out).lines():
         print(line)
     print(f"wrote {args.out} in {elapsed:.1f} s")

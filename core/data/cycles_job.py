@@ -112,12 +112,37 @@ def write_job(root: pathlib.Path, model, cameras, moments, delays, settings) -> 
     return frames
 
 
-def run_child(root: pathlib.Path, total: int, threads: int | None, progress: bool) -> int:
+def parse_part(text: str) -> tuple[int, int]:
+    """``"K/N"`` (one machine's share of a job: the K-th of N) → ``(K, N)``, checked."""
+    try:
+        share, shares = (int(v) for v in text.split("/"))
+    except ValueError:
+        share = shares = 0
+    if not 1 <= share <= shares:
+        raise InputError(None, "render part", f"expected K/N with 1 <= K <= N (e.g. 1/3), got {text!r}")
+    return share, shares
+
+
+def in_part(frames: list[dict], part: tuple[int, int]) -> list[bool]:
+    """Which of a job's ``frames`` fall in ``part`` (K, N): every N-th moment from the K-th, in render
+    order, so that each machine poses each of its moments once."""
+    order = list(dict.fromkeys(f["moment"] for f in frames))
+    mine = set(order[part[0] - 1::part[1]])
+    return [f["moment"] in mine for f in frames]
+
+
+def run_child(root: pathlib.Path, total: int, threads: int | None, progress: bool,
+              part: tuple[int, int] = (1, 1)) -> int:
     """Run the renderer on the job in ``root`` with a progress bar; how many images it rendered
-    (those already there are kept). Ctrl-C stops it and keeps what it rendered; a failure raises
-    with the child's last lines."""
-    command = [sys.executable, "-m", CHILD_MODULE, os.fspath(root), "--threads", str(threads or 0)]
-    done = sum((root / "renders" / f["image"]).exists() for f in json.loads((root / "job.json").read_text())["frames"])
+    (those already there are kept). ``part`` (K, N): only the K-th of N shares of the job's
+    moments, one machine's. Ctrl-C stops it and keeps what it rendered; a failure raises with the
+    child's last lines."""
+    command = [sys.executable, "-m", CHILD_MODULE, os.fspath(root), "--threads", str(threads or 0),
+               "--part", f"{part[0]}/{part[1]}"]
+    frames = json.loads((root / "job.json").read_text())["frames"]
+    mine = in_part(frames, part)
+    total = total if part == (1, 1) else sum(mine)
+    done = sum(m and (root / "renders" / f["image"]).exists() for f, m in zip(frames, mine))
     bar = ProgressBar(total, "make-capture (cycles)") if progress else None
     if bar:
         bar.update(done)
@@ -164,10 +189,12 @@ class CyclesImages:
 
 
 def render_with_cycles(out: pathlib.Path, model, cameras, moments, delays, settings, *,
-                       threads: int | None = None, progress: bool = True) -> CyclesImages:
-    """Render every image of a capture with Cycles (resuming a job already under ``out``)."""
+                       threads: int | None = None, progress: bool = True,
+                       part: tuple[int, int] = (1, 1)) -> CyclesImages:
+    """Render every image of a capture with Cycles (resuming a job already under ``out``), or
+    with ``part`` (K, N) this machine's share of them."""
     check_bpy()
     root = out / JOB_DIR
     frames = write_job(root, model, cameras, moments, delays, settings)
-    run_child(root, len(frames), threads, progress)
+    run_child(root, len(frames), threads, progress, part)
     return CyclesImages(root)

@@ -197,9 +197,12 @@ def make_capture(
     model_path: str | os.PathLike | None = None,
     progress: bool = True,
     threads: int | None = None,
+    render_part: tuple[int, int] = (1, 1),
 ) -> pathlib.Path:
     """Render and write a synthetic capture into ``out``; returns the folder. ``threads``: Cycles'
-    render threads (default: all cores)."""
+    render threads (default: all cores). ``render_part`` (K, N) other than (1, 1): render only this
+    machine's share of Cycles' images into ``out/.cycles/renders`` and write no capture (the
+    shares' images gathered there, a run without it writes the capture)."""
     settings.check()
     out = pathlib.Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -228,7 +231,9 @@ def make_capture(
         from .cycles_job import render_with_cycles
 
         cycles = render_with_cycles(out, model, cameras, moments(sequences, delays), delays, settings,
-                                    threads=threads, progress=progress)
+                                    threads=threads, progress=progress, part=render_part)
+        if render_part != (1, 1):
+            return out
     total = sum(s.length for s in sequences)
     bar = ProgressBar(total * len(cameras), "make-capture") if progress else None
     ranges = {}
