@@ -79,11 +79,11 @@ def test_the_renderer_resumes_shares_between_machines_and_starts_over_for_other_
     root = tmp_path / cycles_job.JOB_DIR
     settings = dataclasses.replace(TINY, samples=1)
     frames = cycles_job.write_job(root, model, cameras, first_two, [0.0, 0.0], settings)
-    assert cycles_job.run_child(root, len(frames), 2, progress=False, part=(2, 2)) == 2  # one machine's share
+    assert cycles_job.run_child(root, 2, progress=False, part=(2, 2)) == 2  # one machine's share
     assert sorted(p.name for p in (root / "renders").glob("*.exr")) == ["00001_00.exr", "00001_01.exr"]
-    assert cycles_job.run_child(root, len(frames), 2, progress=False) == 2  # the rest: what is missing
+    assert cycles_job.run_child(root, 2, progress=False) == 2  # the rest: what is missing
     (root / "renders" / frames[2]["image"]).unlink()
-    assert cycles_job.run_child(root, len(frames), 2, progress=False) == 1  # only the missing image
+    assert cycles_job.run_child(root, 2, progress=False) == 1  # only the missing image
     linear, alpha = cycles_job.CyclesImages(root).image(0, 1)
     assert linear.shape == (32, 32, 3) and alpha.max() > 0.9 and np.isfinite(linear).all()
     cycles_job.write_job(root, model, cameras, first_two, [0.0, 0.0], dataclasses.replace(settings, samples=2))

@@ -131,8 +131,7 @@ def in_part(frames: list[dict], part: tuple[int, int]) -> list[bool]:
     return [f["moment"] in mine for f in frames]
 
 
-def run_child(root: pathlib.Path, total: int, threads: int | None, progress: bool,
-              part: tuple[int, int] = (1, 1)) -> int:
+def run_child(root: pathlib.Path, threads: int | None, progress: bool, part: tuple[int, int] = (1, 1)) -> int:
     """Run the renderer on the job in ``root`` with a progress bar; how many images it rendered
     (those already there are kept). ``part`` (K, N): only the K-th of N shares of the job's
     moments, one machine's. Ctrl-C stops it and keeps what it rendered; a failure raises with the
@@ -141,9 +140,8 @@ def run_child(root: pathlib.Path, total: int, threads: int | None, progress: boo
                "--part", f"{part[0]}/{part[1]}"]
     frames = json.loads((root / "job.json").read_text())["frames"]
     mine = in_part(frames, part)
-    total = total if part == (1, 1) else sum(mine)
     done = sum(m and (root / "renders" / f["image"]).exists() for f, m in zip(frames, mine))
-    bar = ProgressBar(total, "make-capture (cycles)") if progress else None
+    bar = ProgressBar(sum(mine), "make-capture (cycles)") if progress else None
     if bar:
         bar.update(done)
     tail: list[str] = []
@@ -195,6 +193,6 @@ def render_with_cycles(out: pathlib.Path, model, cameras, moments, delays, setti
     with ``part`` (K, N) this machine's share of them."""
     check_bpy()
     root = out / JOB_DIR
-    frames = write_job(root, model, cameras, moments, delays, settings)
-    run_child(root, len(frames), threads, progress, part)
+    write_job(root, model, cameras, moments, delays, settings)
+    run_child(root, threads, progress, part)
     return CyclesImages(root)
