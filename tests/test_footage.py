@@ -13,7 +13,8 @@ from mogaface.core.data.footage_settings import FootageSettings
 from mogaface.core.errors import InputError
 from mogaface.core.flame.model import FlameModel
 from mogaface.core.io.npz import load_npz
-from mogaface.core.track.decode import FrameSelection, open_footage
+from mogaface.core.track.decode import open_footage
+from mogaface.core.track.inputs import FrameSelection
 
 TINY = dict(width=64, height=112, fps=30.0, seconds=0.4, supersample=1, novel_views=2, novel_every=6, novel_size=32)
 

@@ -12,11 +12,7 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 PACKAGE = "mogaface"
 MAX_LINES = 450
 #: Modules allowed over :data:`MAX_LINES`, each at most at the size given (it may shrink, not grow).
-LONG_MODULES = {
-    # One reader per input kind (video container boxes, photos, EXIF) behind one open_footage: to be
-    # split into those three with the tracker's next change.
-    "core/track/decode.py": 784,
-}
+LONG_MODULES: dict[str, int] = {}
 #: Modules of Blender's Python that only the bpy layer (operators/, mogaface_addon/) may import.
 BLENDER_MODULES = {"bpy", "gpu", "gpu_extras", "mathutils", "bmesh", "bl_math", "bpy_extras"}
 _ROW = re.compile(r"^\|\s*(\d+)\s*\|\s*`([^`]+)`\s*\|")

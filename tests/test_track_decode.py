@@ -9,8 +9,9 @@ import pytest
 
 from mogaface.core.errors import InputError
 from mogaface.core.io.video import APPLE_FOCAL_35MM, VideoWriter
-from mogaface.core.track import decode
-from mogaface.core.track.decode import FootageWarning, FrameSelection, frame_position, open_footage, upright
+from mogaface.core.track import decode, inputs, videos
+from mogaface.core.track.decode import frame_position, open_footage
+from mogaface.core.track.inputs import FootageWarning, FrameSelection, upright
 
 WIDTH, HEIGHT, COUNT = 64, 112, 12
 
@@ -87,13 +88,13 @@ def test_every_orientation_matches_pillow_and_ffmpeg():
         assert np.array_equal(np.asarray(ImageOps.exif_transpose(image)), upright(stored, code)), code
     # display matrices: FFmpeg's av_display_rotation_set(clockwise degrees) and its flips
     for ccw, code in ((0, 1), (-90, 6), (90, 8), (180, 3)):
-        assert decode.orientation_from_display_matrix(decode._rotation_matrix(ccw)) == code
-    mirrored = decode._rotation_matrix(0)
+        assert inputs.orientation_from_display_matrix(videos.rotation_matrix(ccw)) == code
+    mirrored = videos.rotation_matrix(0)
     mirrored[0] = -mirrored[0]
-    assert decode.orientation_from_display_matrix(mirrored) == 2
-    assert decode.orientation_from_rotate_tag("90") == 6 and decode.orientation_from_rotate_tag("270") == 8
+    assert inputs.orientation_from_display_matrix(mirrored) == 2
+    assert inputs.orientation_from_rotate_tag("90") == 6 and inputs.orientation_from_rotate_tag("270") == 8
     with pytest.raises(InputError, match="multiple of 90"):
-        decode.orientation_from_display_matrix(decode._rotation_matrix(30))
+        inputs.orientation_from_display_matrix(videos.rotation_matrix(30))
 
 
 def test_frame_range_stride_and_rate_select_the_right_frames(clips):
@@ -208,13 +209,13 @@ def test_frames_above_8k_are_refused_before_decoding(clips, tmp_path, monkeypatc
         stream.width, stream.height, stream.pix_fmt = 16, 8704, "yuv420p"
         for frame in [av.VideoFrame.from_ndarray(np.zeros((8704, 16, 3), np.uint8), format="rgb24")] * 2 + [None]:
             container.mux(stream.encode(frame))
-    monkeypatch.setattr(decode.Video, "_decoded", lambda *a, **k: pytest.fail("decoded a refused video"))
+    monkeypatch.setattr(videos.Video, "_decoded", lambda *a, **k: pytest.fail("decoded a refused video"))
     with pytest.raises(InputError, match=r"declares 16x8704 frames; the limit is 8192 a side and 35389440 pixels"):
         open_footage(tall)
-    decode.check_video_size(tall, 7680, 4320)  # 8K UHD and DCI 8K pass
-    decode.check_video_size(tall, 8192, 4320)
+    videos.check_video_size(tall, 7680, 4320)  # 8K UHD and DCI 8K pass
+    videos.check_video_size(tall, 8192, 4320)
     with pytest.raises(InputError, match="8K"):
-        decode.check_video_size(tall, 8192, 4352)
+        videos.check_video_size(tall, 8192, 4352)
 
 
 def test_an_hevc_clip_reads(tmp_path):

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 import torch
 
+from mogaface.core.errors import InputError
 from mogaface.core.flame.landmarks import STATIC_IBUG, procedural_embedding
 from mogaface.core.flame.model import FlameModel
 from mogaface.core.track.fit import FitSettings, LandmarkHead, Observations, fit_landmarks, start_camera
@@ -109,3 +110,24 @@ def test_the_gaze_is_fitted_from_the_iris_centres(procedural_head_pkl):
     without = fit_landmarks(model, Observations(points[:, mesh_points], np.ones((10, mesh_points.sum())), WIDTH, HEIGHT,
                                                 embedding.subset(embedding.ibug[mesh_points])), FitSettings(steps=5, focal=FOCAL))
     assert np.abs(without.params["eyes_pose"]).max() == 0  # no iris centres: the eyes stay at rest
+
+
+def test_several_clips_are_fitted_with_a_lens_each(clip):
+    """The same performance seen by two phones of other sizes and lenses: each clip's camera keeps
+    its own size and focal length, and both clips' landmarks are fitted as well as one clip's."""
+    model, obs, truth, vertices = clip
+    other = start_camera(480, 480, 600.0)
+    points = np.stack([other.project(obs.embedding.positions(v, model.faces.numpy()))[0] for v in vertices])
+    points += np.random.default_rng(1).normal(0, 0.5, points.shape)
+    sizes = np.array([[WIDTH, HEIGHT]] * FRAMES + [[480, 480]] * FRAMES)
+    both = Observations(np.concatenate([obs.points, points]), np.concatenate([obs.confidence, np.ones(points.shape[:2])]),
+                        WIDTH, HEIGHT, obs.embedding, sizes, np.repeat([0, 1], FRAMES))
+    fit = fit_landmarks(model, both, FitSettings(steps=300, focal=(FOCAL, 600.0)))  # 150 do for one clip
+    assert [(c.width, c.height, c.fx) for c in fit.cameras] == [(WIDTH, HEIGHT, pytest.approx(FOCAL)),
+                                                                  (480, 480, pytest.approx(600.0))]
+    assert fit.camera_of(FRAMES + 2, "cam01").fx == pytest.approx(600.0) and fit.camera_of(2).fx == pytest.approx(FOCAL)
+    assert fit.reprojection_px[fit.seen].mean() < 1.2
+    moved_mm = 1000 * np.linalg.norm(fit.params["translation"][FRAMES:] - fit.params["translation"][:FRAMES], axis=1)
+    assert np.median(moved_mm[obs.confidence.any(1)]) < 10  # the same head at the same place (one lens: 0.1 m off)
+    with pytest.raises(InputError, match="one focal length per clip"):
+        fit_landmarks(model, both, FitSettings(steps=1, focal=(FOCAL,)))

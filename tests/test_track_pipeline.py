@@ -7,8 +7,9 @@ import pytest
 
 from mogaface.core.errors import InputError
 from mogaface.core.io.video import VideoWriter
-from mogaface.core.track.decode import FrameSelection, open_footage
+from mogaface.core.track.decode import open_footage
 from mogaface.core.track.fit import FitSettings
+from mogaface.core.track.inputs import FrameSelection
 from mogaface.core.track.pipeline import TrackSettings, track_footage
 
 FAST = TrackSettings(size=None, fit=FitSettings(steps=5))
@@ -100,3 +101,46 @@ def test_a_real_photograph_is_found_fitted_and_written(tmp_path):
     assert report["frames"] == 1 and report["lost_frames"] == [] and report["two_faces_frames"] == []
     assert report["reprojection_px"]["mean"] < 4.0  # 2.4 px at 512 px when this was written
     assert (tmp_path / "cap" / "transforms_train.json").is_file()
+
+
+def test_several_videos_are_one_capture_with_a_camera_each(handheld, tmp_path):
+    """Two clips of one subject (here the same clip twice): one capture that ``check-capture --full``
+    takes, their frames one after another, a camera and a lens each, one shape, the last tenth of
+    each clip held out; and nothing ties one clip's last frame to the next clip's first: the two
+    copies are fitted alike, frame for frame (the cut is a jump from the end of the turn to its
+    start, which a smoothness across it would pull on)."""
+    import shutil
+
+    from mogaface.core.cli import main
+    from mogaface.core.data.capture import Capture
+    from mogaface.core.io.npz import load_npz
+
+    first, second, out = handheld / "footage" / "clip.mp4", tmp_path / "again.mp4", tmp_path / "cap"
+    shutil.copy(first, second)
+    assert main(["track", str(first), str(second), "--out", str(out), "--size", "112", "--fit-steps", "5",
+                 "--photometric-steps", "2", "--quiet"]) == 0
+    assert main(["check-capture", str(out), "--full"]) == 0
+    report = json.loads((out / "tracking.json").read_text())
+    assert report["kind"] == "videos" and report["frames"] == 24 and report["source"] == [str(first), str(second)]
+    assert [(clip["camera"], clip["frames"]) for clip in report["clips"]] == [("cam00", 12), ("cam01", 12)]
+    capture = Capture.open(out)
+    camera_of = {frame.timestep_index: frame.camera_id for split in ("train", "test") for frame in capture.frames(split)}
+    assert camera_of == {t: "cam00" if t < 12 else "cam01" for t in range(24)}
+    assert {frame.timestep_index for frame in capture.frames("test")} == {11, 23}
+    assert sorted(p.name for p in (out / "landmark2d" / "STAR").iterdir()) == ["cam00.npz", "cam01.npz"]
+    params = [load_npz(out / "flame_param" / f"{t:05d}.npz") for t in range(24)]
+    for name in ("rotation", "translation", "expr", "jaw_pose"):
+        values = np.stack([p[name].reshape(-1) for p in params])
+        np.testing.assert_allclose(values[:12], values[12:], atol=1e-5, err_msg=name)
+    assert all(np.array_equal(p["shape"], params[0]["shape"]) for p in params)
+
+
+def test_several_inputs_of_different_kinds_are_refused_by_name(handheld, tmp_path):
+    from PIL import Image
+
+    photo = tmp_path / "face.png"
+    Image.new("RGB", (32, 32)).save(photo)
+    with pytest.raises(InputError, match="face.png: is a photo among videos; several inputs must all be videos"):
+        open_footage([handheld / "footage" / "clip.mp4", photo])
+    with pytest.raises(InputError, match="footage: is a folder: a folder of photos is given alone"):
+        open_footage([photo, handheld / "footage"])

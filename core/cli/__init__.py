@@ -29,7 +29,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "make-capture": ("make_capture", "render a synthetic multi-view capture of the procedural head"),
     "make-footage": ("make_footage", "render synthetic phone footage (a clip or photos) of the procedural head, "
                                      "its truth aside"),
-    "track": ("track", "turn a phone video or a folder of photos into a tracked capture (CPU, offline)"),
+    "track": ("track", "turn a phone video (or several) or a folder of photos into a tracked capture (CPU, offline)"),
     "drive": ("drive", "a performance clip drives an avatar: track it with the avatar's shape held fixed, write "
                        "its frames as flame_param files"),
     "check-capture": ("check_capture", "validate a capture folder and print a summary"),

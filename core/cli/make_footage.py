@@ -89,7 +89,8 @@ def footage_sheet(folders, path, columns: int = 6, row_height: int = 240) -> Non
     from ..data.footage import INFO_FILE, NOVEL_DIR
     from ..io.image import read_image, write_png
     from ..io.jsonfile import read_json_object
-    from ..track.decode import FrameSelection, open_footage
+    from ..track.decode import open_footage
+    from ..track.inputs import FrameSelection
 
     source = folders.files[0] if len(folders.files) == 1 else folders.footage
     footage = open_footage(source)

@@ -1,5 +1,5 @@
-"""``track INPUT --out CAPTURE``: a phone video or a folder of photos becomes a tracked capture
-(images, masks, one camera, FLAME parameters per frame, 2D landmarks) on the CPU, offline
+"""``track INPUT --out CAPTURE``: a phone video (or several) or a folder of photos becomes a tracked
+capture (images, masks, a camera per video, FLAME parameters per frame, 2D landmarks) on the CPU, offline
 (:mod:`..track.pipeline`). Ctrl-C leaves a folder no reader takes; the same command resumes it."""
 
 from __future__ import annotations
@@ -11,13 +11,15 @@ def add_arguments(parser) -> None:
     from ..track.decode import add_footage_arguments
 
     parser.add_argument("input", type=pathlib.Path, nargs="+",
-                        help="a video file (mp4, mov, …), a folder of photos, or several photos")
+                        help="a video file (mp4, mov, …), several videos of one subject (a camera each), a folder of "
+                             "photos, or several photos")
     parser.add_argument("--out", type=pathlib.Path, required=True,
                         help="capture folder to write (new or empty; an interrupted track of the same input resumes)")
     add_footage_arguments(parser)
     parser.set_defaults(size=512)
     parser.add_argument("--focal", type=float, help="focal length in pixels of the input's frames (default: from "
-                        "the file's metadata, else estimated from a phone's 26 mm)")
+                        "the file's metadata, else estimated from a phone's 26 mm; several videos: the first's "
+                        "frames, one lens for all)")
     parser.add_argument("--focal-35mm", type=float, help="the same as a 35 mm equivalent focal length (mm)")
     parser.add_argument("--head", type=pathlib.Path, help="head model file (default: the procedural head)")
     parser.add_argument("--fit-steps", type=int, default=200, help="iterations of the fit (default %(default)s)")
@@ -67,8 +69,9 @@ def progress_reporter(args):
 
 def run(args) -> int:
     from ..errors import InputError
-    from ..track.decode import focal_in_pixels, open_footage, selection_from_arguments
+    from ..track.decode import open_footage, selection_from_arguments
     from ..track.fit import FitSettings
+    from ..track.inputs import focal_in_pixels
     from ..track.photometric import PhotometricSettings
     from ..track.pipeline import TrackSettings, track_footage
 
@@ -96,6 +99,8 @@ def run(args) -> int:
           f"{report['detect_ms_per_frame']:.0f} ms a frame; {report['seconds']['fit']:.1f} s fitting): "
           f"landmarks reproject to {report['reprojection_px']['mean']:.2f} px (worst frame "
           f"{report['reprojection_px']['max']:.2f} px), focal {report['focal_px']:.1f} px")
+    for clip in report.get("clips", []):
+        print(f"  {clip['camera']}: {clip['source']}, {clip['frames']} frames, focal {clip['focal_px']:.1f} px")
     if lost:
         print(f"warning: no face in {len(lost)} frames (first: {lost[:5]}): their parameters are interpolated and "
               "they are left out of the splits (tracking.json)")

@@ -9,6 +9,8 @@ camera with its focal length (given, or estimated about a phone's).
 One fixed camera per clip. The subject turning in front of a still phone and a phone orbiting a
 still subject give the same pictures: either is the head's rotation and translation per frame in
 front of a fixed camera, which is what ``solve-cameras``, training and Blender's import take.
+Several clips of one subject are fitted together: one shape, a camera and a focal length each, and
+no smoothness across the cut from one clip to the next.
 
 The fit (torch, float64, every frame at once, L-BFGS): a rigid start (the mean head placed at each
 frame's landmarks, then turned and moved onto them), then every parameter together on a robust
@@ -46,7 +48,8 @@ class Observations:
     """Landmarks of a clip: ``points (T,L,2)`` pixels, ``confidence (T,L)`` in [0, 1] (0: not seen),
     the frame size, and where the L landmarks lie on the mesh. Photos of several sizes give each
     frame's ``sizes (T,2)``; one lens is fitted to all of them (a focal length in 35 mm terms:
-    each frame's in pixels by its diagonal)."""
+    each frame's in pixels by its diagonal). Several videos give ``clips (T,)``, which clip each
+    frame is from (contiguous, from 0): a lens each, at its first frame's size."""
 
     points: np.ndarray
     confidence: np.ndarray
@@ -54,12 +57,22 @@ class Observations:
     height: int
     embedding: LandmarkEmbedding
     sizes: np.ndarray | None = None
+    clips: np.ndarray | None = None
 
     def frame_sizes(self) -> np.ndarray:
         """``(T,2)`` width and height of every frame."""
         if self.sizes is not None:
             return np.asarray(self.sizes, np.float64)
         return np.tile([float(self.width), float(self.height)], (len(self.points), 1))
+
+    def clip_index(self) -> np.ndarray:
+        """``(T,)`` each frame's clip (all 0 for one clip or photos)."""
+        return np.zeros(len(self.points), np.int64) if self.clips is None else np.asarray(self.clips, np.int64)
+
+    def clip_sizes(self) -> np.ndarray:
+        """``(C,2)`` each clip's size (its first frame's)."""
+        clip = self.clip_index()
+        return self.frame_sizes()[np.searchsorted(clip, np.arange(clip.max() + 1))]
 
     def check(self, source=None) -> "Observations":
         frames, count = self.confidence.shape
@@ -71,13 +84,17 @@ class Observations:
             raise InputError(source, "landmarks", "no landmark was seen in any frame")
         if not np.isfinite(self.points[self.confidence > 0]).all():
             raise InputError(source, "points", "seen landmarks must be finite")
+        clip = self.clip_index()
+        if clip.shape != (frames,) or clip[0] != 0 or not np.isin(np.diff(clip), (0, 1)).all():
+            raise InputError(source, "clips", f"expected ({frames},) clip numbers counting up from 0, each clip's "
+                                              f"frames together")
         return self
 
 
 @dataclasses.dataclass
 class FitSettings:
     steps: int = 200  # L-BFGS iterations of the joint fit (a quarter more for the rigid start)
-    focal: float | None = None  # pixels; None: estimated, starting from a phone's
+    focal: float | tuple | None = None  # pixels; None: estimated, starting from a phone's; several clips: one each
     huber_px: float = 2.0  # the robust loss's knee
     # weights beside the reprojection loss (pixels²: half the square of a pixel's error)
     shape_prior: float = 1.0  # of ||shape||² (unit-variance coefficients); chosen on validation clips
@@ -93,16 +110,24 @@ class FitSettings:
 
 @dataclasses.dataclass
 class Fit:
-    """The fitted parameters (per frame arrays ``(T, n)``, ``shape`` once) and the clip's camera."""
+    """The fitted parameters (per frame arrays ``(T, n)``, ``shape`` once) and each clip's camera."""
 
     params: dict[str, np.ndarray]
-    camera: Camera  # the first frame's (every frame's, for a clip)
+    cameras: list[Camera]  # each clip's (one for a clip or photos: the first frame's)
     reprojection_px: np.ndarray  # (T,) confidence-weighted RMS per frame
     seen: np.ndarray  # (T,) whether the frame had landmarks
     sizes: np.ndarray | None = None  # (T,2) for frames of several sizes
+    clips: np.ndarray | None = None  # (T,) each frame's clip, for several
+
+    @property
+    def camera(self) -> Camera:
+        """The first clip's camera (every frame's, for one clip)."""
+        return self.cameras[0]
 
     def camera_of(self, t: int, camera_id: str = "cam00") -> Camera:
-        """Frame ``t``'s camera: the clip's, or a photo's at its own size with the same lens."""
+        """Frame ``t``'s camera: its clip's, or a photo's at its own size with the same lens."""
+        if self.clips is not None:
+            return dataclasses.replace(self.cameras[int(self.clips[t])], camera_id=camera_id)
         if self.sizes is None:
             return self.camera
         width, height = (int(v) for v in self.sizes[t])
@@ -179,14 +204,27 @@ def fit_landmarks(model: FlameModel, observations: Observations, settings: FitSe
     points = torch.as_tensor(np.nan_to_num(obs.points), dtype=d)
     weight = torch.as_tensor(obs.confidence, dtype=d).clamp(0, 1)
     seen = (weight > 0).any(1)
-    phone = focal_from_35mm(PHONE_FOCAL_35MM, obs.width, obs.height)
-    camera = start_camera(obs.width, obs.height, settings.focal or phone)
-    w2c = torch.as_tensor(camera.w2c, dtype=d)
+    clip = torch.as_tensor(obs.clip_index())
+    clip_sizes = obs.clip_sizes()
+    phone = torch.tensor([math.log(focal_from_35mm(PHONE_FOCAL_35MM, w, h)) for w, h in clip_sizes], dtype=d)
+    given = _clip_focals(settings.focal, len(clip_sizes))
+    free = torch.tensor([focal is None for focal in given])
+    w2c = torch.as_tensor(start_camera(obs.width, obs.height, 1.0).w2c, dtype=d)  # where it stands: not the lens
     sizes = torch.as_tensor(obs.frame_sizes(), dtype=d)
     centre = sizes[:, None, :] / 2  # (T,1,2)
-    lens = (sizes.norm(dim=1) / math.hypot(obs.width, obs.height))[:, None, None]  # each frame's focal / the first's
+    lens = (sizes.norm(dim=1) / torch.as_tensor(clip_sizes, dtype=d).norm(dim=1)[clip])[:, None, None]  # photos' sizes
+    log_focal = torch.where(free, phone, torch.tensor([math.log(f or 1.0) for f in given], dtype=d))
+    log_focal.requires_grad_(bool(free.any()))  # (C,) each clip's; the given ones held (no gradient)
 
-    log_focal = torch.tensor(math.log(settings.focal or phone), dtype=d, requires_grad=settings.focal is None)
+    def frame_focal():
+        """``(T,1,1)`` each frame's focal length in pixels."""
+        return torch.exp(torch.where(free, log_focal, log_focal.detach()))[clip][:, None, None] * lens
+
+    def cameras() -> list[Camera]:
+        focals = torch.exp(log_focal.detach())
+        return [start_camera(int(w), int(h), float(f)) for (w, h), f in zip(clip_sizes, focals)]
+
+    same_clip = (clip[2:] == clip[:-2]).to(d)[:, None]  # a second difference within one clip (clips are contiguous)
     # The shared unknowns are stepped in units of 1/sqrt(T): their curvature, a sum over the frames,
     # then matches one frame's own, and L-BFGS converges in far fewer iterations on long clips.
     unit = math.sqrt(frames)
@@ -200,7 +238,7 @@ def fit_landmarks(model: FlameModel, observations: Observations, settings: FitSe
     def project(world):
         cam = world @ w2c[:3, :3].T + w2c[:3, 3]
         z = cam[..., 2:].clamp_min(1e-3)
-        return torch.exp(log_focal) * lens * cam[..., :2] / z + centre
+        return frame_focal() * cam[..., :2] / z + centre
 
     def reprojection(world):
         residual = (project(world) - points).norm(dim=-1)  # (T,L) pixels
@@ -209,7 +247,7 @@ def fit_landmarks(model: FlameModel, observations: Observations, settings: FitSe
         return (weight * robust).sum() / weight.sum().clamp_min(1e-9), residual
 
     def second_differences(x):
-        return (x[2:] - 2 * x[1:-1] + x[:-2]).pow(2).sum() if len(x) > 2 else x.sum() * 0
+        return ((x[2:] - 2 * x[1:-1] + x[:-2]).pow(2) * same_clip).sum() if len(x) > 2 else x.sum() * 0
 
     def shared_shape():
         return shape_stepped / unit
@@ -230,8 +268,7 @@ def fit_landmarks(model: FlameModel, observations: Observations, settings: FitSe
             return loss + settings.smooth * scale * smooth, residual
         prior = (settings.shape_prior * shared_shape().pow(2).sum() * scale + settings.expr_prior * expr.pow(2).mean()
                  + settings.jaw_prior * jaw.pow(2).mean() + settings.gaze_prior * gaze.pow(2).mean())
-        if settings.focal is None:
-            prior = prior + settings.focal_prior * (log_focal - math.log(phone)) ** 2
+        prior = prior + settings.focal_prior * ((log_focal - phone) ** 2 * free).sum()
         smooth = smooth + 0.01 * second_differences(expr) + second_differences(jaw) + second_differences(gaze)
         return loss + prior + settings.smooth * scale * smooth, residual
 
@@ -248,18 +285,18 @@ def fit_landmarks(model: FlameModel, observations: Observations, settings: FitSe
     scale = 1.0 / frames
     with torch.no_grad():
         translation_cm.copy_(100 * _placed(head(shared_shape(), expr, rotation, jaw, translation_cm), points, weight,
-                                          torch.exp(log_focal) * lens[:, 0, 0], centre[:, 0], w2c))
+                                          frame_focal()[:, 0, 0], centre[:, 0], w2c))
     everything = [shape_stepped] * shape_stepped.requires_grad + [expr, jaw, gaze, rotation, translation_cm]
     stages = [([rotation, translation_cm], objective, True, max(settings.steps // 4, 1)),
-              (everything + ([log_focal] if settings.focal is None else []), objective, False, settings.steps)]
+              (everything + [log_focal] * log_focal.requires_grad, objective, False, settings.steps)]
     photometric_steps = settings.photometric.steps if brightness is not None and obs.sizes is None else 0
     if photometric_steps:
         stages.append((everything, None, False, photometric_steps))
     done, total = 0, sum(stage[3] for stage in stages)
     for unknowns, stage_objective, rigid_only, steps in stages:
         if stage_objective is None:  # the photometric stage: what each frame sees, from the fit so far
-            stage_objective = photometric(*_photometric_term(model, current(), start_camera(
-                obs.width, obs.height, float(torch.exp(log_focal.detach()))), brightness, seen.numpy(), settings.photometric))
+            stage_objective = photometric(*_photometric_term(model, current(), cameras(), obs.clip_index(), brightness,
+                                                             seen.numpy(), settings.photometric))
         optimiser = torch.optim.LBFGS(unknowns, lr=1.0, max_iter=steps, history_size=30,
                                       line_search_fn="strong_wolfe", tolerance_grad=1e-10, tolerance_change=1e-12)
 
@@ -278,19 +315,29 @@ def fit_landmarks(model: FlameModel, observations: Observations, settings: FitSe
 
     with torch.no_grad():
         _, residual = reprojection(landmarks())
-        focal = float(torch.exp(log_focal))
-    camera = start_camera(obs.width, obs.height, focal)
-    return Fit(current(), camera, _rms(residual, weight).numpy(), seen.numpy(), obs.sizes)
+    return Fit(current(), cameras(), _rms(residual, weight).numpy(), seen.numpy(), obs.sizes, obs.clips)
 
 
-def _photometric_term(model: FlameModel, params: dict, camera: Camera, brightness: np.ndarray, frames: np.ndarray,
-                      settings: PhotometricSettings) -> tuple[BrightnessAgreement, LandmarkHead]:
+def _clip_focals(focal, clips: int) -> list:
+    """The given focal length(s) as one per clip (None: estimated)."""
+    focals = list(focal) if isinstance(focal, list | tuple) else [focal] * clips
+    if len(focals) != clips:
+        raise InputError(None, "focal", f"expected one focal length per clip ({clips}), found {len(focals)}")
+    return focals
+
+
+def _photometric_term(model: FlameModel, params: dict, cameras: list[Camera], clips: np.ndarray, brightness: np.ndarray,
+                      frames: np.ndarray, settings: PhotometricSettings) -> tuple[BrightnessAgreement, LandmarkHead]:
     """The photometric stage's loss and the head posed at its skin points (:mod:`.photometric`);
-    ``frames (T,)``: those with landmarks (the others' parameters are a guess)."""
+    ``clips (T,)``: each frame's camera of ``cameras``; ``frames (T,)``: those with landmarks (the
+    others' parameters are a guess)."""
     points = skin_points(model, settings.points, settings.seed)
-    seen = seen_points(model, params, camera, points) & frames[:, None]
+    seen = np.zeros((len(clips), len(points)), bool)
+    for number, camera in enumerate(cameras):
+        mine = clips == number
+        seen[mine] = seen_points(model, {k: v if k == "shape" else v[mine] for k, v in params.items()}, camera, points)
     skin = LandmarkHead(model, vertex_embedding(model.faces.numpy(), points))
-    return BrightnessAgreement(brightness, seen, settings), skin
+    return BrightnessAgreement(brightness, seen & frames[:, None], settings, clips), skin
 
 
 def eyes_pose(gaze: torch.Tensor) -> torch.Tensor:

@@ -12,7 +12,8 @@ What a point sees is decided once, from the landmark fit: facing the camera (its
 :data:`FACING` of the line of sight) and in front of every other point of the mesh near it on the
 image (a coarse depth buffer of all vertices). The landmarks stay in the loss beside it.
 
-Videos only: photos have a camera each and no neighbours in time.
+Videos only: photos have a camera each and no neighbours in time. Several clips are paired within
+each clip, never across the cut between two.
 """
 
 from __future__ import annotations
@@ -106,14 +107,17 @@ def _vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
 
 
 class BrightnessAgreement:
-    """The photometric loss: frames' brightness ``(T,H,W)`` blurred, pairs of frames a gap apart,
-    and which points each frame sees; called with the points' pixels ``(T,P,2)``."""
+    """The photometric loss: frames' brightness ``(T,H,W)`` blurred, pairs of frames a gap apart
+    (of one clip: ``clips (T,)``, each frame's), and which points each frame sees; called with the
+    points' pixels ``(T,P,2)``."""
 
-    def __init__(self, brightness: np.ndarray, seen: np.ndarray, settings: PhotometricSettings):
+    def __init__(self, brightness: np.ndarray, seen: np.ndarray, settings: PhotometricSettings,
+                 clips: np.ndarray | None = None):
         frames, height, width = brightness.shape
         self.images = _blur(torch.as_tensor(brightness, dtype=torch.float32)[:, None], settings.blur_px)
         self.size = torch.tensor([width, height], dtype=torch.float64)
-        self.pairs = [(gap, torch.as_tensor(seen[:-gap] & seen[gap:]))
+        clips = np.zeros(frames, np.int64) if clips is None else np.asarray(clips)
+        self.pairs = [(gap, torch.as_tensor(seen[:-gap] & seen[gap:] & (clips[:-gap] == clips[gap:])[:, None]))
                       for gap in settings.gaps if gap < frames]
         self.huber = settings.huber
 

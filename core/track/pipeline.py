@@ -4,14 +4,16 @@ The capture is an ordinary one in the GaussianAvatars/VHAP layout (:mod:`..data.
 ``check-capture``, ``train``, ``eval``, ``solve-cameras`` and Blender's Import Capture take it as
 they take any other: the frames as images on white (through the person's mask, as VHAP exports
 them), the person's mask as each frame's foreground mask, one fixed camera for a video (``cam00``,
-the fitted focal length; a photo folder: a camera per photo, one lens), FLAME parameters per frame
-(the head's rotation and translation carry the motion between camera and head), the 68 iBUG
+the fitted focal length; several videos: a camera each, ``cam00``, ``cam01``, …, their frames one
+after another; a photo folder: a camera per photo, one lens), FLAME parameters per frame (the
+head's rotation and translation carry the motion between camera and head; one shape), the 68 iBUG
 points in ``landmark2d/``, and the head model file. ``tracking.json`` says how each frame went.
 
 Frames where no face was found keep their timestep: their parameters are interpolated by the fit
 (its smoothness term; they have no landmarks) and they are left out of every split, so nothing
-trains or is scored on a guess; ``tracking.json`` lists them. The last tenth of the frames is the
-``test`` split (frames the avatar never trains on, for self-reenactment), the rest ``train``.
+trains or is scored on a guess; ``tracking.json`` lists them. The last tenth of the frames (of
+each clip) is the ``test`` split (frames the avatar never trains on, for self-reenactment), the
+rest ``train``.
 
 Interrupted (Ctrl-C), the folder has no split files and no reader takes it; the detections done
 so far are kept in ``track_detections.npz``, and the same command resumes from there.
@@ -20,6 +22,7 @@ so far are kept in ``track_detections.npz``, and the same command resumes from t
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 import pathlib
 import time
@@ -36,7 +39,6 @@ from .fit import FitSettings
 
 DETECTIONS_FILE = "track_detections.npz"
 REPORT_FILE = "tracking.json"
-CAMERA_ID = "cam00"
 TEST_FRACTION = 0.1
 #: Detections are saved for a resume every this many frames.
 SAVE_EVERY = 25
@@ -61,19 +63,21 @@ class Detections:
     times: np.ndarray  # (T,) seconds (NaN for photos)
     indices: np.ndarray  # (T,) the input's frame numbers
     sizes: np.ndarray  # (T,2) width and height of each frame in the capture
+    clips: np.ndarray  # (T,) the video each frame is from (several videos; otherwise 0)
 
     @classmethod
     def empty(cls) -> "Detections":
         return cls(np.zeros((0, 478, 3), np.float32), np.zeros(0, np.float32), np.zeros(0, np.int32),
-                   np.zeros(0), np.zeros(0, np.int64), np.zeros((0, 2), np.int64))
+                   np.zeros(0), np.zeros(0, np.int64), np.zeros((0, 2), np.int64), np.zeros(0, np.int64))
 
-    def append(self, landmarks, presence, faces, time_s, index, size) -> None:
+    def append(self, landmarks, presence, faces, time_s, index, size, clip: int = 0) -> None:
         self.landmarks = np.concatenate([self.landmarks, np.asarray(landmarks, np.float32)[None]])
         self.presence = np.append(self.presence, np.float32(presence))
         self.faces = np.append(self.faces, np.int32(faces))
         self.times = np.append(self.times, np.nan if time_s is None else time_s)
         self.indices = np.append(self.indices, index)
         self.sizes = np.concatenate([self.sizes, np.asarray(size, np.int64)[None]])
+        self.clips = np.append(self.clips, np.int64(clip))
 
     @property
     def one_size(self) -> bool:
@@ -86,7 +90,9 @@ class Detections:
     def read(cls, path: pathlib.Path) -> tuple["Detections", str]:
         """Saved detections and the key of the input they were found in."""
         data = load_npz(path)
-        return cls(**{field.name: data[field.name] for field in dataclasses.fields(cls)}), str(data.get("source", ""))
+        fields = {field.name: data[field.name] for field in dataclasses.fields(cls) if field.name in data}
+        fields.setdefault("clips", np.zeros(len(fields["presence"]), np.int64))  # saved before several videos were read
+        return cls(**fields), str(data.get("source", ""))
 
     @classmethod
     def load(cls, path: pathlib.Path, source: str) -> "Detections | None":
@@ -117,12 +123,14 @@ def track_footage(source, out, settings: TrackSettings = TrackSettings(), select
     ``track_detections.npz`` for :func:`refit` (choosing the fit's settings).
     """
     from ..flame.model import FlameModel
-    from .decode import FrameSelection, open_footage
+    from .decode import open_footage
+    from .inputs import FrameSelection
 
     out = pathlib.Path(out)
     footage = open_footage(source)
     info = footage.info
-    key = f"{pathlib.Path(info.path).resolve()}|{selection or FrameSelection()}|{settings.size}"
+    paths = [clip.path for clip in info.clips] if info.clips else [info.path]
+    key = f"{'|'.join(str(pathlib.Path(path).resolve()) for path in paths)}|{selection or FrameSelection()}|{settings.size}"
     resume = check_output_folder(out, key)
     out.mkdir(parents=True, exist_ok=True)
     head_file = _head_model(out, settings.head_file)
@@ -166,10 +174,20 @@ def _fit_and_write(out, model, head_file, detections, settings, info, progress) 
     started = time.monotonic()
     fit = _fit(out, model, detections, settings, info, progress)
     fit_s = time.monotonic() - started
-    report = _write_capture(out, fit, detections, head_file, model, info.kind == "video", progress)
+    report = _write_capture(out, fit, detections, head_file, model, info.kind != "photos", progress)
     report.update(source=str(info.path), kind=info.kind, input_size=[info.width, info.height], fps=info.fps,
                   seconds={"fit": round(fit_s, 2)})
+    if info.clips:  # several videos: each one's; the fields above are the first's
+        report.update(source=[str(clip.path) for clip in info.clips], clips=[
+            {"source": str(clip.path), "camera": _camera_id(number), "frames": int((detections.clips == number).sum()),
+             "input_size": [clip.width, clip.height], "fps": clip.fps,
+             "focal_px": round(float(fit.cameras[number].fx), 2)} for number, clip in enumerate(info.clips)])
     return report
+
+
+def _camera_id(clip: int) -> str:
+    """A video's camera: ``cam00`` for the first (the only one, for one clip), ``cam01``, … ."""
+    return f"cam{clip:02d}"
 
 
 def _head_model(out: pathlib.Path, head_file) -> pathlib.Path:
@@ -182,44 +200,54 @@ def _head_model(out: pathlib.Path, head_file) -> pathlib.Path:
 def _detect(footage, out, key, settings, selection, resume, progress):
     """Detect every selected frame at the input's own size (the face models see the most detail
     there), and write its image and mask at the capture's size as it goes; resumable."""
-    from .decode import output_size
     from .detect import FaceTracker
+    from .inputs import output_size
 
     detections = Detections.load(out / DETECTIONS_FILE, key) if resume else None
     detections = detections or Detections.empty()
     done = len(detections.presence)
-    video = footage.info.kind == "video"
-    tracker = FaceTracker(threads=settings.threads, track=video)
+    video = footage.info.kind != "photos"
     total = footage.info.frame_count
-    first = None
-    for position, frame in enumerate(footage.frames(selection)):
-        height, width = frame.rgb.shape[:2]
-        size = output_size(width, height, min(settings.size, max(width, height)) if settings.size else None)
+    position = 0
+    for clip, part in enumerate(getattr(footage, "videos", [footage])):  # several videos: one after another
+        tracker = FaceTracker(threads=settings.threads, track=video)  # each clip's own: no tracking across the cut
+        first = None
+        for frame in part.frames(selection):
+            height, width = frame.rgb.shape[:2]
+            size = output_size(width, height, min(settings.size, max(width, height)) if settings.size else None)
+            if first is None:
+                first = (width, height)
+            elif video and (width, height) != first:
+                raise InputError(part.info.path, "size", f"frame {frame.index} is {width}x{height}, the first "
+                                                          f"{first[0]}x{first[1]}: one camera needs one size")
+            timestep, position = position, position + 1
+            if timestep < done:
+                continue  # a resumed track: already detected and written
+            _detect_frame(tracker, frame, size, detections, out, timestep, clip if video else timestep, clip)
+            if len(detections.presence) % SAVE_EVERY == 0:
+                detections.save(out / DETECTIONS_FILE, key)
+            if progress is not None:
+                progress("detect", position, total)
         if first is None:
-            first = (width, height)
-        elif video and (width, height) != first:
-            raise InputError(footage.info.path, "size", f"frame {frame.index} is {width}x{height}, the first "
-                                                         f"{first[0]}x{first[1]}: one camera needs one size")
-        if position < done:
-            continue  # a resumed track: already detected and written
-        result = tracker(frame.rgb)
-        face = result.face
-        scale = np.array([size[0] / width, size[1] / height, size[0] / width], np.float32)
-        landmarks = face.landmarks * scale if face is not None else np.full((478, 3), np.nan, np.float32)
-        detections.append(landmarks, face.presence if face is not None else 0.0, result.faces, frame.time,
-                          frame.index, size)
-        mask = result.mask if result.mask is not None else np.ones((height, width), np.float32)
-        camera = 0 if video else position  # photos: each its own camera
-        write_png(out / layout.image_path(position, camera), _shrunk(_on_white(frame.rgb, mask), size))
-        write_png(out / layout.mask_path(position, camera), _shrunk((mask * 255 + 0.5).astype(np.uint8), size))
-        if len(detections.presence) % SAVE_EVERY == 0:
-            detections.save(out / DETECTIONS_FILE, key)
-        if progress is not None:
-            progress("detect", position + 1, total)
+            raise InputError(part.info.path, None, "no frame in the selected range")
     detections.save(out / DETECTIONS_FILE, key)
-    if first is None:
-        raise InputError(footage.info.path, None, "no frame in the selected range")
     return detections
+
+
+def _detect_frame(tracker, frame, size, detections: Detections, out: pathlib.Path, position: int, camera: int,
+                  clip: int) -> None:
+    """Find the face in one frame, add it to ``detections``, and write the frame's image and mask
+    (as timestep ``position`` of ``camera``)."""
+    height, width = frame.rgb.shape[:2]
+    result = tracker(frame.rgb)
+    face = result.face
+    scale = np.array([size[0] / width, size[1] / height, size[0] / width], np.float32)
+    landmarks = face.landmarks * scale if face is not None else np.full((478, 3), np.nan, np.float32)
+    detections.append(landmarks, face.presence if face is not None else 0.0, result.faces, frame.time,
+                      frame.index, size, clip)
+    mask = result.mask if result.mask is not None else np.ones((height, width), np.float32)
+    write_png(out / layout.image_path(position, camera), _shrunk(_on_white(frame.rgb, mask), size))
+    write_png(out / layout.mask_path(position, camera), _shrunk((mask * 255 + 0.5).astype(np.uint8), size))
 
 
 def _on_white(rgb: np.ndarray, mask: np.ndarray) -> np.ndarray:
@@ -248,15 +276,21 @@ def _fit(out, model, detections: Detections, settings: TrackSettings, info, prog
     confidence = np.repeat(detections.presence[:, None], len(columns), 1).astype(np.float64)
     confidence[~np.isfinite(points).all(-1)] = 0
     width, height = (int(v) for v in detections.sizes[0])  # the capture's first frame
-    lens = info.photos[0].focal_35mm if info.kind == "photos" and info.photos else info.focal_35mm
-    if settings.focal_px is not None:  # given at the input's size (its first frame's, upright)
-        focal = settings.focal_px * width / info.width
-    else:  # the file's lens, or estimated
-        focal = focal_from_35mm(lens, width, height) if lens else None
+    several = len(info.clips) > 1
+    clips = detections.clips if several else np.zeros(len(points), np.int64)
     sizes = None if detections.one_size else detections.sizes
-    observations = Observations(np.nan_to_num(points), confidence, width, height, embedding, sizes)
-    photometric = settings.fit.photometric.steps > 0 and info.kind == "video"
-    return fit_landmarks(model, observations, dataclasses.replace(settings.fit, focal=focal),
+    observations = Observations(np.nan_to_num(points), confidence, width, height, embedding, sizes,
+                                clips if several else None)
+    focals = []
+    for number, clip_size in enumerate(observations.clip_sizes()):  # one for a video or photos
+        if settings.focal_px is not None:  # given at the input's size (its first frame's, upright): one lens
+            focals.append(settings.focal_px * math.hypot(*clip_size) / math.hypot(info.width, info.height))
+            continue
+        clip_info = info.clips[number] if several else info
+        lens = info.photos[0].focal_35mm if info.kind == "photos" and info.photos else clip_info.focal_35mm
+        focals.append(focal_from_35mm(lens, *clip_size) if lens else None)  # the file's lens, or estimated
+    photometric = settings.fit.photometric.steps > 0 and info.kind != "photos"
+    return fit_landmarks(model, observations, dataclasses.replace(settings.fit, focal=tuple(focals) if several else focals[0]),
                          progress=None if progress is None else lambda done, total, _rms: progress("fit", done, total),
                          brightness=_brightness(out, detections) if photometric else None)
 
@@ -270,7 +304,7 @@ def _brightness(out: pathlib.Path, detections: Detections) -> np.ndarray:
     width, height = (int(v) for v in detections.sizes[0])
     frames = np.zeros((len(detections.presence), height, width), np.float32)
     for t in np.nonzero(detections.presence > 0)[0]:
-        frames[t] = brightness(read_image(out / layout.image_path(int(t), 0)))
+        frames[t] = brightness(read_image(out / layout.image_path(int(t), int(detections.clips[t]))))
     return frames
 
 
@@ -302,14 +336,18 @@ def _write_capture(out, fit, detections: Detections, head_file, model, video: bo
 
     frames = len(detections.presence)
     seen = detections.presence > 0
-    test_from = frames - max(1, round(TEST_FRACTION * frames)) if frames > 1 else frames
-    camera_ids = [CAMERA_ID if video else f"photo{t:03d}" for t in range(frames)]
+    clips = detections.clips
+    test = np.zeros(frames, bool)  # the last tenth of each clip (photos: of all)
+    for clip in np.unique(clips):
+        mine = np.nonzero(clips == clip)[0]
+        test[mine[len(mine) - max(1, round(TEST_FRACTION * len(mine))):] if len(mine) > 1 else []] = True
+    camera_ids = [_camera_id(int(clips[t])) if video else f"photo{t:03d}" for t in range(frames)]
     with CaptureWriter(out, n_vertices=model.n_vertices) as writer:
         for t in range(frames):
             writer.write_flame_params(t, fit.frame(t))
             if seen[t]:
-                writer.record_frame(t, fit.camera_of(t, camera_ids[t]), split="test" if t >= test_from else "train",
-                                    camera_index=0 if video else t)
+                writer.record_frame(t, fit.camera_of(t, camera_ids[t]), split="test" if test[t] else "train",
+                                    camera_index=int(clips[t]) if video else t)
             if progress is not None:
                 progress("write", t + 1, frames)
     rows = np.concatenate([ibug68(detections.landmarks), np.repeat(detections.presence[:, None, None], 68, 1)], -1)
@@ -325,6 +363,6 @@ def _write_capture(out, fit, detections: Detections, head_file, model, video: bo
             "lost_frames": lost, "two_faces_frames": [int(t) for t in np.nonzero(detections.faces > 1)[0]],
             "reprojection_px": {"mean": round(float(rms[seen].mean()), 3), "max": round(float(rms[seen].max()), 3),
                                 "per_frame": [round(float(r), 3) for r in rms]},
-            "splits": {"train": int(seen[:test_from].sum()), "test": int(seen[test_from:].sum())},
+            "splits": {"train": int((seen & ~test).sum()), "test": int((seen & test).sum())},
             "head_model": pathlib.Path(head_file).name,
             "input_frames": [int(i) for i in detections.indices]}
