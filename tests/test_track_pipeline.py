@@ -113,6 +113,7 @@ def test_several_videos_are_one_capture_with_a_camera_each(handheld, tmp_path):
 
     from mogaface.core.cli import main
     from mogaface.core.data.capture import Capture
+    from mogaface.core.evaluate.track_error import tracking_errors
     from mogaface.core.io.npz import load_npz
 
     first, second, out = handheld / "footage" / "clip.mp4", tmp_path / "again.mp4", tmp_path / "cap"
@@ -133,6 +134,9 @@ def test_several_videos_are_one_capture_with_a_camera_each(handheld, tmp_path):
         values = np.stack([p[name].reshape(-1) for p in params])
         np.testing.assert_allclose(values[:12], values[12:], atol=1e-5, err_msg=name)
     assert all(np.array_equal(p["shape"], params[0]["shape"]) for p in params)
+    first_errors, second_errors = (tracking_errors(out, handheld / "truth", camera) for camera in ("cam00", "cam01"))
+    assert first_errors["frames"] == second_errors["frames"] == 12
+    assert first_errors == pytest.approx(second_errors, abs=1e-3)  # each clip scored alone (bench track --together)
 
 
 def test_several_inputs_of_different_kinds_are_refused_by_name(handheld, tmp_path):

@@ -45,7 +45,7 @@ OPTION_BENCHMARKS = {"scale": ("train", "step"),
                      "ranks": ("converge",), "variants": ("converge",), "config": ("converge",),
                      "compare": ("converge",), "subjects": ("camera_search",),
                      "test_subjects": ("camera_search",), "compare_with": ("splat", "step", "train"),
-                     "rounds": ("splat", "step", "train")}
+                     "rounds": ("splat", "step", "train"), "together": ("track",)}
 
 
 def add_arguments(parser):
@@ -90,6 +90,9 @@ def add_arguments(parser):
     parser.add_argument("--compare-with", metavar="REF",
                         help="splat, step, train: also run the benchmark of commit REF (a temporary git worktree), "
                              "alternately with this tree's in this invocation; print this/REF ratios and the load")
+    parser.add_argument("--together", action="store_true", default=None,
+                        help="track only: also track the split's clips as one capture (several videos) and score "
+                             "each clip's frames against its truth")
     parser.add_argument("--rounds", type=int,
                         help="with --compare-with: runs of each side, alternating which goes first (default 2)")
 

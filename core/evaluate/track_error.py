@@ -67,15 +67,19 @@ def _angle(rotation: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip((np.trace(rotation) - 1) / 2, -1, 1))))
 
 
-def tracking_errors(capture_dir, truth_dir) -> dict:
-    """Mean errors of a tracked capture against its footage's truth (see the module's docstring)."""
+def tracking_errors(capture_dir, truth_dir, camera_id: str | None = None) -> dict:
+    """Mean errors of a tracked capture against its footage's truth (see the module's docstring);
+    ``camera_id``: only that camera's frames (one clip of several tracked together, ``truth_dir``
+    that clip's)."""
     capture_dir, truth_dir = pathlib.Path(capture_dir), pathlib.Path(truth_dir)
     report = json.loads((capture_dir / "tracking.json").read_text())
     capture = Capture.open(capture_dir)
     model = FlameModel.load(truth_dir / "head.pkl", dtype=torch.float64)
     fitted_model = FlameModel.load(capture_dir / report["head_model"], dtype=torch.float64)
     truth_cameras = read_cameras(truth_dir / "cameras.json")
-    frames = {f.timestep_index: f for f in capture.frames()}
+    frames = {f.timestep_index: f for f in capture.frames() if camera_id in (None, f.camera_id)}
+    if not frames:
+        raise ValueError(f"{capture_dir}: no tracked frame of camera {camera_id}")
     rows = []
     for t, frame in sorted(frames.items()):
         index = report["input_frames"][t]
@@ -114,6 +118,7 @@ def tracking_errors(capture_dir, truth_dir) -> dict:
         "camera_rotation_deg": round(float(np.mean([_angle(r["rotation"]) for r in rows])), 3),
         "camera_rotation_aligned_deg": round(float(np.mean([_angle(mean_turn.T @ r["rotation"]) for r in rows])), 3),
         "camera_centre_mm": round(float(np.mean([r["centre_mm"] for r in rows])), 2),
-        "reprojection_px": report["reprojection_px"]["mean"],
-        "focal_px": report["focal_px"],
+        "reprojection_px": round(float(np.mean([report["reprojection_px"]["per_frame"][t] for t in frames])), 3),
+        "focal_px": next((clip["focal_px"] for clip in report.get("clips", []) if clip["camera"] == camera_id),
+                         report["focal_px"]),
     }
