@@ -148,3 +148,6 @@ def test_several_inputs_of_different_kinds_are_refused_by_name(handheld, tmp_pat
         open_footage([handheld / "footage" / "clip.mp4", photo])
     with pytest.raises(InputError, match="footage: is a folder: a folder of photos is given alone"):
         open_footage([photo, handheld / "footage"])
+    (tmp_path / "phone.heic").write_bytes(b"x")
+    with pytest.raises(InputError, match="phone.heic: not a photo that can be read"):  # a photo, if not a readable one
+        open_footage([photo, tmp_path / "phone.heic"])

@@ -57,7 +57,8 @@ def _input_kind(path: pathlib.Path) -> str:
     """What one of several inputs is, by its name: a ``folder``, a ``photo`` or (anything else) a ``video``."""
     if path.is_dir():
         return "folder"
-    return "photo" if path.suffix.lower() in PHOTO_SUFFIXES else "video"
+    suffix = path.suffix.lower()
+    return "photo" if suffix in PHOTO_SUFFIXES or suffix in UNSUPPORTED_PHOTO_SUFFIXES else "video"
 
 
 def open_footage(source: str | os.PathLike | list) -> Video | Photos | Clips:
