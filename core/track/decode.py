@@ -40,9 +40,7 @@ class Clips:
     kind = "videos"
 
     def __init__(self, paths: list):
-        for path in paths:
-            check_regular_file(path)
-        self.videos = [Video(path) for path in paths]
+        self.videos = [Video(path) for path in paths]  # each checked as a regular file when it opens
         self.path = self.videos[0].path
         infos = tuple(video.info for video in self.videos)
         focals = {info.focal_35mm for info in infos}

@@ -277,10 +277,9 @@ def _fit(out, model, detections: Detections, settings: TrackSettings, info, prog
     confidence[~np.isfinite(points).all(-1)] = 0
     width, height = (int(v) for v in detections.sizes[0])  # the capture's first frame
     several = len(info.clips) > 1
-    clips = detections.clips if several else np.zeros(len(points), np.int64)
     sizes = None if detections.one_size else detections.sizes
     observations = Observations(np.nan_to_num(points), confidence, width, height, embedding, sizes,
-                                clips if several else None)
+                                detections.clips if several else None)
     focals = []
     for number, clip_size in enumerate(observations.clip_sizes()):  # one for a video or photos
         if settings.focal_px is not None:  # given at the input's size (its first frame's, upright): one lens
@@ -290,7 +289,7 @@ def _fit(out, model, detections: Detections, settings: TrackSettings, info, prog
         lens = info.photos[0].focal_35mm if info.kind == "photos" and info.photos else clip_info.focal_35mm
         focals.append(focal_from_35mm(lens, *clip_size) if lens else None)  # the file's lens, or estimated
     photometric = settings.fit.photometric.steps > 0 and info.kind != "photos"
-    return fit_landmarks(model, observations, dataclasses.replace(settings.fit, focal=tuple(focals) if several else focals[0]),
+    return fit_landmarks(model, observations, dataclasses.replace(settings.fit, focal=tuple(focals)),
                          progress=None if progress is None else lambda done, total, _rms: progress("fit", done, total),
                          brightness=_brightness(out, detections) if photometric else None)
 
