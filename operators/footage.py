@@ -4,7 +4,8 @@ Track Footage runs ``python -m mogaface track`` in a child process (progress, ET
 training has them; Blender never blocks), then does what Import Capture, Import Head and Import
 Tracking do: the camera, the head keyed with the tracked parameters, the footage as the camera's
 background (a video plays frame by frame as a Movie Clip), framed; frames where the face was lost
-become timeline markers. Drive from Footage runs ``python -m mogaface drive`` with the chosen
+become timeline markers. Several videos picked at once are one capture: each its own camera with
+its clip behind it, the scene's camera switching at each clip's first frame (a marker bound to it). Drive from Footage runs ``python -m mogaface drive`` with the chosen
 head's shape held fixed and keys its expressions, jaw, eyes and head pose, thinned within a
 tolerance, at the scene's frame rate. One footage job runs at a time, like every child job.
 """
@@ -30,6 +31,8 @@ from .train import preferred_threads
 _job = new_job("tracking the footage")
 
 LOST_MARKER = "no face"
+#: Markers bound to each clip's camera at its first frame (several videos): "clip 2: IMG_0043.MOV".
+CLIP_MARKER = "clip"
 
 
 def current_worker():
@@ -72,6 +75,11 @@ def lost_text(lost: list[int]) -> str:
     return f"; no face in {len(lost)} frames ({shown}: marked on the timeline, interpolated)"
 
 
+def clips_text(report: dict) -> str:
+    clips = report.get("clips") or []
+    return f" of {len(clips)} clips (a camera each, the scene's switching at each clip's marker)" if clips else ""
+
+
 def use_clip_fps(scene, fps: float) -> None:
     """The scene plays at the footage's rate (a tracked frame per scene frame)."""
     if fps and fps > 0:
@@ -79,13 +87,13 @@ def use_clip_fps(scene, fps: float) -> None:
         scene.render.fps, scene.render.fps_base = whole, whole / fps
 
 
-def show_movie_behind(camera_object, path: str, first_frame: int):
-    """The video ``path`` as the camera's background, frame by frame: its frame ``first_frame`` on the
-    timestep 0's scene frame."""
+def show_movie_behind(camera_object, path: str, first_frame: int, first_timestep: int = 0):
+    """The video ``path`` as the camera's background, frame by frame: its frame ``first_frame`` on
+    timestep ``first_timestep``'s scene frame."""
     from ..core.for_blender.axes import FRAME_OFFSET
 
     clip = bpy.data.movieclips.load(path, check_existing=True)
-    clip.frame_start = FRAME_OFFSET - int(first_frame)
+    clip.frame_start = FRAME_OFFSET + int(first_timestep) - int(first_frame)
     data = camera_object.data
     data.background_images.clear()
     background = data.background_images.new()
@@ -96,6 +104,26 @@ def show_movie_behind(camera_object, path: str, first_frame: int):
     background.alpha = 1.0
     data.show_background_images = True
     return clip
+
+
+def show_clips(scene, report: dict) -> None:
+    """Several videos tracked together: each clip behind its camera, and a marker bound to that
+    camera at the clip's first timestep, so the scene's camera follows the footage."""
+    from ..core.for_blender.axes import FRAME_OFFSET
+    from .import_capture import COLLECTION_NAME, capture_cameras
+
+    for marker in [m for m in scene.timeline_markers if m.name.startswith(CLIP_MARKER + " ")]:
+        scene.timeline_markers.remove(marker)
+    cameras = capture_cameras(bpy.data.collections.get(COLLECTION_NAME))
+    first = 0
+    for number, clip in enumerate(report["clips"]):
+        camera = cameras.get(clip["camera"])
+        if camera is not None and clip["frames"]:
+            show_movie_behind(camera, clip["source"], report["input_frames"][first], first)
+            marker = scene.timeline_markers.new(f"{CLIP_MARKER} {number + 1}: {os.path.basename(clip['source'])}",
+                                                frame=FRAME_OFFSET + first)
+            marker.camera = camera
+        first += clip["frames"]
 
 
 class _FootageJob(ImportHelper, FollowsChildJob):
@@ -208,12 +236,14 @@ class MOGAFACE_OT_track_footage(_FootageJob, bpy.types.Operator):
         use_clip_fps(scene, report.get("fps") or 0)
         if report.get("kind") == "video" and scene.camera is not None:
             run_core(self, show_movie_behind, scene.camera, report["source"], report["input_frames"][0])
+        elif report.get("kind") == "videos":
+            run_core(self, show_clips, scene, report)
         lost = report["lost_frames"]
         mark_lost_frames(scene, [t + FRAME_OFFSET for t in lost])
         scene.frame_set(scene.frame_start)
         scene.mogaface.capture_folder = self.out
         self.report({"WARNING"} if lost else {"INFO"},
-                    f"Tracked {report['frames']} frames into {self.out}: landmarks reproject to "
+                    f"Tracked {report['frames']} frames{clips_text(report)} into {self.out}: landmarks reproject to "
                     f"{report['reprojection_px']['mean']:.2f} px{lost_text(lost)}; train on it with Train")
         return {"FINISHED"}
 

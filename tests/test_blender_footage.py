@@ -80,6 +80,35 @@ def test_footage_comes_from_a_movie_clip_of_the_file_or_the_files_picked(tracked
     assert footage.footage_paths(photos) == ["/photos/a.jpg"]
 
 
+def test_several_clips_picked_become_cameras_the_scene_switches_between(tracked):
+    """Two videos picked in the browser: one capture, each clip behind its own camera from its
+    first timestep on, and a marker bound to that camera there (the scene's camera follows)."""
+    import shutil
+
+    footage = importlib.import_module(MODULE + ".operators.footage")
+    folder = tracked["root"] / "clips"  # kept for the module: the head it brings is posed from its folder
+    folder.mkdir()
+    for name in ("a.mp4", "b.mp4"):
+        shutil.copyfile(tracked["clip"], folder / name)
+    result = bpy.ops.mogaface.track_footage(directory=str(folder) + "/", files=[{"name": "a.mp4"}, {"name": "b.mp4"}],
+                                            out=str(tracked["root"] / "two_clips"), size=112, fit_steps=10)
+    assert result == {"FINISHED"}
+    scene = bpy.context.scene
+    assert (scene.frame_start, scene.frame_end) == (1, 24)
+    markers = sorted((m.frame, m.name, m.camera["mogaface_camera_id"]) for m in scene.timeline_markers
+                     if m.name.startswith(footage.CLIP_MARKER + " "))
+    assert markers == [(1, "clip 1: a.mp4", "cam00"), (13, "clip 2: b.mp4", "cam01")]
+    for frame, _, camera_id in markers:
+        scene.frame_set(frame)
+        camera = scene.camera
+        assert camera["mogaface_camera_id"] == camera_id
+        clip = camera.data.background_images[0].clip
+        assert clip.filepath == str(folder / f"{'ab'[frame > 1]}.mp4") and clip.frame_start == frame  # input frame 0
+    footage.show_clips(scene, {"clips": [], "input_frames": []})  # a later tracking's markers replace these
+    assert not [m for m in scene.timeline_markers if m.name.startswith(footage.CLIP_MARKER + " ")]
+    bpy.context.view_layer.objects.active = tracked["head"]
+
+
 def test_drive_from_footage_keys_the_performance_at_the_scene_rate(tracked, tmp_path):
     scene, head = bpy.context.scene, tracked["head"]
     scene.render.fps, scene.render.fps_base = 24, 1.0
