@@ -8,9 +8,12 @@ tracker's settings on, and *test* clips, scored once with the chosen ones (``--s
 Per clip: the stages' speed (decoding and detection in ms a frame, the fit in seconds) and
 :func:`~mogaface.core.evaluate.track_error.tracking_errors` (landmark reprojection, mesh error
 raw and aligned, expression-only, camera rotation and centre). On the validation clips, each of
-the fit's settings in :data:`TRIES` (the detections found once, the fit run again); the test clips
-are scored with today's settings only. ``--quick``: 2-second clips at
-360×640, 15 fps; otherwise 20 seconds at 720×1280, 30 fps (the bar: tracked in 5 minutes).
+the fit's settings in :data:`TRIES` (the detections found once, the fit run again); the test
+clips are scored with today's settings only. ``--quick``: 2-second clips at 360×640, 15 fps;
+otherwise 20 seconds at 720×1280, 30 fps (the bar: tracked in 5 minutes). ``--photos``: folders
+of 12 photos from around a still, talking head (mixed sizes and EXIF orientations, as
+``make-footage --kind photos`` writes them) instead of the clips, three seeds a split, and
+:data:`PHOTO_TRIES`.
 Clips are made once in ``--work`` and reused; every run tracks again. ``--together``: the split's
 clips (one subject, a handheld and a fixed phone) are also tracked as one capture, several videos,
 and each clip's frames scored against its own truth, beside the same clip tracked alone.
@@ -24,10 +27,13 @@ import time
 
 #: (kind, seed) of each split's clips: no setting is ever chosen on the test ones.
 CLIPS = {"validation": (("handheld", 101), ("fixed", 102)), "test": (("handheld", 201), ("fixed", 202))}
+PHOTOS = {"validation": (("photos", 103), ("photos", 104), ("photos", 105)),
+          "test": (("photos", 203), ("photos", 204), ("photos", 205))}
+PHOTOS_PER_FOLDER = 12
 
 
 def make_clip(folder: pathlib.Path, kind: str, seed: int, quick: bool) -> pathlib.Path:
-    """The clip's folder (``footage/`` and ``truth/``), made unless it is complete."""
+    """The clip's (or photos') folder (``footage/`` and ``truth/``), made unless it is complete."""
     from mogaface.core.data.footage import make_footage
     from mogaface.core.data.footage_settings import FootageSettings
 
@@ -36,7 +42,8 @@ def make_clip(folder: pathlib.Path, kind: str, seed: int, quick: bool) -> pathli
     _remove(folder)  # an interrupted making
     size, seconds, fps = ((360, 640), 2.0, 15.0) if quick else ((720, 1280), 20.0, 30.0)
     make_footage(folder, FootageSettings(kind=kind, seed=seed, width=size[0], height=size[1], seconds=seconds,
-                                         fps=fps, novel_views=2, novel_every=30), progress=False)
+                                         fps=fps, photos=PHOTOS_PER_FOLDER, novel_views=2, novel_every=30),
+                 progress=False)
     return folder
 
 
@@ -46,16 +53,24 @@ def make_clip(folder: pathlib.Path, kind: str, seed: int, quick: bool) -> pathli
 #: full-length clips) the photometric stage from off to 60 iterations.
 TRIES = ({}, {"photometric": {"steps": 0}}, {"photometric": {"steps": 30}}, {"shape_prior": 0.3},
          {"shape_prior": 3.0})
+#: The same for photo folders (``--photos``): the photometric stage's iterations and weight. Round
+#: 1 (weight 3000: off, 120, 240, 480, 960 iterations; weights 1000 and 10000 at 480) chose 480
+#: iterations at weight 10000; round 2 (weights 3000 and 30000, 240 and 960 iterations) weight
+#: 30000; round 3 (weights 10000 and 100000, 960 iterations) 960 iterations; round 4 (480 and 1920
+#: iterations, weight 10000) 1920 iterations. These are the next round, not run yet.
+PHOTO_TRIES = ({}, {"photometric": {"steps": 0}}, {"photometric": {"steps": 960}},
+               {"photometric": {"steps": 3840}}, {"photometric": {"weight": 100000.0}})
 KEYS = ("reprojection_px", "mesh_mm", "mesh_aligned_mm", "expression_mm", "camera_rotation_deg",
         "camera_rotation_aligned_deg", "camera_centre_mm")
 BARS = {"mesh_aligned_mm": 2.0, "expression_mm": 1.0, "camera_rotation_deg": 1.0}
 
 
 def run(threads: int = 2, quick: bool = False, work: str | None = None, split: str | None = None,
-        together: bool = False) -> dict:
+        together: bool = False, photos: bool = False) -> dict:
     """``validation``: every setting of :data:`TRIES` on the validation clips (their detections
     found once), the one with the lowest sum of errors over their bars chosen; ``test``: today's
-    settings on the test clips, once. ``together``: and the clips tracked as one capture."""
+    settings on the test clips, once. ``together``: and the clips tracked as one capture;
+    ``photos``: the split's photo folders instead of its clips."""
     import dataclasses
 
     from mogaface.core.evaluate.track_error import tracking_errors
@@ -64,14 +79,15 @@ def run(threads: int = 2, quick: bool = False, work: str | None = None, split: s
     split = split or "validation"
     work = pathlib.Path(work or "out/bench_track") / ("quick" if quick else "full")
     settings = TrackSettings(size=320 if quick else 512, threads=threads)
-    tries = TRIES if split == "validation" else ({},)
+    tries = (PHOTO_TRIES if photos else TRIES) if split == "validation" else ({},)
     clips, rows = [], {index: [] for index in range(len(tries))}
-    for kind, seed in CLIPS[split]:
+    for kind, seed in (PHOTOS if photos else CLIPS)[split]:
         clip = make_clip(work / f"{kind}_{seed}", kind, seed, quick)
         out = work / "tracked" / f"{kind}_{seed}"
         _remove(out)
         start = time.monotonic()
-        report = track_footage(next((clip / "footage").iterdir()), out, settings, keep_detections=True)
+        source = clip / "footage" if photos else next((clip / "footage").iterdir())
+        report = track_footage(source, out, settings, keep_detections=True)
         clips.append({"clip": f"{kind}_{seed}", "frames": report["frames"], "seconds": round(time.monotonic() - start, 1),
                       "detect_ms_per_frame": report["detect_ms_per_frame"], "fit_s": report["seconds"]["fit"],
                       "lost_frames": len(report["lost_frames"])})
@@ -86,7 +102,7 @@ def run(threads: int = 2, quick: bool = False, work: str | None = None, split: s
         table.append({"settings": change or "today", "mean": mean, "score": score,
                       "clips": [{key: row[key] for key in KEYS} for row in rows[index]]})
     best = min(table, key=lambda row: row["score"])
-    report = {"benchmark": "track", "split": split, "quick": quick, "threads": threads,
+    report = {"benchmark": "track", "split": split, "photos": photos, "quick": quick, "threads": threads,
               "load_average": [round(x, 2) for x in os.getloadavg()], "size": settings.size,
               "clips": clips, "tries": table, "chosen": best["settings"], "bars": {**BARS, "seconds_for_20s_clip": 300}}
     if together:

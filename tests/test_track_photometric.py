@@ -7,8 +7,10 @@ import torch
 from mogaface.core.flame.model import FlameModel
 from mogaface.core.track.fit import start_camera
 from mogaface.core.track.photometric import (
+    CHOSEN,
     BrightnessAgreement,
     PhotometricSettings,
+    frame_pairs,
     seen_points,
     skin_points,
     vertex_embedding,
@@ -48,7 +50,8 @@ def test_brightness_agrees_where_the_points_follow_the_skin():
     settings = PhotometricSettings(gaps=(1, 3), blur_px=1.0, huber=1.0)
     start = torch.as_tensor(np.stack([rng.uniform(30, 70, 40), rng.uniform(20, 50, 40)], 1))
     follow = torch.stack([start + torch.tensor([shift * t, 0.0], dtype=torch.float64) for t in range(frames)])
-    agreement = BrightnessAgreement(images, np.ones((frames, 40), bool), settings)
+    pairs = frame_pairs(np.zeros(frames), settings.gaps)
+    agreement = BrightnessAgreement(images, np.ones((frames, 40), bool), settings, pairs)
     still = start.expand(frames, -1, -1).clone().requires_grad_(True)
     loss = agreement(still)
     assert float(agreement(follow)) < 0.02 * loss.item()  # what is left: resampling a resampled texture
@@ -57,4 +60,34 @@ def test_brightness_agrees_where_the_points_follow_the_skin():
     assert float(agreement(stepped)) < loss.item()
     hidden = np.ones((frames, 40), bool)
     hidden[:, :20] = False  # points no frame sees do not count
-    assert float(BrightnessAgreement(images, hidden, settings)(still.detach())) != loss.item()
+    assert float(BrightnessAgreement(images, hidden, settings, pairs)(still.detach())) != loss.item()
+
+
+def test_a_video_is_paired_within_each_clip_and_photos_every_two():
+    clips = np.array([0, 0, 0, 0, 1, 1, 1])
+    pairs = frame_pairs(clips, (1, 3))
+    assert sorted(map(tuple, pairs)) == [(0, 1), (0, 3), (1, 2), (2, 3), (4, 5), (5, 6)]  # not (3, 4), (1, 4), …
+    assert sorted(map(tuple, frame_pairs(np.zeros(4), (1, 3), photos=True))) == [
+        (0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)]
+    assert frame_pairs(np.zeros(1), (1,)).shape == (0, 2)
+    given = PhotometricSettings(steps=5).resolved(photos=True)  # what is given is kept, the rest chosen for photos
+    assert (given.steps, given.weight) == (5, CHOSEN["photos"]["weight"])
+    assert PhotometricSettings().resolved(photos=False).steps == CHOSEN["video"]["steps"] != CHOSEN["photos"]["steps"]
+
+
+def test_photos_of_several_sizes_are_compared_each_at_its_own_pixels():
+    """A landscape and a portrait photo of one texture, moved by a known offset: on the shared
+    canvas each is sampled at its own pixels, so points that follow the offset agree (no loss)
+    and points held still do not."""
+    rng = np.random.default_rng(1)
+    texture = torch.nn.functional.avg_pool2d(torch.as_tensor(rng.random((1, 1, 120, 120)), dtype=torch.float32), 5, 1)
+    texture = texture[0, 0].numpy()
+    landscape, portrait = texture[10:70, 0:100], texture[0:100, 30:90]  # (60,100) and (100,60)
+    moved = np.array([-30.0, 10.0])  # a landscape pixel (x, y) is the portrait's (x - 30, y + 10)
+    points = np.stack([rng.uniform(40, 55, 30), rng.uniform(25, 45, 30)], 1)  # in the landscape photo
+    settings = PhotometricSettings(blur_px=1.0, huber=1.0)
+    agreement = BrightnessAgreement([landscape, portrait], np.ones((2, 30), bool), settings,
+                                    frame_pairs(np.zeros(2), settings.gaps, photos=True))
+    follow = torch.as_tensor(np.stack([points, points + moved]))
+    still = torch.as_tensor(np.stack([points, points]))
+    assert float(agreement(follow)) < 0.02 * float(agreement(still))

@@ -45,7 +45,7 @@ OPTION_BENCHMARKS = {"scale": ("train", "step"),
                      "ranks": ("converge",), "variants": ("converge",), "config": ("converge",),
                      "compare": ("converge",), "subjects": ("camera_search",),
                      "test_subjects": ("camera_search",), "compare_with": ("splat", "step", "train"),
-                     "rounds": ("splat", "step", "train"), "together": ("track",)}
+                     "rounds": ("splat", "step", "train"), "together": ("track",), "photos": ("track",)}
 
 
 def add_arguments(parser):
@@ -93,6 +93,9 @@ def add_arguments(parser):
     parser.add_argument("--together", action="store_true", default=None,
                         help="track only: also track the split's clips as one capture (several videos) and score "
                              "each clip's frames against its truth")
+    parser.add_argument("--photos", action="store_true", default=None,
+                        help="track only: the split's folders of photos (12 around a still head, mixed sizes) "
+                             "instead of its clips")
     parser.add_argument("--rounds", type=int,
                         help="with --compare-with: runs of each side, alternating which goes first (default 2)")
 
@@ -114,6 +117,9 @@ def run(args) -> int:
         return 2
     if args.ranks is not None and args.ranks < 1:
         print("error: --ranks must be at least 1", file=sys.stderr)
+        return 2
+    if args.photos and args.together:
+        print("error: --together tracks the split's videos as one capture; --photos has no videos", file=sys.stderr)
         return 2
     if args.rounds is not None and args.compare_with is None:
         print("error: --rounds applies with --compare-with only", file=sys.stderr)

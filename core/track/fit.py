@@ -16,8 +16,8 @@ The fit (torch, float64, every frame at once, L-BFGS): a rigid start (the mean h
 frame's landmarks, then turned and moved onto them), then every parameter together on a robust
 (Huber) reprojection loss weighted by confidence, Gaussian priors on shape, expression and jaw, and a
 smoothness term on second differences over time (a clip's motion is smooth; a detector's noise is
-not); for a video, then the photometric stage (:mod:`.photometric`: skin points whose brightness
-must agree between frames). Only the vertices the landmarks sit on are posed (:class:`LandmarkHead`):
+not); then, given the frames' brightness, the photometric stage (:mod:`.photometric`: skin points
+whose brightness must agree between frames, or between photos). Only the vertices the landmarks sit on are posed (:class:`LandmarkHead`):
 the same linear blend skinning as :class:`~mogaface.core.flame.model.FlameModel`, on a few hundred
 vertices.
 """
@@ -35,7 +35,14 @@ from ..errors import InputError
 from ..flame.landmarks import LandmarkEmbedding
 from ..flame.lbs import axis_angle_to_matrix, linear_blend_skinning
 from ..flame.model import FlameModel
-from .photometric import BrightnessAgreement, PhotometricSettings, seen_points, skin_points, vertex_embedding
+from .photometric import (
+    BrightnessAgreement,
+    PhotometricSettings,
+    frame_pairs,
+    seen_points,
+    skin_points,
+    vertex_embedding,
+)
 
 #: A phone's main camera: about 26 mm in 35 mm terms (its diagonal field of view, 79°).
 PHONE_FOCAL_35MM = 26.0
@@ -48,7 +55,8 @@ class Observations:
     """Landmarks of a clip: ``points (T,L,2)`` pixels, ``confidence (T,L)`` in [0, 1] (0: not seen),
     the frame size, and where the L landmarks lie on the mesh. Photos of several sizes give each
     frame's ``sizes (T,2)``; one lens is fitted to all of them (a focal length in 35 mm terms:
-    each frame's in pixels by its diagonal). Several videos give ``clips (T,)``, which clip each
+    each frame's in pixels by its diagonal); ``photos``: the frames have no order in time (the
+    photometric stage compares every two). Several videos give ``clips (T,)``, which clip each
     frame is from (contiguous, from 0): a lens each, at its first frame's size."""
 
     points: np.ndarray
@@ -58,6 +66,7 @@ class Observations:
     embedding: LandmarkEmbedding
     sizes: np.ndarray | None = None
     clips: np.ndarray | None = None
+    photos: bool = False
 
     def frame_sizes(self) -> np.ndarray:
         """``(T,2)`` width and height of every frame."""
@@ -126,18 +135,24 @@ class Fit:
 
     def camera_of(self, t: int, camera_id: str = "cam00") -> Camera:
         """Frame ``t``'s camera: its clip's, or a photo's at its own size with the same lens."""
-        if self.clips is not None:
-            return dataclasses.replace(self.cameras[int(self.clips[t])], camera_id=camera_id)
-        if self.sizes is None:
-            return self.camera
-        width, height = (int(v) for v in self.sizes[t])
-        focal = self.camera.fx * math.hypot(width, height) / math.hypot(self.camera.width, self.camera.height)
-        return dataclasses.replace(start_camera(width, height, focal), camera_id=camera_id)
+        return dataclasses.replace(frame_camera(self.cameras, self.clips, self.sizes, t), camera_id=camera_id)
 
     def frame(self, t: int) -> dict[str, np.ndarray]:
         """Frame ``t``'s parameters in the capture's ``flame_param`` layout (batch of one)."""
         return {name: (value if name == "shape" else value[t])[None].astype(np.float32)
                 for name, value in self.params.items()}
+
+
+def frame_camera(cameras: list[Camera], clips: np.ndarray | None, sizes: np.ndarray | None, t: int) -> Camera:
+    """Frame ``t``'s camera of each clip's ``cameras``: its clip's, or (``sizes (T,2)``, photos of
+    several sizes) the one lens at the photo's own size (the focal length scaled by the diagonal)."""
+    if clips is not None:
+        return cameras[int(clips[t])]
+    if sizes is None:
+        return cameras[0]
+    width, height = (int(v) for v in sizes[t])
+    focal = cameras[0].fx * math.hypot(width, height) / math.hypot(cameras[0].width, cameras[0].height)
+    return start_camera(width, height, focal)
 
 
 class LandmarkHead(torch.nn.Module):
@@ -191,12 +206,14 @@ def start_camera(width: int, height: int, focal: float) -> Camera:
 def fit_landmarks(model: FlameModel, observations: Observations, settings: FitSettings = FitSettings(),
                   progress=None, brightness: np.ndarray | None = None) -> Fit:
     """Fit shape, per-frame expression, gaze, jaw and head pose, and the focal length, to a clip's
-    landmarks; with the frames' ``brightness (T,H,W)`` (a video's, in [0, 1]), then the photometric
-    stage (``settings.photometric``). ``progress(step, steps, rms_px)`` is called now and then."""
+    landmarks; with the frames' brightness (in [0, 1]: ``(T,H,W)``, or a list of ``(H,W)`` for photos
+    of several sizes), then the photometric stage (``settings.photometric``, what it leaves out
+    chosen for photos or a video). ``progress(step, steps, rms_px)`` is called now and then."""
     obs = observations.check()
-    if settings.steps < 1 or settings.photometric.steps < 0:
+    stage = settings.photometric.resolved(obs.photos)
+    if settings.steps < 1 or stage.steps < 0:
         raise InputError(None, "steps", f"the fit needs at least 1 iteration and the photometric stage 0 (off) or "
-                                        f"more; found {settings.steps} and {settings.photometric.steps}")
+                                        f"more; found {settings.steps} and {stage.steps}")
     torch.manual_seed(settings.seed)
     d = torch.float64
     head = LandmarkHead(model, obs.embedding)
@@ -276,12 +293,12 @@ def fit_landmarks(model: FlameModel, observations: Observations, settings: FitSe
         def stage_objective(_):
             loss, residual = objective(False)
             pixels = project(skin(shared_shape(), expr, rotation, jaw, translation_cm / 100, eyes_pose(gaze)))
-            return loss + settings.photometric.weight * agreement(pixels), residual
+            return loss + stage.weight * agreement(pixels), residual
         return stage_objective
 
     # 1. Rigid start: the mean head placed where each frame's landmarks are, at the depth their
-    # spread gives, then turned and moved onto them; 2. everything; 3. (videos, with the frames'
-    # brightness) everything but the focal length, the skin's brightness agreeing between frames.
+    # spread gives, then turned and moved onto them; 2. everything; 3. (with the frames' brightness)
+    # everything but the focal length, the skin's brightness agreeing between frames.
     scale = 1.0 / frames
     with torch.no_grad():
         translation_cm.copy_(100 * _placed(head(shared_shape(), expr, rotation, jaw, translation_cm), points, weight,
@@ -289,14 +306,17 @@ def fit_landmarks(model: FlameModel, observations: Observations, settings: FitSe
     everything = [shape_stepped] * shape_stepped.requires_grad + [expr, jaw, gaze, rotation, translation_cm]
     stages = [([rotation, translation_cm], objective, True, max(settings.steps // 4, 1)),
               (everything + [log_focal] * log_focal.requires_grad, objective, False, settings.steps)]
-    photometric_steps = settings.photometric.steps if brightness is not None and obs.sizes is None else 0
+    pairs = frame_pairs(obs.clip_index(), stage.gaps, obs.photos)
+    photometric_steps = stage.steps if brightness is not None and len(pairs) else 0
     if photometric_steps:
         stages.append((everything, None, False, photometric_steps))
     done, total = 0, sum(stage[3] for stage in stages)
     for unknowns, stage_objective, rigid_only, steps in stages:
         if stage_objective is None:  # the photometric stage: what each frame sees, from the fit so far
-            stage_objective = photometric(*_photometric_term(model, current(), cameras(), obs.clip_index(), brightness,
-                                                             seen.numpy(), settings.photometric))
+            clip_cameras = cameras()
+            frame_cameras = [frame_camera(clip_cameras, obs.clips, obs.sizes, t) for t in range(frames)]
+            stage_objective = photometric(*_photometric_term(model, current(), frame_cameras, pairs, brightness,
+                                                             seen.numpy(), stage))
         optimiser = torch.optim.LBFGS(unknowns, lr=1.0, max_iter=steps, history_size=30,
                                       line_search_fn="strong_wolfe", tolerance_grad=1e-10, tolerance_change=1e-12)
 
@@ -326,18 +346,20 @@ def _clip_focals(focal, clips: int) -> list:
     return focals
 
 
-def _photometric_term(model: FlameModel, params: dict, cameras: list[Camera], clips: np.ndarray, brightness: np.ndarray,
+def _photometric_term(model: FlameModel, params: dict, cameras: list[Camera], pairs: np.ndarray, brightness,
                       frames: np.ndarray, settings: PhotometricSettings) -> tuple[BrightnessAgreement, LandmarkHead]:
     """The photometric stage's loss and the head posed at its skin points (:mod:`.photometric`);
-    ``clips (T,)``: each frame's camera of ``cameras``; ``frames (T,)``: those with landmarks (the
-    others' parameters are a guess)."""
+    ``cameras``: each frame's; ``pairs (N,2)``: the frames compared; ``frames (T,)``: those with
+    landmarks (the others' parameters are a guess)."""
     points = skin_points(model, settings.points, settings.seed)
-    seen = np.zeros((len(clips), len(points)), bool)
-    for number, camera in enumerate(cameras):
-        mine = clips == number
+    seen = np.zeros((len(cameras), len(points)), bool)
+    lenses = [(camera.width, camera.height, float(camera.fx)) for camera in cameras]
+    for lens in set(lenses):  # the frames of each camera at once
+        mine = np.array([other == lens for other in lenses])
+        camera = cameras[int(np.argmax(mine))]
         seen[mine] = seen_points(model, {k: v if k == "shape" else v[mine] for k, v in params.items()}, camera, points)
     skin = LandmarkHead(model, vertex_embedding(model.faces.numpy(), points))
-    return BrightnessAgreement(brightness, seen & frames[:, None], settings, clips), skin
+    return BrightnessAgreement(brightness, seen & frames[:, None], settings, pairs), skin
 
 
 def eyes_pose(gaze: torch.Tensor) -> torch.Tensor:

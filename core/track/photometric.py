@@ -12,8 +12,10 @@ What a point sees is decided once, from the landmark fit: facing the camera (its
 :data:`FACING` of the line of sight) and in front of every other point of the mesh near it on the
 image (a coarse depth buffer of all vertices). The landmarks stay in the loss beside it.
 
-Videos only: photos have a camera each and no neighbours in time. Several clips are paired within
-each clip, never across the cut between two.
+Which frames are compared (:func:`frame_pairs`): a video's frames a few gaps apart, within each
+clip (never across the cut between two); photos, which have no order in time, every two of them
+(a still head seen from around it: the widest parallax there is). Photos of several sizes are
+compared on one canvas, each at its own pixels.
 """
 
 from __future__ import annotations
@@ -33,15 +35,26 @@ FACING = 0.35
 DEPTH_CELL_PX, DEPTH_SLACK_M = 3, 0.006
 
 
+#: The stage's iterations and weight unless given, chosen on validation clips and on validation
+#: photo folders (docs/tracking.md): a dozen photos, far apart, take a stronger weight and more
+#: iterations (which cost less than a clip's hundreds of frames).
+CHOSEN = {"video": {"steps": 60, "weight": 3000.0}, "photos": {"steps": 1920, "weight": 30000.0}}
+
+
 @dataclasses.dataclass
 class PhotometricSettings:
-    steps: int = 60  # L-BFGS iterations after the landmark fit (0: off); chosen on validation clips
+    steps: int | None = None  # L-BFGS iterations after the landmark fit (0: off; None: CHOSEN's)
     points: int = 1500  # skin points sampled
-    gaps: tuple[int, ...] = (1, 5, 20)  # frame pairs (t, t + gap)
+    gaps: tuple[int, ...] = (1, 5, 20)  # a video's frame pairs (t, t + gap); photos: every two
     blur_px: float = 1.5  # the images' blur (a smooth basin for the sampling's gradient)
-    weight: float = 3000.0  # of the mean robust brightness difference, beside the landmarks' pixels²
+    weight: float | None = None  # of the mean robust brightness difference, beside the landmarks' pixels² (None: CHOSEN's)
     huber: float = 0.04  # the robust loss's knee (brightness, 0–1)
     seed: int = 0
+
+    def resolved(self, photos: bool) -> "PhotometricSettings":
+        """These settings with what is not given taken from :data:`CHOSEN` for photos or a video."""
+        chosen = CHOSEN["photos" if photos else "video"]
+        return dataclasses.replace(self, **{name: value for name, value in chosen.items() if getattr(self, name) is None})
 
 
 def skin_points(model: FlameModel, count: int, seed: int) -> np.ndarray:
@@ -106,36 +119,56 @@ def _vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return normals / np.maximum(np.linalg.norm(normals, axis=-1, keepdims=True), 1e-12)
 
 
-class BrightnessAgreement:
-    """The photometric loss: frames' brightness ``(T,H,W)`` blurred, pairs of frames a gap apart
-    (of one clip: ``clips (T,)``, each frame's), and which points each frame sees; called with the
-    points' pixels ``(T,P,2)``."""
+def frame_pairs(clips: np.ndarray, gaps: tuple[int, ...], photos: bool = False) -> np.ndarray:
+    """``(N,2)`` the frames compared, earlier first: a video's ``(t, t + gap)`` within one clip
+    (``clips (T,)``, each frame's), or every two photos."""
+    frames = len(clips)
+    if photos:
+        return np.stack(np.triu_indices(frames, 1), 1).astype(np.int64)
+    clips = np.asarray(clips)
+    pairs = [np.stack([first, first + gap], 1) for gap in gaps if gap < frames
+             for first in [np.nonzero(clips[:-gap] == clips[gap:])[0]]]
+    return np.concatenate(pairs).astype(np.int64) if pairs else np.zeros((0, 2), np.int64)
 
-    def __init__(self, brightness: np.ndarray, seen: np.ndarray, settings: PhotometricSettings,
-                 clips: np.ndarray | None = None):
-        frames, height, width = brightness.shape
-        self.images = _blur(torch.as_tensor(brightness, dtype=torch.float32)[:, None], settings.blur_px)
+
+class BrightnessAgreement:
+    """The photometric loss: frames' brightness (``(T,H,W)``, or a list of ``(H,W)`` for photos of
+    several sizes) blurred, the ``pairs (N,2)`` of frames compared (:func:`frame_pairs`), and which
+    points each frame sees; called with the points' pixels ``(T,P,2)``."""
+
+    def __init__(self, brightness, seen: np.ndarray, settings: PhotometricSettings, pairs: np.ndarray):
+        canvas = _canvas(brightness)
+        _, height, width = canvas.shape
+        self.images = _blur(torch.as_tensor(canvas)[:, None], settings.blur_px)
         self.size = torch.tensor([width, height], dtype=torch.float64)
-        clips = np.zeros(frames, np.int64) if clips is None else np.asarray(clips)
-        self.pairs = [(gap, torch.as_tensor(seen[:-gap] & seen[gap:] & (clips[:-gap] == clips[gap:])[:, None]))
-                      for gap in settings.gaps if gap < frames]
+        pairs = np.asarray(pairs, np.int64).reshape(-1, 2)
+        self.first, self.second = torch.as_tensor(pairs[:, 0]), torch.as_tensor(pairs[:, 1])
+        self.both = torch.as_tensor(seen[pairs[:, 0]] & seen[pairs[:, 1]]).double()  # (N,P)
         self.huber = settings.huber
 
     def __call__(self, pixels: torch.Tensor) -> torch.Tensor:
         grid = (2 * pixels / self.size - 1).float()[:, :, None, :]  # (T,P,1,2), align_corners=False
         sampled = torch.nn.functional.grid_sample(self.images, grid, mode="bilinear", padding_mode="border",
                                                   align_corners=False)[:, 0, :, 0].double()  # (T,P)
-        total, count = 0.0, 0
-        for gap, both in self.pairs:
-            difference = sampled[gap:] - sampled[:-gap]
-            weight = both.double()
-            offset = (weight * difference).sum(1, keepdim=True) / weight.sum(1, keepdim=True).clamp_min(1)
-            residual = (difference - offset).abs()
-            knee = self.huber
-            robust = torch.where(residual < knee, 0.5 * residual ** 2, knee * (residual - 0.5 * knee))
-            total = total + (weight * robust).sum()
-            count += int(both.sum())
-        return total / max(count, 1)
+        difference = sampled[self.second] - sampled[self.first]  # (N,P)
+        weight = self.both
+        offset = (weight * difference).sum(1, keepdim=True) / weight.sum(1, keepdim=True).clamp_min(1)
+        residual = (difference - offset).abs()
+        knee = self.huber
+        robust = torch.where(residual < knee, 0.5 * residual ** 2, knee * (residual - 0.5 * knee))
+        return (weight * robust).sum() / weight.sum().clamp_min(1)
+
+
+def _canvas(brightness) -> np.ndarray:
+    """``(T,H,W)`` float32: frames of one size as they are; of several, each at the top left of the
+    largest (its pixels keep their coordinates), on white (the captures' background)."""
+    if isinstance(brightness, np.ndarray):
+        return brightness.astype(np.float32, copy=False)
+    height, width = (max(frame.shape[k] for frame in brightness) for k in (0, 1))
+    canvas = np.ones((len(brightness), height, width), np.float32)
+    for frame, image in zip(canvas, brightness):
+        frame[:image.shape[0], :image.shape[1]] = image
+    return canvas
 
 
 def _blur(images: torch.Tensor, sigma: float) -> torch.Tensor:

@@ -278,33 +278,34 @@ def _fit(out, model, detections: Detections, settings: TrackSettings, info, prog
     width, height = (int(v) for v in detections.sizes[0])  # the capture's first frame
     several = len(info.clips) > 1
     sizes = None if detections.one_size else detections.sizes
+    photos = info.kind == "photos"
     observations = Observations(np.nan_to_num(points), confidence, width, height, embedding, sizes,
-                                detections.clips if several else None)
+                                detections.clips if several else None, photos)
     focals = []
     for number, clip_size in enumerate(observations.clip_sizes()):  # one for a video or photos
         if settings.focal_px is not None:  # given at the input's size (its first frame's, upright): one lens
             focals.append(settings.focal_px * math.hypot(*clip_size) / math.hypot(info.width, info.height))
             continue
         clip_info = info.clips[number] if several else info
-        lens = info.photos[0].focal_35mm if info.kind == "photos" and info.photos else clip_info.focal_35mm
+        lens = info.photos[0].focal_35mm if photos and info.photos else clip_info.focal_35mm
         focals.append(focal_from_35mm(lens, *clip_size) if lens else None)  # the file's lens, or estimated
-    photometric = settings.fit.photometric.steps > 0 and info.kind != "photos"
+    photometric = settings.fit.photometric.resolved(photos).steps > 0
     return fit_landmarks(model, observations, dataclasses.replace(settings.fit, focal=tuple(focals)),
                          progress=None if progress is None else lambda done, total, _rms: progress("fit", done, total),
-                         brightness=_brightness(out, detections) if photometric else None)
+                         brightness=_brightness(out, detections, photos) if photometric else None)
 
 
-def _brightness(out: pathlib.Path, detections: Detections) -> np.ndarray:
-    """``(T,H,W)`` the brightness of the capture's images as written (0 where a frame found no face:
-    the photometric stage leaves those out)."""
+def _brightness(out: pathlib.Path, detections: Detections, photos: bool):
+    """The brightness of the capture's images as written: ``(T,H,W)``, or a list of ``(H,W)`` for
+    photos of several sizes (0 where a frame found no face: the photometric stage leaves those out)."""
     from ..io.image import read_image
     from .photometric import brightness
 
-    width, height = (int(v) for v in detections.sizes[0])
-    frames = np.zeros((len(detections.presence), height, width), np.float32)
+    frames = [np.zeros((int(height), int(width)), np.float32) for width, height in detections.sizes]
     for t in np.nonzero(detections.presence > 0)[0]:
-        frames[t] = brightness(read_image(out / layout.image_path(int(t), int(detections.clips[t]))))
-    return frames
+        camera = int(t) if photos else int(detections.clips[t])  # a photo is its own camera
+        frames[t] = brightness(read_image(out / layout.image_path(int(t), camera)))
+    return np.stack(frames) if detections.one_size else frames
 
 
 def _embedding(model):
