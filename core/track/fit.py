@@ -17,9 +17,9 @@ frame's landmarks, then turned and moved onto them), then every parameter togeth
 (Huber) reprojection loss weighted by confidence, Gaussian priors on shape, expression and jaw, and a
 smoothness term on second differences over time (a clip's motion is smooth; a detector's noise is
 not); then, given the frames' brightness, the photometric stage (:mod:`.photometric`: skin points
-whose brightness must agree between frames, or between photos). Only the vertices the landmarks sit on are posed (:class:`LandmarkHead`):
-the same linear blend skinning as :class:`~mogaface.core.flame.model.FlameModel`, on a few hundred
-vertices.
+whose brightness must agree between frames, or between photos). Only the vertices the landmarks
+sit on are posed (:class:`LandmarkHead`): the same linear blend skinning as
+:class:`~mogaface.core.flame.model.FlameModel`, on a few hundred vertices.
 """
 
 from __future__ import annotations
@@ -210,10 +210,10 @@ def fit_landmarks(model: FlameModel, observations: Observations, settings: FitSe
     of several sizes), then the photometric stage (``settings.photometric``, what it leaves out
     chosen for photos or a video). ``progress(step, steps, rms_px)`` is called now and then."""
     obs = observations.check()
-    stage = settings.photometric.resolved(obs.photos)
-    if settings.steps < 1 or stage.steps < 0:
+    photometric_settings = settings.photometric.resolved(obs.photos)  # for photos or a video
+    if settings.steps < 1 or photometric_settings.steps < 0:
         raise InputError(None, "steps", f"the fit needs at least 1 iteration and the photometric stage 0 (off) or "
-                                        f"more; found {settings.steps} and {stage.steps}")
+                                        f"more; found {settings.steps} and {photometric_settings.steps}")
     torch.manual_seed(settings.seed)
     d = torch.float64
     head = LandmarkHead(model, obs.embedding)
@@ -293,7 +293,7 @@ def fit_landmarks(model: FlameModel, observations: Observations, settings: FitSe
         def stage_objective(_):
             loss, residual = objective(False)
             pixels = project(skin(shared_shape(), expr, rotation, jaw, translation_cm / 100, eyes_pose(gaze)))
-            return loss + stage.weight * agreement(pixels), residual
+            return loss + photometric_settings.weight * agreement(pixels), residual
         return stage_objective
 
     # 1. Rigid start: the mean head placed where each frame's landmarks are, at the depth their
@@ -306,8 +306,8 @@ def fit_landmarks(model: FlameModel, observations: Observations, settings: FitSe
     everything = [shape_stepped] * shape_stepped.requires_grad + [expr, jaw, gaze, rotation, translation_cm]
     stages = [([rotation, translation_cm], objective, True, max(settings.steps // 4, 1)),
               (everything + [log_focal] * log_focal.requires_grad, objective, False, settings.steps)]
-    pairs = frame_pairs(obs.clip_index(), stage.gaps, obs.photos)
-    photometric_steps = stage.steps if brightness is not None and len(pairs) else 0
+    pairs = frame_pairs(obs.clip_index(), photometric_settings.gaps, obs.photos)
+    photometric_steps = photometric_settings.steps if brightness is not None and len(pairs) else 0
     if photometric_steps:
         stages.append((everything, None, False, photometric_steps))
     done, total = 0, sum(stage[3] for stage in stages)
@@ -316,7 +316,7 @@ def fit_landmarks(model: FlameModel, observations: Observations, settings: FitSe
             clip_cameras = cameras()
             frame_cameras = [frame_camera(clip_cameras, obs.clips, obs.sizes, t) for t in range(frames)]
             stage_objective = photometric(*_photometric_term(model, current(), frame_cameras, pairs, brightness,
-                                                             seen.numpy(), stage))
+                                                             seen.numpy(), photometric_settings))
         optimiser = torch.optim.LBFGS(unknowns, lr=1.0, max_iter=steps, history_size=30,
                                       line_search_fn="strong_wolfe", tolerance_grad=1e-10, tolerance_change=1e-12)
 
