@@ -5,9 +5,10 @@ training has them; Blender never blocks), then does what Import Capture, Import 
 Tracking do: the camera, the head keyed with the tracked parameters, the footage as the camera's
 background (a video plays frame by frame as a Movie Clip), framed; frames where the face was lost
 become timeline markers. Several videos picked at once are one capture: each its own camera with
-its clip behind it, the scene's camera switching at each clip's first frame (a marker bound to it). Drive from Footage runs ``python -m mogaface drive`` with the chosen
-head's shape held fixed and keys its expressions, jaw, eyes and head pose, thinned within a
-tolerance, at the scene's frame rate. One footage job runs at a time, like every child job.
+its clip behind it, the scene's camera switching at each clip's first frame (a marker bound to
+it). Drive from Footage runs ``python -m mogaface drive`` with the chosen head's shape held fixed
+and keys its expressions, jaw, eyes and head pose, thinned within a tolerance, at the scene's
+frame rate. One footage job runs at a time, like every child job.
 """
 
 from __future__ import annotations
