@@ -32,9 +32,9 @@ def test_skin_points_are_posed_as_the_mesh_and_only_the_facing_front_is_seen(pro
     chosen = np.array([front, back])
     params = {"shape": np.zeros(model.n_shape), "expr": np.zeros((1, model.n_expr)), "jaw_pose": np.zeros((1, 3)),
               "eyes_pose": np.zeros((1, 6)), "rotation": np.array([[0.0, 0.4, 0.0]]), "translation": np.zeros((1, 3))}
-    seen = seen_points(model, params, camera, chosen)
+    seen = seen_points(model, params, [camera], chosen)
     assert seen.tolist() == [[True, False]]  # the point nearest the camera, not the back of the head
-    everything = seen_points(model, params, camera, points)[0]
+    everything = seen_points(model, params, [camera], points)[0]
     assert 0.2 < everything.mean() < 0.6  # about the front half, less what the nose and ears hide
 
 

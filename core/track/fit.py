@@ -352,12 +352,7 @@ def _photometric_term(model: FlameModel, params: dict, cameras: list[Camera], pa
     ``cameras``: each frame's; ``pairs (N,2)``: the frames compared; ``frames (T,)``: those with
     landmarks (the others' parameters are a guess)."""
     points = skin_points(model, settings.points, settings.seed)
-    seen = np.zeros((len(cameras), len(points)), bool)
-    lenses = [(camera.width, camera.height, float(camera.fx)) for camera in cameras]
-    for lens in set(lenses):  # the frames of each camera at once
-        mine = np.array([other == lens for other in lenses])
-        camera = cameras[int(np.argmax(mine))]
-        seen[mine] = seen_points(model, {k: v if k == "shape" else v[mine] for k, v in params.items()}, camera, points)
+    seen = seen_points(model, params, cameras, points)
     skin = LandmarkHead(model, vertex_embedding(model.faces.numpy(), points))
     return BrightnessAgreement(brightness, seen & frames[:, None], settings, pairs), skin
 

@@ -76,14 +76,13 @@ def vertex_embedding(faces: np.ndarray, vertices: np.ndarray) -> LandmarkEmbeddi
     return LandmarkEmbedding(slot // 3, barycentric, np.arange(len(vertices)))
 
 
-def seen_points(model: FlameModel, params: dict, camera: Camera, points: np.ndarray, chunk: int = 60) -> np.ndarray:
-    """``(T, P)`` whether each of ``points`` (vertex ids) is seen by ``camera`` in each frame of
-    ``params`` (a fit's, per frame arrays and one ``shape``): see the module's docstring."""
+def seen_points(model: FlameModel, params: dict, cameras: list[Camera], points: np.ndarray,
+                chunk: int = 60) -> np.ndarray:
+    """``(T, P)`` whether each of ``points`` (vertex ids) is seen in each frame of ``params`` (a
+    fit's, per frame arrays and one ``shape``) by that frame's camera of ``cameras``: see the
+    module's docstring."""
     frames = len(params["expr"])
     faces = model.faces.numpy()
-    centre = -camera.R.T @ camera.t
-    cells_x = int(np.ceil(camera.width / DEPTH_CELL_PX)) + 1
-    cells_y = int(np.ceil(camera.height / DEPTH_CELL_PX)) + 1
     seen = np.zeros((frames, len(points)), bool)
     dtype = model.v_template.dtype
     for start in range(0, frames, chunk):
@@ -95,6 +94,9 @@ def seen_points(model: FlameModel, params: dict, camera: Camera, points: np.ndar
         vertices = vertices.double().numpy()
         normals = _vertex_normals(vertices, faces)
         for i in range(n):
+            camera = cameras[start + i]
+            cells_x = int(np.ceil(camera.width / DEPTH_CELL_PX)) + 1
+            cells_y = int(np.ceil(camera.height / DEPTH_CELL_PX)) + 1
             pixels, depth = camera.project(vertices[i])
             ahead = depth > 1e-3
             cells = np.where(ahead[:, None], pixels, -1.0) // DEPTH_CELL_PX  # behind the camera: no cell
@@ -102,7 +104,7 @@ def seen_points(model: FlameModel, params: dict, camera: Camera, points: np.ndar
             cy = np.clip(cells[:, 1].astype(np.int64), 0, cells_y - 1)
             nearest = np.full((cells_y, cells_x), np.inf)
             np.minimum.at(nearest, (cy[ahead], cx[ahead]), depth[ahead])
-            sight = centre - vertices[i, points]
+            sight = -camera.R.T @ camera.t - vertices[i, points]  # toward the camera's centre
             facing = (normals[i, points] * sight).sum(1) > FACING * np.linalg.norm(sight, axis=1)
             front = depth[points] <= nearest[cy[points], cx[points]] + DEPTH_SLACK_M
             seen[start + i] = facing & front & ahead[points]
