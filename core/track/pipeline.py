@@ -190,6 +190,12 @@ def _camera_id(clip: int) -> str:
     return f"cam{clip:02d}"
 
 
+def _camera_number(clip: int, t: int, photos: bool) -> int:
+    """The camera whose folder frame ``t`` is written in: its clip's, or for photos its own (a
+    photo is its own camera)."""
+    return t if photos else clip
+
+
 def _head_model(out: pathlib.Path, head_file) -> pathlib.Path:
     from ..data.generator import write_head_model
 
@@ -223,7 +229,8 @@ def _detect(footage, out, key, settings, selection, resume, progress):
             timestep, position = position, position + 1
             if timestep < done:
                 continue  # a resumed track: already detected and written
-            _detect_frame(tracker, frame, size, detections, out, timestep, clip if video else timestep, clip)
+            _detect_frame(tracker, frame, size, detections, out, timestep, _camera_number(clip, timestep, not video),
+                          clip)
             if len(detections.presence) % SAVE_EVERY == 0:
                 detections.save(out / DETECTIONS_FILE, key)
             if progress is not None:
@@ -301,11 +308,13 @@ def _brightness(out: pathlib.Path, detections: Detections, photos: bool):
     from ..io.image import read_image
     from .photometric import brightness
 
-    frames = [np.zeros((int(height), int(width)), np.float32) for width, height in detections.sizes]
+    sizes = [(int(height), int(width)) for width, height in detections.sizes]
+    frames = (np.zeros((len(sizes), *sizes[0]), np.float32) if detections.one_size  # one array: a long clip's
+              else [np.zeros(size, np.float32) for size in sizes])
     for t in np.nonzero(detections.presence > 0)[0]:
-        camera = int(t) if photos else int(detections.clips[t])  # a photo is its own camera
+        camera = _camera_number(int(detections.clips[t]), int(t), photos)
         frames[t] = brightness(read_image(out / layout.image_path(int(t), camera)))
-    return np.stack(frames) if detections.one_size else frames
+    return frames
 
 
 def _embedding(model):
@@ -347,7 +356,7 @@ def _write_capture(out, fit, detections: Detections, head_file, model, video: bo
             writer.write_flame_params(t, fit.frame(t))
             if seen[t]:
                 writer.record_frame(t, fit.camera_of(t, camera_ids[t]), split="test" if test[t] else "train",
-                                    camera_index=int(clips[t]) if video else t)
+                                    camera_index=_camera_number(int(clips[t]), t, not video))
             if progress is not None:
                 progress("write", t + 1, frames)
     rows = np.concatenate([ibug68(detections.landmarks), np.repeat(detections.presence[:, None, None], 68, 1)], -1)
