@@ -59,10 +59,15 @@ def footage_paths(operator) -> list[str]:
     return [directory] if directory else []
 
 
+def remove_markers(scene, prefix: str) -> None:
+    """The timeline markers a tracking placed (their names start with ``prefix``): a new one replaces them."""
+    for marker in [m for m in scene.timeline_markers if m.name.startswith(prefix)]:
+        scene.timeline_markers.remove(marker)
+
+
 def mark_lost_frames(scene, frames, label: str = LOST_MARKER) -> None:
     """Timeline markers at ``frames`` (scene frames where the tracker lost the face); earlier ones go."""
-    for marker in [m for m in scene.timeline_markers if m.name.startswith(label)]:
-        scene.timeline_markers.remove(marker)
+    remove_markers(scene, label)
     for frame in frames:
         scene.timeline_markers.new(label, frame=int(frame))
 
@@ -113,8 +118,7 @@ def show_clips(scene, report: dict) -> None:
     from ..core.for_blender.axes import FRAME_OFFSET
     from .import_capture import COLLECTION_NAME, capture_cameras
 
-    for marker in [m for m in scene.timeline_markers if m.name.startswith(CLIP_MARKER + " ")]:
-        scene.timeline_markers.remove(marker)
+    remove_markers(scene, CLIP_MARKER + " ")
     cameras = capture_cameras(bpy.data.collections.get(COLLECTION_NAME))
     first = 0
     for number, clip in enumerate(report["clips"]):
