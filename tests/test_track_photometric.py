@@ -5,7 +5,7 @@ import numpy as np
 import torch
 
 from mogaface.core.flame.model import FlameModel
-from mogaface.core.track.fit import start_camera
+from mogaface.core.track.fit import LandmarkHead, start_camera
 from mogaface.core.track.photometric import (
     CHOSEN,
     BrightnessAgreement,
@@ -26,6 +26,11 @@ def test_skin_points_are_posed_as_the_mesh_and_only_the_facing_front_is_seen(pro
         vertices = model(rotation=torch.tensor([[0.0, 0.4, 0.0]])).numpy()[0]
     embedding = vertex_embedding(model.faces.numpy(), points)
     assert np.abs(embedding.positions(vertices, model.faces.numpy()) - vertices[points]).max() < 1e-12
+    head = LandmarkHead(model, embedding)  # the pose the fit uses, each point's vertex alone posed
+    posed = head(*(torch.zeros(1, n, dtype=torch.float64) for n in (model.n_shape, model.n_expr, 3, 3, 3)))
+    assert len(head.v_template) == len(points)
+    rest = model(rotation=torch.zeros(1, 3, dtype=torch.float64)).detach().numpy()[0, points]
+    assert np.abs(posed.detach().numpy()[0] - rest).max() < 1e-9
 
     camera = start_camera(360, 640, 600.0)  # in front of the face (+z)
     front, back = int(np.argmax(vertices[:, 2])), int(np.argmin(vertices[:, 2]))

@@ -163,6 +163,8 @@ class LandmarkHead(torch.nn.Module):
     def __init__(self, model: FlameModel, embedding: LandmarkEmbedding):
         super().__init__()
         faces = model.faces.cpu().numpy()[embedding.faces]  # (L,3) vertex ids
+        heaviest = faces[np.arange(len(faces)), np.argmax(embedding.barycentric, 1)]
+        faces = np.where(embedding.barycentric != 0, faces, heaviest[:, None])  # a corner weighing 0 is not posed
         vertices, corner = np.unique(faces, return_inverse=True)
         self.corner = torch.as_tensor(corner.reshape(faces.shape), dtype=torch.long)
         self.barycentric = torch.as_tensor(embedding.barycentric, dtype=torch.float64)
