@@ -157,6 +157,7 @@ def test_reading_and_tracking_the_footage_never_open_the_truth(handheld, tmp_pat
     """The clip is read, and tracked into a capture (face, landmarks, fit, files), without one open
     inside the truth folder."""
     from mogaface.core.track.fit import FitSettings
+    from mogaface.core.track.photometric import PhotometricSettings
     from mogaface.core.track.pipeline import TrackSettings, refit, track_footage
 
     record = {"on": True, "paths": []}
@@ -170,8 +171,10 @@ def test_reading_and_tracking_the_footage_never_open_the_truth(handheld, tmp_pat
         video = open_footage(handheld / "footage" / "clip.mp4")
         list(video.frames(FrameSelection(end=2)))
         report = track_footage(handheld / "footage" / "clip.mp4", tmp_path / "tracked",
-                               TrackSettings(size=None, fit=FitSettings(steps=10)), keep_detections=True)
-        again = refit(tmp_path / "tracked", TrackSettings(size=None, fit=FitSettings(steps=3)))  # as settings are chosen
+                               TrackSettings(size=None, fit=FitSettings(steps=10, photometric=PhotometricSettings(steps=20))),
+                               keep_detections=True)
+        again = refit(tmp_path / "tracked", TrackSettings(size=None, fit=FitSettings(
+            steps=3, photometric=PhotometricSettings(steps=20))))  # as settings are chosen
     finally:
         record["on"] = False
     assert any("clip.mp4" in path for path in record["paths"])

@@ -10,9 +10,10 @@ from mogaface.core.io.video import VideoWriter
 from mogaface.core.track.decode import open_footage
 from mogaface.core.track.fit import FitSettings
 from mogaface.core.track.inputs import FrameSelection
+from mogaface.core.track.photometric import PhotometricSettings
 from mogaface.core.track.pipeline import TrackSettings, track_footage
 
-FAST = TrackSettings(size=None, fit=FitSettings(steps=5))
+FAST = TrackSettings(size=None, fit=FitSettings(steps=5, photometric=PhotometricSettings(steps=20)))  # every stage, briefly
 
 
 def rewrite(source, out, blank) -> None:
@@ -110,7 +111,6 @@ def test_photos_compared_two_by_two_turn_the_head_as_the_truth(procedural_head_p
     1.74 to 1.61 mm, the expression 1.21 to 1.09 mm)."""
     from mogaface.core.cli import main
     from mogaface.core.evaluate.track_error import tracking_errors
-    from mogaface.core.track.photometric import PhotometricSettings
     from mogaface.core.track.pipeline import refit
 
     assert main(["make-footage", str(tmp_path / "photos"), "--kind", "photos", "--photos", "5", "--size", "144x256",

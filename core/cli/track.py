@@ -24,7 +24,7 @@ def add_arguments(parser) -> None:
     parser.add_argument("--head", type=pathlib.Path, help="head model file (default: the procedural head)")
     parser.add_argument("--fit-steps", type=int, default=200, help="iterations of the fit (default %(default)s)")
     parser.add_argument("--photometric-steps", type=int, help="iterations of the photometric stage after the "
-                        "landmark fit (0: off; default: those chosen on validation clips, 60 for a video and 1920 "
+                        "landmark fit (0: off; default: those chosen on validation clips, 200 for a video and 1920 "
                         "for photos, docs/tracking.md)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     parser.add_argument("--events", type=pathlib.Path, metavar="FILE",

@@ -36,16 +36,17 @@ DEPTH_CELL_PX, DEPTH_SLACK_M = 3, 0.006
 
 
 #: The stage's iterations and weight unless given, chosen on validation clips and on validation
-#: photo folders (docs/tracking.md): a dozen photos, far apart, take a stronger weight and more
-#: iterations (which cost less than a clip's hundreds of frames).
-CHOSEN = {"video": {"steps": 60, "weight": 3000.0}, "photos": {"steps": 1920, "weight": 30000.0}}
+#: photo folders (docs/tracking.md): the skin has to outweigh the landmarks' lag to turn the head
+#: as far as it turns, and a dozen photos take more iterations (which cost less than a clip's
+#: hundreds of frames).
+CHOSEN = {"video": {"steps": 200, "weight": 30000.0}, "photos": {"steps": 1920, "weight": 30000.0}}
 
 
 @dataclasses.dataclass
 class PhotometricSettings:
     steps: int | None = None  # L-BFGS iterations after the landmark fit (0: off; None: CHOSEN's)
     points: int = 1500  # skin points sampled
-    gaps: tuple[int, ...] = (1, 5, 20)  # a video's frame pairs (t, t + gap); photos: every two
+    gaps: tuple[int, ...] = (1, 5, 20, 60)  # a video's frame pairs (t, t + gap); photos: every two
     blur_px: float = 1.5  # the images' blur (a smooth basin for the sampling's gradient)
     weight: float | None = None  # of the mean robust brightness difference, beside the landmarks' pixels² (None: CHOSEN's)
     huber: float = 0.04  # the robust loss's knee (brightness, 0–1)
