@@ -105,7 +105,7 @@ def seen_points(model: FlameModel, params: dict, cameras: list[Camera], points: 
             cy = np.clip(cells[:, 1].astype(np.int64), 0, cells_y - 1)
             nearest = np.full((cells_y, cells_x), np.inf)
             np.minimum.at(nearest, (cy[ahead], cx[ahead]), depth[ahead])
-            sight = -camera.R.T @ camera.t - vertices[i, points]  # toward the camera's centre
+            sight = camera.center - vertices[i, points]
             facing = (normals[i, points] * sight).sum(1) > FACING * np.linalg.norm(sight, axis=1)
             front = depth[points] <= nearest[cy[points], cx[points]] + DEPTH_SLACK_M
             seen[start + i] = facing & front & ahead[points]
