@@ -8,6 +8,7 @@ from mogaface.core.errors import InputError
 from mogaface.core.flame.landmarks import STATIC_IBUG, procedural_embedding
 from mogaface.core.flame.model import FlameModel
 from mogaface.core.track.fit import FitSettings, LandmarkHead, Observations, fit_landmarks, start_camera
+from mogaface.core.track.photometric import vertex_embedding
 
 FRAMES, WIDTH, HEIGHT, FOCAL = 12, 360, 640, 480.0
 
@@ -41,6 +42,12 @@ def test_the_landmark_head_poses_as_the_whole_model(clip):
     landmarks = head(t["shape"], t["expr"], t["rotation"], t["jaw_pose"], t["translation"])
     expected = np.stack([obs.embedding.positions(v, model.faces.numpy()) for v in vertices])
     assert np.abs(landmarks.detach().numpy() - expected).max() < 1e-9
+    # every vertex, the eyes turned too: the jaw and the eyeballs move theirs about their joints
+    everything = LandmarkHead(model, vertex_embedding(model.faces.numpy(), np.arange(len(model.v_template))))
+    t["eyes_pose"] = torch.as_tensor(np.random.default_rng(1).normal(0, 0.2, (FRAMES, 6)))
+    posed = everything(t["shape"], t["expr"], t["rotation"], t["jaw_pose"], t["translation"], t["eyes_pose"])
+    with torch.no_grad():
+        assert torch.abs(posed - model(**t)).max() < 1e-9
 
 
 def test_a_clip_is_fitted_to_its_landmarks_and_the_mesh_follows(clip):

@@ -32,6 +32,8 @@ BENCHMARKS = {
                     "method's corrections: novel-view PSNR at cameras the footage never saw (after bench track)",
     "track_detect": "face tracking's detection step at 720x1280: ms per frame for the detector, mesh, irises and "
                     "person mask (MediaPipe's models on ai-edge-litert)",
+    "track_step": "one evaluation of the tracker's fit on a 20-s clip (600 frames): the landmarks' and skin's heads "
+                  "against the library's skinning and the whole model, and the brightness agreement (ms)",
     "train": "the full training step (render, loss, backward, Adam) in steps per second",
     "viewport": "the avatar in the 3D viewport: frames per second of its render request at 256 and 512 px",
 }

@@ -147,19 +147,18 @@ class BrightnessAgreement:
         pairs = np.asarray(pairs, np.int64).reshape(-1, 2)
         self.first, self.second = torch.as_tensor(pairs[:, 0]), torch.as_tensor(pairs[:, 1])
         self.both = torch.as_tensor(seen[pairs[:, 0]] & seen[pairs[:, 1]]).double()  # (N,P)
+        self.pair_counts = self.both.sum(1, keepdim=True).clamp_min(1)
+        self.count = self.both.sum().clamp_min(1)
         self.huber = settings.huber
 
     def __call__(self, pixels: torch.Tensor) -> torch.Tensor:
         grid = (2 * pixels / self.size - 1).float()[:, :, None, :]  # (T,P,1,2), align_corners=False
         sampled = torch.nn.functional.grid_sample(self.images, grid, mode="bilinear", padding_mode="border",
                                                   align_corners=False)[:, 0, :, 0].double()  # (T,P)
-        difference = sampled[self.second] - sampled[self.first]  # (N,P)
-        weight = self.both
-        offset = (weight * difference).sum(1, keepdim=True) / weight.sum(1, keepdim=True).clamp_min(1)
-        residual = (difference - offset).abs()
-        knee = self.huber
-        robust = torch.where(residual < knee, 0.5 * residual ** 2, knee * (residual - 0.5 * knee))
-        return (weight * robust).sum() / weight.sum().clamp_min(1)
+        difference = sampled.index_select(0, self.second) - sampled.index_select(0, self.first)  # (N,P)
+        offset = (self.both * difference).sum(1, keepdim=True) / self.pair_counts
+        robust = torch.nn.functional.huber_loss(difference, offset.expand_as(difference), reduction="none", delta=self.huber)
+        return (self.both * robust).sum() / self.count
 
 
 def _canvas(brightness) -> np.ndarray:
