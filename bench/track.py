@@ -51,12 +51,10 @@ def make_clip(folder: pathlib.Path, kind: str, seed: int, quick: bool) -> pathli
 #: of ``PhotometricSettings`` fields), today's first. The first round (docs/tracking.md) moved
 #: shape_prior from 0.1 to 1.0, the second jaw_prior from 0.5 to 5.0, the third (on the
 #: full-length clips) the photometric stage from off to 60 iterations, the fourth its weight from
-#: 3000 to 30000, its iterations to 200 and a gap of 60 frames added. These are the next round
-#: (400 iterations, run alone on the kept landmark fits: a lower score on both clips, not yet
-#: scored on the test clips; docs/notebook/2026-11-30-photometric-photos.md).
-TRIES = ({}, {"photometric": {"steps": 60, "weight": 3000.0, "gaps": (1, 5, 20)}},
-         {"photometric": {"steps": 400}}, {"photometric": {"weight": 100000.0}},
-         {"photometric": {"gaps": (1, 5, 20, 60, 150)}})
+#: 3000 to 30000, its iterations to 200 and a gap of 60 frames added, the fifth (run on the kept
+#: landmark fits: 200, 400, 800) its iterations to 800. These are the next round, not run yet.
+TRIES = ({}, {"photometric": {"steps": 400}}, {"photometric": {"steps": 1600}},
+         {"photometric": {"weight": 100000.0}}, {"photometric": {"gaps": (1, 5, 20, 60, 150)}})
 #: The same for photo folders (``--photos``): the photometric stage's iterations and weight. Round
 #: 1 (weight 3000: off, 120, 240, 480, 960 iterations; weights 1000 and 10000 at 480) chose 480
 #: iterations at weight 10000; round 2 (weights 3000 and 30000, 240 and 960 iterations) weight

@@ -39,7 +39,7 @@ DEPTH_CELL_PX, DEPTH_SLACK_M = 3, 0.006
 #: photo folders (docs/tracking.md): the skin has to outweigh the landmarks' lag to turn the head
 #: as far as it turns, and a dozen photos take more iterations (which cost less than a clip's
 #: hundreds of frames).
-CHOSEN = {"video": {"steps": 200, "weight": 30000.0}, "photos": {"steps": 1920, "weight": 30000.0}}
+CHOSEN = {"video": {"steps": 800, "weight": 30000.0}, "photos": {"steps": 1920, "weight": 30000.0}}
 
 
 @dataclasses.dataclass
