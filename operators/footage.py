@@ -147,6 +147,10 @@ class _FootageJob(ImportHelper, FollowsChildJob):
     size: IntProperty(name="Size", default=512, min=64, max=4096,
                       description="Longer side of the tracked frames in pixels")
     fit_steps: IntProperty(name="Fitting Steps", default=200, min=1, max=2000, description="Iterations of the fit")
+    photometric_steps: IntProperty(name="Skin Steps", default=-1, min=-1, max=10000,
+                                   description="Iterations of the photometric stage, which turns the head until its "
+                                               "skin looks alike from frame to frame (-1: those chosen for the "
+                                               "footage, 800 for a video and 1920 for photos; 0: off, minutes faster)")
     python: StringProperty(name="Python", subtype="FILE_PATH", options={"HIDDEN", "SKIP_SAVE"},
                            description="Interpreter for the child process (empty: the preferences')")
     job_folder: StringProperty(options={"HIDDEN", "SKIP_SAVE"})
@@ -167,6 +171,10 @@ class _FootageJob(ImportHelper, FollowsChildJob):
                                    "folder of photos (or a Movie Clip of this file)")
             return None
         return inputs
+
+    def _photometric_steps(self) -> int | None:
+        """The stage's iterations for the child's command line (None: those chosen for the footage)."""
+        return self.photometric_steps if self.photometric_steps >= 0 else None
 
     def _start(self, context, command_for) -> set:
         from ..core.for_blender.worker import FootageWorker
@@ -215,7 +223,8 @@ class MOGAFACE_OT_track_footage(_FootageJob, bpy.types.Operator):
         self.out = bpy.path.abspath(self.out) if self.out else str(folder_beside(inputs[0], "capture"))
         threads = preferred_threads(context)
         return self._start(context, lambda python, job, paths: track_command(
-            python, inputs, self.out, job, size=self.size, fit_steps=self.fit_steps, threads=threads, paths=paths))
+            python, inputs, self.out, job, size=self.size, fit_steps=self.fit_steps, threads=threads, paths=paths,
+            photometric_steps=self._photometric_steps()))
 
     def finished(self, context, progress) -> set:
         if not self._ended(progress):
@@ -298,7 +307,8 @@ class MOGAFACE_OT_drive_from_footage(_FootageJob, bpy.types.Operator):
             write_identity(identity, rig.shape, rig.static_offset, pose_values(obj))
             return drive_command(python, inputs[0], identity, self.out, job, head=head, fps=fps,
                                  keep_head_still=self.keep_head_still, tolerance=self.tolerance, size=self.size,
-                                 fit_steps=self.fit_steps, threads=threads, paths=paths)
+                                 fit_steps=self.fit_steps, threads=threads, paths=paths,
+                                 photometric_steps=self._photometric_steps())
 
         return self._start(context, command)
 

@@ -3,6 +3,7 @@ process, then the camera, the keyed head and the footage behind it; a second run
 head's face at the scene's frame rate, thinned within the tolerance."""
 
 import importlib
+import json
 
 import test_blender_addon as addon_test  # sets Blender's user folders to a temporary one first
 
@@ -24,7 +25,8 @@ def tracked(tmp_path_factory, handheld):
     bpy.ops.wm.read_factory_settings(use_empty=True)
     addon_test.build_and_install(root / "dist")
     clip = handheld / "footage" / "clip.mp4"
-    result = bpy.ops.mogaface.track_footage(filepath=str(clip), out=str(root / "capture"), size=112, fit_steps=10)
+    result = bpy.ops.mogaface.track_footage(filepath=str(clip), out=str(root / "capture"), size=112, fit_steps=10,
+                                            photometric_steps=20)  # briefly: the plumbing, not the fit
     return {"root": root, "clip": clip, "capture": root / "capture", "result": result,
             "head": bpy.context.view_layer.objects.active}
 
@@ -54,6 +56,8 @@ def test_track_footage_brings_the_camera_the_keyed_head_and_the_movie(tracked):
     footage = importlib.import_module(MODULE + ".operators.footage")
     assert footage.last_progress().state == "done" and footage.current_worker() is None
     assert not [m for m in scene.timeline_markers if m.name == footage.LOST_MARKER]  # the clip never loses the face
+    report = json.loads((tracked["capture"] / "tracking.json").read_text())
+    assert (report["fit_steps"], report["photometric_steps"]) == (10, 20)  # the panel's Skin Steps reached the child
 
 
 def test_lost_frames_become_markers_and_a_report_line(tracked):
@@ -91,7 +95,8 @@ def test_several_clips_picked_become_cameras_the_scene_switches_between(tracked)
     for name in ("a.mp4", "b.mp4"):
         shutil.copyfile(tracked["clip"], folder / name)
     result = bpy.ops.mogaface.track_footage(directory=str(folder) + "/", files=[{"name": "a.mp4"}, {"name": "b.mp4"}],
-                                            out=str(tracked["root"] / "two_clips"), size=112, fit_steps=10)
+                                            out=str(tracked["root"] / "two_clips"), size=112, fit_steps=10,
+                                            photometric_steps=20)
     assert result == {"FINISHED"}
     scene = bpy.context.scene
     assert (scene.frame_start, scene.frame_end) == (1, 24)
@@ -115,7 +120,8 @@ def test_drive_from_footage_keys_the_performance_at_the_scene_rate(tracked, tmp_
     rest = np.array(head["mogaface_rotation"])
     out = tmp_path / "performance"
     assert bpy.ops.mogaface.drive_from_footage(filepath=str(tracked["clip"]), out=str(out), tolerance=0.002,
-                                               keep_head_still=True, size=112, fit_steps=10) == {"FINISHED"}
+                                               keep_head_still=True, size=112, fit_steps=10,
+                                               photometric_steps=20) == {"FINISHED"}
     performance = read_tracking(out)
     assert len(performance.frames) == 9  # 12 frames at 30 fps span 0.37 s: 9 frames at 24 fps
     assert (scene.frame_start, scene.frame_end) == (1, 9)
@@ -158,6 +164,15 @@ def test_cancel_stops_the_tracking_child_and_leaves_no_capture(tracked, tmp_path
     progress = worker.wait(interval=0.1, timeout=60)
     assert progress.state == "cancelled", progress
     assert out.is_dir() and not (out / "transforms_train.json").exists()
+
+
+def test_skin_steps_reach_both_children_unless_left_to_the_footage():
+    from mogaface.core.for_blender.worker import drive_command, track_command
+
+    track = track_command(None, ["a.mp4"], "out", "job", photometric_steps=0)
+    drive = drive_command(None, "a.mp4", "identity.npz", "out", "job", photometric_steps=300)
+    assert track[track.index("--photometric-steps") + 1] == "0" and drive[drive.index("--photometric-steps") + 1] == "300"
+    assert "--photometric-steps" not in track_command(None, ["a.mp4"], "out", "job")  # the footage's chosen count
 
 
 def test_disabling_leaves_no_footage_operator(tracked):

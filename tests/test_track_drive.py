@@ -64,14 +64,15 @@ def test_the_commands_write_progress_events_and_drive_a_tracked_capture(handheld
 
     clip, capture, events = handheld / "footage" / "clip.mp4", tmp_path / "capture", tmp_path / "events.jsonl"
     assert main(["track", str(clip), "--out", str(capture), "--size", "112", "--fit-steps", "3", "--quiet",
-                 "--events", str(events)]) == 0
+                 "--photometric-steps", "20", "--events", str(events)]) == 0
+    assert json.loads((capture / "tracking.json").read_text())["photometric_steps"] == 20
     lines = [json.loads(line) for line in events.read_text().splitlines()]
     assert {e["stage"] for e in lines if e["event"] == "iter"} == {"detect", "fit", "write"}
     assert all(e["eta_s"] is not None and e["eta_s"] >= 0 for e in lines if e["event"] == "iter")
     assert lines[-1]["event"] == "done" and lines[-1]["frames"] == 12
     out = tmp_path / "performance"
     assert main(["drive", str(clip), "--avatar", str(capture), "--out", str(out), "--size", "112", "--fit-steps",
-                 "3", "--to-fps", "15", "--keep-head-still", "--tolerance", "0.001", "--quiet", "--capture",
+                 "3", "--photometric-steps", "20", "--to-fps", "15", "--keep-head-still", "--tolerance", "0.001", "--quiet", "--capture",
                  str(tmp_path / "tracked")]) == 0
     assert "drove 6 frames at 15 fps" in capsys.readouterr().out
     report = json.loads((out / "drive.json").read_text())

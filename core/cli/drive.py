@@ -10,6 +10,7 @@ import pathlib
 
 def add_arguments(parser) -> None:
     from ..track.decode import add_footage_arguments
+    from .track import add_fit_arguments
 
     parser.add_argument("input", type=pathlib.Path, metavar="CLIP", help="the performance: a video file")
     parser.add_argument("--avatar", type=pathlib.Path, required=True,
@@ -25,7 +26,7 @@ def add_arguments(parser) -> None:
     parser.add_argument("--tolerance", type=float, default=0.0,
                         help="drop keys that linear interpolation gives within this (default 0: every frame)")
     parser.add_argument("--capture", type=pathlib.Path, help="also keep the tracked capture of the clip here")
-    parser.add_argument("--fit-steps", type=int, default=200, help="iterations of the fit (default %(default)s)")
+    add_fit_arguments(parser)
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     parser.add_argument("--events", type=pathlib.Path, metavar="FILE",
                         help="also append progress as JSON lines here (how Blender follows the job)")
@@ -41,7 +42,8 @@ def run(args) -> int:
         raise InputError(None, "--tolerance/--to-fps", "expected a tolerance ≥ 0 and a positive frame rate")
     identity = Identity.of(args.avatar, args.head)
     settings = DriveSettings(fps=args.to_fps, keep_head_still=args.keep_head_still, tolerance=args.tolerance,
-                             fit_steps=args.fit_steps, size=args.size, threads=args.threads or 2)
+                             fit_steps=args.fit_steps, photometric_steps=args.photometric_steps, size=args.size,
+                             threads=args.threads or 2)
     progress, close = progress_reporter(args)
     try:
         result = drive_clip(args.input, identity, args.out, settings, selection_from_arguments(args),

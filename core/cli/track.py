@@ -22,13 +22,18 @@ def add_arguments(parser) -> None:
                         "frames, one lens for all)")
     parser.add_argument("--focal-35mm", type=float, help="the same as a 35 mm equivalent focal length (mm)")
     parser.add_argument("--head", type=pathlib.Path, help="head model file (default: the procedural head)")
-    parser.add_argument("--fit-steps", type=int, default=200, help="iterations of the fit (default %(default)s)")
-    parser.add_argument("--photometric-steps", type=int, help="iterations of the photometric stage after the "
-                        "landmark fit (0: off; default: those chosen on validation clips, 200 for a video and 1920 "
-                        "for photos, docs/tracking.md)")
+    add_fit_arguments(parser)
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     parser.add_argument("--events", type=pathlib.Path, metavar="FILE",
                         help="also append progress as JSON lines here (how Blender follows the job)")
+
+
+def add_fit_arguments(parser) -> None:
+    """The fit's length, for ``track`` and ``drive``: ``--fit-steps`` and ``--photometric-steps``."""
+    parser.add_argument("--fit-steps", type=int, default=200, help="iterations of the fit (default %(default)s)")
+    parser.add_argument("--photometric-steps", type=int, help="iterations of the photometric stage after the "
+                        "landmark fit (0: off, minutes faster; default: those chosen on validation clips, 800 for a "
+                        "video and 1920 for photos, docs/tracking.md)")
 
 
 def progress_reporter(args):
@@ -83,8 +88,8 @@ def run(args) -> int:
         print(line)
     focal = args.focal if args.focal is not None else focal_in_pixels(args.focal_35mm, info.width, info.height)
     settings = TrackSettings(size=args.size, focal_px=focal, threads=args.threads or 2,
-                             fit=FitSettings(steps=args.fit_steps, photometric=PhotometricSettings(
-                                 **({} if args.photometric_steps is None else {"steps": args.photometric_steps}))),
+                             fit=FitSettings(steps=args.fit_steps,
+                                             photometric=PhotometricSettings(steps=args.photometric_steps)),
                              head_file=args.head)
     progress, close = progress_reporter(args)
     try:

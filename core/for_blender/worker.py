@@ -362,25 +362,27 @@ class FootageWorker(TrainWorker):
     DONE = "done"
 
 
-def _footage_options(size, fit_steps, threads) -> list[str]:
+def _footage_options(size, fit_steps, photometric_steps, threads) -> list[str]:
     arguments = []
-    for flag, value in (("--size", size), ("--fit-steps", fit_steps), ("--threads", threads)):
+    for flag, value in (("--size", size), ("--fit-steps", fit_steps), ("--photometric-steps", photometric_steps),
+                        ("--threads", threads)):
         if value is not None:
             arguments += [flag, str(int(value))]
     return arguments
 
 
 def track_command(python: str, inputs, out, job, size: int | None = None, fit_steps: int | None = None,
-                  threads: int | None = None, paths=()) -> list[str]:
+                  threads: int | None = None, paths=(), photometric_steps: int | None = None) -> list[str]:
     """The argument list of a ``track`` child process writing its events into the folder ``job``."""
     arguments = ["track", *map(os.fspath, inputs), "--out", os.fspath(out), "--quiet",
                  "--events", os.fspath(pathlib.Path(job) / FootageWorker.EVENTS_FILE)]
-    return worker_command(python, arguments + _footage_options(size, fit_steps, threads), paths)
+    return worker_command(python, arguments + _footage_options(size, fit_steps, photometric_steps, threads), paths)
 
 
 def drive_command(python: str, clip, avatar, out, job, head=None, fps: float | None = None,
                   keep_head_still: bool = False, tolerance: float = 0.0, size: int | None = None,
-                  fit_steps: int | None = None, threads: int | None = None, paths=()) -> list[str]:
+                  fit_steps: int | None = None, threads: int | None = None, paths=(),
+                  photometric_steps: int | None = None) -> list[str]:
     """The argument list of a ``drive`` child process writing its events into the folder ``job``."""
     arguments = ["drive", os.fspath(clip), "--avatar", os.fspath(avatar), "--out", os.fspath(out), "--quiet",
                  "--events", os.fspath(pathlib.Path(job) / FootageWorker.EVENTS_FILE),
@@ -388,4 +390,4 @@ def drive_command(python: str, clip, avatar, out, job, head=None, fps: float | N
     arguments += ["--head", os.fspath(head)] if head is not None else []
     arguments += ["--to-fps", f"{float(fps):.6g}"] if fps else []
     arguments += ["--keep-head-still"] if keep_head_still else []
-    return worker_command(python, arguments + _footage_options(size, fit_steps, threads), paths)
+    return worker_command(python, arguments + _footage_options(size, fit_steps, photometric_steps, threads), paths)

@@ -135,6 +135,7 @@ class DriveSettings:
     keep_head_still: bool = False
     tolerance: float = 0.0  # keys within this of the curve are dropped (radians, metres, coefficients)
     fit_steps: int = 200
+    photometric_steps: int | None = None  # None: those chosen for a video (photometric.CHOSEN)
     size: int | None = 512
     threads: int = 2
 
@@ -147,6 +148,7 @@ def drive_clip(clip, identity: Identity, out, settings: DriveSettings = DriveSet
     ``progress(stage, done, total)`` as :func:`~.pipeline.track_footage` calls it."""
     from ..io.atomic import check_output_target
     from ..track.fit import FitSettings
+    from ..track.photometric import PhotometricSettings
     from ..track.pipeline import TrackSettings, track_footage
 
     out = pathlib.Path(out)
@@ -157,7 +159,8 @@ def drive_clip(clip, identity: Identity, out, settings: DriveSettings = DriveSet
     try:
         tracked = pathlib.Path(capture) if capture is not None else pathlib.Path(work.name) / "capture"
         track = TrackSettings(size=settings.size, threads=settings.threads, head_file=identity.head_file,
-                              fit=FitSettings(steps=settings.fit_steps, shape=identity.shape))
+                              fit=FitSettings(steps=settings.fit_steps, shape=identity.shape,
+                                              photometric=PhotometricSettings(steps=settings.photometric_steps)))
         report = track_footage(clip, tracked, track, selection, progress)
         performance = _tracked_params(tracked, report["frames"])
         clip_fps = float(report.get("fps") or 0) or (settings.fps or 30.0)
