@@ -20,6 +20,8 @@ import statistics
 import tempfile
 import time
 
+from .timing import median_ms
+
 
 class Stopwatch:
     """Exclusive time per label over nested, wrapped calls (one thread)."""
@@ -111,16 +113,6 @@ def profile(trainer, steps: int) -> dict:
             "render_share": round(render / total, 3), "stages_ms": stages}
 
 
-def _median_ms(function, repeats: int) -> float:
-    function()
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        function()
-        times.append(time.perf_counter() - start)
-    return 1000 * statistics.median(times)
-
-
 def path_ratios(trainer, repeats: int) -> dict:
     """The step's changed parts against the paths they replaced, timed here on this avatar's tensors.
 
@@ -145,7 +137,7 @@ def path_ratios(trainer, repeats: int) -> dict:
         optimizer = torch.optim.Adam([{"params": [p], "lr": 1e-3} for p in params], eps=1e-15, **kind)
         return optimizer.step
 
-    old, new = _median_ms(adam(foreach=False), repeats), _median_ms(adam(fused=True), repeats)
+    old, new = median_ms(adam(foreach=False), repeats), median_ms(adam(fused=True), repeats)
     out["optimiser: per-tensor Adam -> fused Adam"] = {"old_ms": round(old, 2), "new_ms": round(new, 2),
                                                       "ratio": round(old / new, 2)}
     visible = torch.rand(n, generator=generator) > 0.3
@@ -160,7 +152,7 @@ def path_ratios(trainer, repeats: int) -> dict:
         total = losses.position_hinge(local, mask=visible) + losses.scaling_hinge(log_scale, mask=visible)
         torch.autograd.grad(total, [local, log_scale])
 
-    old, new = _median_ms(gathered, repeats), _median_ms(masked, repeats)
+    old, new = median_ms(gathered, repeats), median_ms(masked, repeats)
     out["hinges: gathered rows -> masked mean"] = {"old_ms": round(old, 2), "new_ms": round(new, 2),
                                                   "ratio": round(old / new, 2)}
     grads = torch.randn(n, 2, generator=generator)
@@ -174,8 +166,8 @@ def path_ratios(trainer, repeats: int) -> dict:
         strategy.grad_count[seen] += 1
         strategy.max_radii[seen] = torch.maximum(strategy.max_radii[seen], radii[seen].float())
 
-    old = _median_ms(observe_gathered, repeats)
-    new = _median_ms(lambda: strategy.observe(1, grads, radii, 256, 256), repeats)
+    old = median_ms(observe_gathered, repeats)
+    new = median_ms(lambda: strategy.observe(1, grads, radii, 256, 256), repeats)
     out["densification statistics: gathered rows -> whole arrays"] = {
         "old_ms": round(old, 2), "new_ms": round(new, 2), "ratio": round(old / new, 2)}
     return out

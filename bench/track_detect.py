@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import os
 import platform
-import statistics
-import time
+
+from .timing import median_ms
 
 
 def test_frame():
@@ -27,22 +27,15 @@ def test_frame():
     return (large[:, 200:920] * 255 + 0.5).astype(np.uint8)
 
 
-def _median_ms(call, repeats: int) -> float:
-    for _ in range(2):
-        call()
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        call()
-        times.append(time.perf_counter() - start)
-    return round(1000 * statistics.median(times), 2)
-
-
 def run(threads: int = 2, quick: bool = False) -> dict:
     from mogaface.core.track import mediapipe_face as mf
     from mogaface.core.track.detect import FaceTracker
 
     repeats = 10 if quick else 50
+
+    def timed(call) -> float:
+        return round(median_ms(call, repeats, warmups=2), 2)
+
     frame = test_frame()
     tracker = FaceTracker(threads=threads)
     first = tracker(frame)
@@ -51,15 +44,15 @@ def run(threads: int = 2, quick: bool = False) -> dict:
     roi = mf.roi_from_points(first.face.landmarks[:468], *mf.FACE_ROTATION_POINTS, mf.FACE_ROI_SCALE)
     mesh, _ = tracker.mesh_points(frame, roi)
     stages = {
-        "detect": _median_ms(lambda: tracker.detect(frame), repeats),
-        "mesh": _median_ms(lambda: tracker.mesh_points(frame, roi), repeats),
-        "irises": _median_ms(lambda: tracker.irises(frame, mesh), repeats),
-        "mask": _median_ms(lambda: tracker.segment(frame), repeats),
+        "detect": timed(lambda: tracker.detect(frame)),
+        "mesh": timed(lambda: tracker.mesh_points(frame, roi)),
+        "irises": timed(lambda: tracker.irises(frame, mesh)),
+        "mask": timed(lambda: tracker.segment(frame)),
     }
-    whole = _median_ms(lambda: tracker(frame), repeats)
+    whole = timed(lambda: tracker(frame))
     no_mask = FaceTracker(threads=threads, mask=False)
     no_mask(frame)
-    landmarks_only = _median_ms(lambda: no_mask(frame), repeats)
+    landmarks_only = timed(lambda: no_mask(frame))
     return {
         "frame": f"{frame.shape[1]}x{frame.shape[0]}",
         "threads": threads,

@@ -17,21 +17,11 @@ from __future__ import annotations
 import os
 import pathlib
 import platform
-import statistics
 import tempfile
-import time
+
+from .timing import median_ms
 
 FRAMES, SKIN_POINTS, IMAGE = 600, 1500, (512, 288)
-
-
-def _median_ms(call, repeats: int) -> float:
-    call()
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        call()
-        times.append(time.perf_counter() - start)
-    return round(1000 * statistics.median(times), 1)
 
 
 def _parameters(model, frames: int):
@@ -91,6 +81,10 @@ def run(threads: int = 2, quick: bool = False) -> dict:
 
     torch.set_num_threads(threads)
     repeats = 3 if quick else 9
+
+    def timed(call) -> float:
+        return round(median_ms(call, repeats), 1)
+
     with tempfile.TemporaryDirectory() as folder:
         model = FlameModel.load(write_head_model(pathlib.Path(folder), 0, 0), dtype=torch.float64)
     params = _parameters(model, FRAMES)
@@ -103,9 +97,9 @@ def run(threads: int = 2, quick: bool = False) -> dict:
         head = LandmarkHead(model, embedding)
         reference = _blended_skinning(head, model)
         error = float((head(*_order(params)).detach() - embedding.positions(whole, faces)).abs().max())
-        times = {label: _median_ms(lambda pose=pose: pose(*_order(params)).square().sum().backward(), repeats)
+        times = {label: timed(lambda pose=pose: pose(*_order(params)).square().sum().backward())
                  for label, pose in (("head", head), ("blended_skinning", reference))}
-        whole_ms = _median_ms(lambda: embedding.positions(model(**params), faces).square().sum().backward(), repeats)
+        whole_ms = timed(lambda: embedding.positions(model(**params), faces).square().sum().backward())
         report[name] = {"points": len(embedding.faces), "vertices": len(head.vertex_ids), "fwd_bwd_ms": times["head"],
                         "blended_skinning_ms": times["blended_skinning"], "whole_model_ms": whole_ms,
                         "over_blended_skinning": round(times["head"] / times["blended_skinning"], 3),
@@ -116,7 +110,7 @@ def run(threads: int = 2, quick: bool = False) -> dict:
     pairs = frame_pairs(np.zeros(FRAMES), PhotometricSettings().gaps)
     agreement = BrightnessAgreement(images, seen, PhotometricSettings(), pairs)
     pixels = torch.as_tensor(rng.uniform(20, 260, (FRAMES, SKIN_POINTS, 2))).requires_grad_(True)
-    report["brightness_agreement"] = {"pairs": len(pairs), "fwd_bwd_ms": _median_ms(lambda: agreement(pixels).backward(), repeats)}
+    report["brightness_agreement"] = {"pairs": len(pairs), "fwd_bwd_ms": timed(lambda: agreement(pixels).backward())}
     return {
         "frames": FRAMES,
         "threads": threads,
