@@ -52,7 +52,8 @@ def make_clip(folder: pathlib.Path, kind: str, seed: int, quick: bool) -> pathli
 #: shape_prior from 0.1 to 1.0, the second jaw_prior from 0.5 to 5.0, the third (on the
 #: full-length clips) the photometric stage from off to 60 iterations, the fourth its weight from
 #: 3000 to 30000, its iterations to 200 and a gap of 60 frames added, the fifth (run on the kept
-#: landmark fits: 200, 400, 800) its iterations to 800. These are the next round, not run yet.
+#: landmark fits: 200, 400, 800) its iterations to 800. These are the next round (1600 run on
+#: handheld 101 alone: camera 0.85 -> 0.65 deg, mesh and expression unchanged; the rest not run yet).
 TRIES = ({}, {"photometric": {"steps": 400}}, {"photometric": {"steps": 1600}},
          {"photometric": {"weight": 100000.0}}, {"photometric": {"gaps": (1, 5, 20, 60, 150)}})
 #: The same for photo folders (``--photos``): the photometric stage's iterations and weight. Round
