@@ -8,8 +8,8 @@ frame pairs (:class:`~mogaface.core.track.photometric.BrightnessAgreement`, gaps
 References: the library's :func:`~mogaface.core.flame.lbs.linear_blend_skinning` on the same
 vertices (a 4×4 matrix blended per vertex and frame), and the whole model posed then read at the
 points. Every head's points are checked against the whole model's (to nanometres: a landmark's
-barycentric weights, stored in float32, sum to 1 within 1e-7, and the translation is added once). Medians of ``repeats`` runs
-after one warm-up, with the load average.
+barycentric weights, stored in float32, sum to 1 within 1e-7, and the translation is added once).
+Medians of ``repeats`` runs after one warm-up, with the load average.
 """
 
 from __future__ import annotations

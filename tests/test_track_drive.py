@@ -72,8 +72,8 @@ def test_the_commands_write_progress_events_and_drive_a_tracked_capture(handheld
     assert lines[-1]["event"] == "done" and lines[-1]["frames"] == 12
     out = tmp_path / "performance"
     assert main(["drive", str(clip), "--avatar", str(capture), "--out", str(out), "--size", "112", "--fit-steps",
-                 "3", "--photometric-steps", "20", "--to-fps", "15", "--keep-head-still", "--tolerance", "0.001", "--quiet", "--capture",
-                 str(tmp_path / "tracked")]) == 0
+                 "3", "--photometric-steps", "20", "--to-fps", "15", "--keep-head-still", "--tolerance", "0.001",
+                 "--quiet", "--capture", str(tmp_path / "tracked")]) == 0
     assert "drove 6 frames at 15 fps" in capsys.readouterr().out
     report = json.loads((out / "drive.json").read_text())
     assert report["frames"] == 6 and report["clip_fps"] == 30.0 and report["keys"] < report["keys_dense"]
