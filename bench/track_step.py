@@ -2,7 +2,7 @@
 backward pass of each piece, against references in the same run.
 
 A 20-s clip at 30 fps is 600 frames. Each L-BFGS evaluation of the photometric stage poses the
-landmarks' vertices (:class:`~mogaface.core.track.fit.LandmarkHead` on the procedural head's 400
+landmarks' vertices (:class:`~mogaface.core.track.head.LandmarkHead` on the procedural head's 400
 landmarks) and 1 500 skin points in every frame, and compares the skin's brightness between
 frame pairs (:class:`~mogaface.core.track.photometric.BrightnessAgreement`, gaps 1, 5, 20, 60).
 References: the library's :func:`~mogaface.core.flame.lbs.linear_blend_skinning` on the same
@@ -69,7 +69,7 @@ def run(threads: int = 2, quick: bool = False) -> dict:
 
     from mogaface.core.data.generator import write_head_model
     from mogaface.core.flame.model import FlameModel
-    from mogaface.core.track.fit import LandmarkHead
+    from mogaface.core.track.head import LandmarkHead
     from mogaface.core.track.photometric import (
         BrightnessAgreement,
         PhotometricSettings,

@@ -7,7 +7,8 @@ import torch
 from mogaface.core.errors import InputError
 from mogaface.core.flame.landmarks import STATIC_IBUG, procedural_embedding
 from mogaface.core.flame.model import FlameModel
-from mogaface.core.track.fit import FitSettings, LandmarkHead, Observations, fit_landmarks, start_camera
+from mogaface.core.track.fit import FitSettings, Observations, fit_landmarks, start_camera
+from mogaface.core.track.head import LandmarkHead
 from mogaface.core.track.photometric import vertex_embedding
 
 FRAMES, WIDTH, HEIGHT, FOCAL = 12, 360, 640, 480.0

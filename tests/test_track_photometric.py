@@ -5,7 +5,8 @@ import numpy as np
 import torch
 
 from mogaface.core.flame.model import FlameModel
-from mogaface.core.track.fit import LandmarkHead, start_camera
+from mogaface.core.track.fit import start_camera
+from mogaface.core.track.head import LandmarkHead
 from mogaface.core.track.photometric import (
     CHOSEN,
     BrightnessAgreement,

@@ -18,7 +18,7 @@ frame's landmarks, then turned and moved onto them), then every parameter togeth
 smoothness term on second differences over time (a clip's motion is smooth; a detector's noise is
 not); then, given the frames' brightness, the photometric stage (:mod:`.photometric`: skin points
 whose brightness must agree between frames, or between photos). Only the vertices the landmarks
-sit on are posed (:class:`LandmarkHead`): the same linear blend skinning as
+sit on are posed (:class:`~.head.LandmarkHead`): the same linear blend skinning as
 :class:`~mogaface.core.flame.model.FlameModel`, on a few hundred vertices.
 """
 
@@ -33,8 +33,8 @@ import torch
 from ..camera import Camera, focal_from_35mm
 from ..errors import InputError
 from ..flame.landmarks import LandmarkEmbedding
-from ..flame.lbs import axis_angle_to_matrix
 from ..flame.model import FlameModel
+from .head import LandmarkHead
 from .photometric import (
     BrightnessAgreement,
     PhotometricSettings,
@@ -48,8 +48,6 @@ from .photometric import (
 PHONE_FOCAL_35MM = 26.0
 #: Where the fixed camera stands in front of the head (metres along the face's +z), before the fit.
 START_DISTANCE = 0.6
-#: FLAME's kinematic tree: the root (global), the neck, then the jaw and both eyes on the neck.
-FLAME_PARENTS = [-1, 0, 1, 1, 1]
 
 
 @dataclasses.dataclass
@@ -155,68 +153,6 @@ def frame_camera(cameras: list[Camera], clips: np.ndarray | None, sizes: np.ndar
     width, height = (int(v) for v in sizes[t])
     focal = cameras[0].fx * math.hypot(width, height) / math.hypot(cameras[0].width, cameras[0].height)
     return start_camera(width, height, focal)
-
-
-class LandmarkHead(torch.nn.Module):
-    """The head model posed at the vertices its landmarks sit on only: exact (the joints come from
-    the regressor applied to the blend shapes once), and fast enough to pose every frame of a clip
-    each step.
-
-    The same linear blend skinning as :func:`~mogaface.core.flame.lbs.linear_blend_skinning`, written
-    for FLAME's joints with the neck at rest (the fit turns the head at its root): the root and the
-    neck then move a vertex alike, so the jaw and the eyes turn only the vertices they weigh on,
-    about their joints, and the root's rigid motion carries the result. A clip's thousands of
-    frames never build a 4×4 matrix per vertex."""
-
-    def __init__(self, model: FlameModel, embedding: LandmarkEmbedding):
-        super().__init__()
-        if list(model.parents) != FLAME_PARENTS:
-            raise InputError(None, "parents", f"FLAME's joints {FLAME_PARENTS} expected; found {list(model.parents)}")
-        faces = model.faces.cpu().numpy()[embedding.faces]  # (L,3) vertex ids
-        corners = embedding.barycentric != 0  # a corner weighing 0 is not posed
-        width = int(corners.sum(1).max())
-        order = np.argsort(~corners, axis=1, kind="stable")[:, :width]  # the corners that weigh, first
-        rows = np.arange(len(faces))[:, None]
-        vertices, corner = np.unique(faces[rows, order], return_inverse=True)
-        self.corner = torch.as_tensor(corner.reshape(-1), dtype=torch.long)  # (L·width,)
-        self.barycentric = torch.as_tensor(embedding.barycentric[rows, order], dtype=torch.float64)[..., None]
-        self.vertex_ids = ids = torch.as_tensor(vertices, dtype=torch.long)  # the vertices posed
-        d = torch.float64
-        self.v_template = model.v_template.to(d)[ids]
-        self.shapedirs = model.shapedirs.to(d)[ids]
-        self.exprdirs = model.exprdirs.to(d)[ids].permute(2, 0, 1).reshape(model.n_expr, -1)  # (E,V·3)
-        posedirs = model.posedirs.to(d).reshape(model.posedirs.shape[0], -1, 3)[:, ids]
-        self.posedirs = posedirs.reshape(model.posedirs.shape[0], -1)
-        weights = model.lbs_weights.to(d)[ids]  # (V,5)
-        self.total_weight = weights.sum(1, keepdim=True)  # 1 for FLAME's; kept for an exact translation
-        self.turning = torch.nonzero(weights[:, 2:].sum(1) > 0)[:, 0]  # the vertices the jaw or an eye moves
-        self.turning_weights = weights[self.turning, 2:, None]  # (M,3,1)
-        regressor = model.J_regressor.to(d)
-        self.joints_template = regressor @ model.v_template.to(d)
-        self.joints_shape = torch.einsum("jv,vck->jck", regressor, model.shapedirs.to(d))
-        self.joints_expr = torch.einsum("jv,vck->jck", regressor, model.exprdirs.to(d))
-
-    def forward(self, shape, expr, rotation, jaw, translation, eyes=None) -> torch.Tensor:
-        """Landmarks ``(T,L,3)`` in the world for shape ``(1,S)`` and per-frame ``(T,·)`` parameters
-        (``eyes (T,6)``: FLAME's ``eyes_pose``, at rest when None)."""
-        frames, count = expr.shape[0], len(self.v_template)
-        zero = torch.zeros(frames, 3, dtype=expr.dtype)
-        eyes = torch.cat([zero, zero], dim=1) if eyes is None else eyes
-        rotations = axis_angle_to_matrix(torch.cat([rotation, zero, jaw, eyes], dim=1).reshape(frames, 5, 3))
-        joints = (self.joints_template + torch.einsum("jck,bk->bjc", self.joints_shape, shape)
-                  + torch.einsum("jck,bk->bjc", self.joints_expr, expr))  # (T,5,3)
-        pose_feature = (rotations[:, 1:] - torch.eye(3, dtype=expr.dtype)).reshape(frames, -1)
-        rest = self.v_template + torch.einsum("vck,bk->bvc", self.shapedirs, shape)  # (1,V,3)
-        posed = (rest.reshape(1, -1) + expr @ self.exprdirs + pose_feature @ self.posedirs).reshape(frames, count, 3)
-        # The jaw and the eyes, each turning its vertices about its joint (in the head's frame):
-        about = posed[:, self.turning, None] - joints[:, None, 2:]  # (T,M,3,3): from each joint
-        turned = torch.einsum("tjab,tmjb->tmja", rotations[:, 2:], about)
-        posed = posed.index_add(1, self.turning, ((turned - about) * self.turning_weights).sum(2))
-        # then the root's rigid motion (about its joint) carries the whole head:
-        root, centre = rotations[:, 0], joints[:, 0]
-        moved = posed @ root.transpose(1, 2) + (centre - (root @ centre[..., None])[..., 0])[:, None] * self.total_weight
-        points = moved.index_select(1, self.corner).reshape(frames, *self.barycentric.shape[:2], 3)
-        return (points * self.barycentric).sum(-2) + translation[:, None, :]
 
 
 def start_camera(width: int, height: int, focal: float) -> Camera:

@@ -69,7 +69,7 @@ def skin_points(model: FlameModel, count: int, seed: int) -> np.ndarray:
 
 def vertex_embedding(faces: np.ndarray, vertices: np.ndarray) -> LandmarkEmbedding:
     """Vertices as an embedding (a triangle holding each, weight 1 on it): posed by the same
-    :class:`~.fit.LandmarkHead` as the landmarks."""
+    :class:`~.head.LandmarkHead` as the landmarks."""
     ids, first = np.unique(faces.ravel(), return_index=True)  # each vertex's first corner
     slot = first[np.searchsorted(ids, vertices)]
     barycentric = np.zeros((len(vertices), 3))
