@@ -186,3 +186,19 @@ def test_the_photo_benchmark_refuses_what_it_cannot_do(capsys):
     assert main(["bench", "track", "--photos", "--together"]) == 2  # photo folders have no videos to join
     assert main(["bench", "splat", "--photos"]) == 2
     assert "--together tracks the split's videos" in capsys.readouterr().err
+
+
+def test_frames_are_composited_as_the_formula_says_and_a_failed_write_is_raised(tmp_path):
+    """The frame writer's banded float32 compositing gives the values of the plain formula (the
+    capture's images are unchanged by it), and a write that fails in its thread fails the track."""
+    from mogaface.core.track.frame_writer import FrameWriter, on_white
+
+    rng = np.random.default_rng(3)
+    rgb = rng.integers(0, 256, (300, 37, 3), dtype=np.uint8)  # more rows than a band, not a multiple of it
+    mask = rng.uniform(-0.1, 1.1, (300, 37)).astype(np.float32)
+    alpha = np.clip(mask, 0.0, 1.0)[..., None]
+    np.testing.assert_array_equal(on_white(rgb, mask), (rgb * alpha + 255.0 * (1.0 - alpha) + 0.5).astype(np.uint8))
+    (tmp_path / "images").write_text("a file where the images' folder goes")
+    with pytest.raises(InputError, match="images"), FrameWriter(tmp_path) as writer:
+        writer.add(rgb, mask, (37, 300), 0, 0)
+    assert not (tmp_path / "fg_masks").exists()  # the image is written first; the mask never was

@@ -132,10 +132,15 @@ def _bilinear(image: np.ndarray, px: np.ndarray, py: np.ndarray, border: str) ->
     y0, y1, wy0, wy1 = _axis(py, h, border)
     flat = image.reshape(h * w, -1)
     row0, row1 = y0 * w, y1 * w
-    out = flat[row0 + x0] * (wy0 * wx0)[..., None]
-    out += flat[row0 + x1] * (wy0 * wx1)[..., None]
-    out += flat[row1 + x0] * (wy1 * wx0)[..., None]
-    out += flat[row1 + x1] * (wy1 * wx1)[..., None]
+
+    def tap(index, weight):  # np.take and weights repeated per channel: several times faster than
+        # fancy indexing and broadcasting over a length-3 axis, and the same values
+        return np.take(flat, index, axis=0) * np.repeat(weight[..., None], flat.shape[1], -1)
+
+    out = tap(row0 + x0, wy0 * wx0)
+    out += tap(row0 + x1, wy0 * wx1)
+    out += tap(row1 + x0, wy1 * wx0)
+    out += tap(row1 + x1, wy1 * wx1)
     return out.astype(np.float32, copy=False)
 
 

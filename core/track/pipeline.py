@@ -33,7 +33,6 @@ from ..data import layout
 from ..data.writer import CaptureWriter
 from ..errors import InputError
 from ..io.atomic import check_output_target, write_json
-from ..io.image import write_png
 from ..io.npz import load_npz, save_npz
 from .fit import FitSettings
 
@@ -206,8 +205,10 @@ def _head_model(out: pathlib.Path, head_file) -> pathlib.Path:
 
 def _detect(footage, out, key, settings, selection, resume, progress):
     """Detect every selected frame at the input's own size (the face models see the most detail
-    there), and write its image and mask at the capture's size as it goes; resumable."""
+    there), and write its image and mask at the capture's size as it goes (in a thread:
+    :mod:`.frame_writer`); resumable: detections are saved only once their frames are written."""
     from .detect import FaceTracker
+    from .frame_writer import FrameWriter
     from .inputs import output_size
 
     detections = Detections.load(out / DETECTIONS_FILE, key) if resume else None
@@ -216,36 +217,38 @@ def _detect(footage, out, key, settings, selection, resume, progress):
     video = footage.info.kind != "photos"
     total = footage.info.frame_count
     position = 0
-    for clip, part in enumerate(getattr(footage, "videos", [footage])):  # several videos: one after another
-        tracker = FaceTracker(threads=settings.threads, track=video)  # each clip's own: no tracking across the cut
-        first = None
-        for frame in part.frames(selection):
-            height, width = frame.rgb.shape[:2]
-            size = output_size(width, height, min(settings.size, max(width, height)) if settings.size else None)
+    with FrameWriter(out) as writer:
+        for clip, part in enumerate(getattr(footage, "videos", [footage])):  # several videos: one after another
+            tracker = FaceTracker(threads=settings.threads, track=video)  # each clip's own: no tracking across the cut
+            first = None
+            for frame in part.frames(selection):
+                height, width = frame.rgb.shape[:2]
+                size = output_size(width, height, min(settings.size, max(width, height)) if settings.size else None)
+                if first is None:
+                    first = (width, height)
+                elif video and (width, height) != first:
+                    raise InputError(part.info.path, "size", f"frame {frame.index} is {width}x{height}, the first "
+                                                              f"{first[0]}x{first[1]}: one camera needs one size")
+                timestep, position = position, position + 1
+                if timestep < done:
+                    continue  # a resumed track: already detected and written
+                _detect_frame(tracker, frame, size, detections, writer, timestep,
+                              _camera_number(clip, timestep, not video), clip)
+                if len(detections.presence) % SAVE_EVERY == 0:
+                    writer.flush()
+                    detections.save(out / DETECTIONS_FILE, key)
+                if progress is not None:
+                    progress("detect", position, total)
             if first is None:
-                first = (width, height)
-            elif video and (width, height) != first:
-                raise InputError(part.info.path, "size", f"frame {frame.index} is {width}x{height}, the first "
-                                                          f"{first[0]}x{first[1]}: one camera needs one size")
-            timestep, position = position, position + 1
-            if timestep < done:
-                continue  # a resumed track: already detected and written
-            _detect_frame(tracker, frame, size, detections, out, timestep, _camera_number(clip, timestep, not video),
-                          clip)
-            if len(detections.presence) % SAVE_EVERY == 0:
-                detections.save(out / DETECTIONS_FILE, key)
-            if progress is not None:
-                progress("detect", position, total)
-        if first is None:
-            raise InputError(part.info.path, None, "no frame in the selected range")
+                raise InputError(part.info.path, None, "no frame in the selected range")
     detections.save(out / DETECTIONS_FILE, key)
     return detections
 
 
-def _detect_frame(tracker, frame, size, detections: Detections, out: pathlib.Path, position: int, camera: int,
+def _detect_frame(tracker, frame, size, detections: Detections, writer, position: int, camera: int,
                   clip: int) -> None:
-    """Find the face in one frame, add it to ``detections``, and write the frame's image and mask
-    (as timestep ``position`` of ``camera``)."""
+    """Find the face in one frame, add it to ``detections``, and give the frame's image and mask to
+    ``writer`` (a :class:`.frame_writer.FrameWriter`; as timestep ``position`` of ``camera``)."""
     height, width = frame.rgb.shape[:2]
     result = tracker(frame.rgb)
     face = result.face
@@ -254,25 +257,7 @@ def _detect_frame(tracker, frame, size, detections: Detections, out: pathlib.Pat
     detections.append(landmarks, face.presence if face is not None else 0.0, result.faces, frame.time,
                       frame.index, size, clip)
     mask = result.mask if result.mask is not None else np.ones((height, width), np.float32)
-    write_png(out / layout.image_path(position, camera), _shrunk(_on_white(frame.rgb, mask), size))
-    write_png(out / layout.mask_path(position, camera), _shrunk((mask * 255 + 0.5).astype(np.uint8), size))
-
-
-def _on_white(rgb: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """The frame composited on the capture's background (white) through the person's mask: a
-    capture's images are stored so (VHAP's exports, the synthetic captures), and training takes
-    them as they are; the wall behind the subject would otherwise be learnt as part of the head."""
-    alpha = np.clip(mask, 0.0, 1.0)[..., None]
-    return (rgb * alpha + 255.0 * (1.0 - alpha) + 0.5).astype(np.uint8)
-
-
-def _shrunk(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
-    """``image`` (uint8) at ``size`` (width, height), by area averaging (PIL's box filter)."""
-    if image.shape[1::-1] == tuple(size):
-        return image
-    from PIL import Image
-
-    return np.asarray(Image.fromarray(image).resize(size, Image.Resampling.BOX))
+    writer.add(frame.rgb, mask, size, position, camera)
 
 
 def _fit(out, model, detections: Detections, settings: TrackSettings, info, progress):
