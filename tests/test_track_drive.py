@@ -64,17 +64,19 @@ def test_the_commands_write_progress_events_and_drive_a_tracked_capture(handheld
 
     clip, capture, events = handheld / "footage" / "clip.mp4", tmp_path / "capture", tmp_path / "events.jsonl"
     assert main(["track", str(clip), "--out", str(capture), "--size", "112", "--fit-steps", "3", "--quiet",
-                 "--photometric-steps", "20", "--events", str(events)]) == 0
-    assert json.loads((capture / "tracking.json").read_text())["photometric_steps"] == 20
+                 "--photometric-steps", "20", "--photometric-stride", "3", "--events", str(events)]) == 0
+    tracking = json.loads((capture / "tracking.json").read_text())
+    assert (tracking["photometric_steps"], tracking["photometric_stride"]) == (20, 3)
     lines = [json.loads(line) for line in events.read_text().splitlines()]
     assert {e["stage"] for e in lines if e["event"] == "iter"} == {"detect", "fit", "write"}
     assert all(e["eta_s"] is not None and e["eta_s"] >= 0 for e in lines if e["event"] == "iter")
     assert lines[-1]["event"] == "done" and lines[-1]["frames"] == 12
     out = tmp_path / "performance"
     assert main(["drive", str(clip), "--avatar", str(capture), "--out", str(out), "--size", "112", "--fit-steps",
-                 "3", "--photometric-steps", "20", "--to-fps", "15", "--keep-head-still", "--tolerance", "0.001",
-                 "--quiet", "--capture", str(tmp_path / "tracked")]) == 0
+                 "3", "--photometric-steps", "20", "--photometric-stride", "2", "--to-fps", "15", "--keep-head-still",
+                 "--tolerance", "0.001", "--quiet", "--capture", str(tmp_path / "tracked")]) == 0
     assert "drove 6 frames at 15 fps" in capsys.readouterr().out
+    assert json.loads((tmp_path / "tracked" / "tracking.json").read_text())["photometric_stride"] == 2
     report = json.loads((out / "drive.json").read_text())
     assert report["frames"] == 6 and report["clip_fps"] == 30.0 and report["keys"] < report["keys_dense"]
     rest = load_npz(capture / "flame_param" / "00000.npz")

@@ -7,7 +7,7 @@ import torch
 from mogaface.core.errors import InputError
 from mogaface.core.flame.landmarks import STATIC_IBUG, procedural_embedding
 from mogaface.core.flame.model import FlameModel
-from mogaface.core.track.fit import FitSettings, Observations, fit_landmarks, start_camera
+from mogaface.core.track.fit import FitSettings, Observations, _bending, _knots, _spread, fit_landmarks, start_camera
 from mogaface.core.track.head import LandmarkHead
 from mogaface.core.track.photometric import vertex_embedding
 
@@ -139,3 +139,25 @@ def test_several_clips_are_fitted_with_a_lens_each(clip):
     assert np.median(moved_mm[obs.confidence.any(1)]) < 10  # the same head at the same place (one lens: 0.1 m off)
     with pytest.raises(InputError, match="one focal length per clip"):
         fit_landmarks(model, both, FitSettings(steps=1, focal=(FOCAL,)))
+
+
+def test_the_photometric_stages_knots_hold_each_clips_ends_and_the_frames_between_follow():
+    clips = np.array([0] * 7 + [1] * 4)
+    knots = _knots(clips, 3)
+    assert knots.tolist() == [0, 3, 6, 7, 10]  # every third frame of each clip, and its last
+    assert _knots(clips, 1).tolist() == list(range(11))
+    knots = torch.as_tensor(knots)
+    full = torch.zeros(11, 2, dtype=torch.float64)
+    fitted = torch.tensor([[0, 0], [3, 0], [6, 1], [10, 5], [10, 8]], dtype=torch.float64)
+    _spread(full, fitted, knots)
+    assert torch.equal(full[knots], fitted)  # the knots land where they were fitted
+    assert full[:7, 0].tolist() == list(range(7))  # between them, in proportion
+    assert full[7:, 1].tolist() == [5, 6, 7, 8]  # the second clip follows its own knots only
+    # The smoothness measured at the knots is the per-frame one of the path through them:
+    clip_ids = torch.as_tensor(clips)
+    path = torch.zeros(11, 2, dtype=torch.float64)
+    _spread(path, torch.randn(5, 2, dtype=torch.float64), knots)
+    assert torch.allclose(_bending(path[knots], knots, clip_ids), _bending(path, torch.arange(11), clip_ids))
+    bent = path.clone()
+    bent[2] += 0.1  # a frame off the path bends it: only the per-frame sum sees it
+    assert _bending(bent, torch.arange(11), clip_ids) > _bending(path, torch.arange(11), clip_ids) + 1e-3

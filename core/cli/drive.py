@@ -42,8 +42,8 @@ def run(args) -> int:
         raise InputError(None, "--tolerance/--to-fps", "expected a tolerance ≥ 0 and a positive frame rate")
     identity = Identity.of(args.avatar, args.head)
     settings = DriveSettings(fps=args.to_fps, keep_head_still=args.keep_head_still, tolerance=args.tolerance,
-                             fit_steps=args.fit_steps, photometric_steps=args.photometric_steps, size=args.size,
-                             threads=args.threads or 2)
+                             fit_steps=args.fit_steps, photometric_steps=args.photometric_steps,
+                             photometric_stride=args.photometric_stride, size=args.size, threads=args.threads or 2)
     progress, close = progress_reporter(args)
     try:
         result = drive_clip(args.input, identity, args.out, settings, selection_from_arguments(args),

@@ -29,11 +29,15 @@ def add_arguments(parser) -> None:
 
 
 def add_fit_arguments(parser) -> None:
-    """The fit's length, for ``track`` and ``drive``: ``--fit-steps`` and ``--photometric-steps``."""
+    """The fit's length, for ``track`` and ``drive``: ``--fit-steps``, ``--photometric-steps`` and
+    ``--photometric-stride``."""
     parser.add_argument("--fit-steps", type=int, default=200, help="iterations of the fit (default %(default)s)")
     parser.add_argument("--photometric-steps", type=int, help="iterations of the photometric stage after the "
                         "landmark fit (0: off, minutes faster; default: those chosen on validation clips, 800 for a "
                         "video and 1920 for photos, docs/tracking.md)")
+    parser.add_argument("--photometric-stride", type=int, help="the photometric stage fits a video's every N-th "
+                        "frame and moves those between alike (1: every frame, slower; default: the one chosen on "
+                        "validation clips, docs/tracking.md)")
 
 
 def progress_reporter(args):
@@ -88,8 +92,8 @@ def run(args) -> int:
         print(line)
     focal = args.focal if args.focal is not None else focal_in_pixels(args.focal_35mm, info.width, info.height)
     settings = TrackSettings(size=args.size, focal_px=focal, threads=args.threads or 2,
-                             fit=FitSettings(steps=args.fit_steps,
-                                             photometric=PhotometricSettings(steps=args.photometric_steps)),
+                             fit=FitSettings(steps=args.fit_steps, photometric=PhotometricSettings(
+                                 steps=args.photometric_steps, stride=args.photometric_stride)),
                              head_file=args.head)
     progress, close = progress_reporter(args)
     try:

@@ -172,6 +172,9 @@ def fit_landmarks(model: FlameModel, observations: Observations, settings: FitSe
     if settings.steps < 1 or photometric_settings.steps < 0:
         raise InputError(None, "steps", f"the fit needs at least 1 iteration and the photometric stage 0 (off) or "
                                         f"more; found {settings.steps} and {photometric_settings.steps}")
+    if photometric_settings.stride < 1:
+        raise InputError(None, "stride", f"the photometric stage fits every stride-th frame, stride ≥ 1; found "
+                                         f"{photometric_settings.stride}")
     torch.manual_seed(settings.seed)
     d = torch.float64
     head = LandmarkHead(model, obs.embedding)
@@ -199,101 +202,154 @@ def fit_landmarks(model: FlameModel, observations: Observations, settings: FitSe
         focals = torch.exp(log_focal.detach())
         return [start_camera(int(w), int(h), float(f)) for (w, h), f in zip(clip_sizes, focals)]
 
-    same_clip = (clip[2:] == clip[:-2]).to(d)[:, None]  # a second difference within one clip (clips are contiguous)
     # The shared unknowns are stepped in units of 1/sqrt(T): their curvature, a sum over the frames,
     # then matches one frame's own, and L-BFGS converges in far fewer iterations on long clips.
     unit = math.sqrt(frames)
     shape_stepped = _start_shape(settings.shape, model.n_shape, unit)
-    expr = torch.zeros(frames, model.n_expr, dtype=d, requires_grad=True)
-    jaw = torch.zeros(frames, 3, dtype=d, requires_grad=True)
-    rotation = torch.zeros(frames, 3, dtype=d, requires_grad=True)
-    translation_cm = torch.zeros(frames, 3, dtype=d, requires_grad=True)  # centimetres: a step's scale like the rest
-    gaze = torch.zeros(frames, 2, dtype=d, requires_grad=True)  # pitch (about x), yaw (about y), both eyes
+    # Per frame: the translation in centimetres (a step's scale like the rest), and the gaze as the
+    # pitch (about x) and yaw (about y) of both eyes.
+    widths = {"expr": model.n_expr, "jaw": 3, "gaze": 2, "rotation": 3, "translation_cm": 3}
+    motion = {name: torch.zeros(frames, n, dtype=d, requires_grad=True) for name, n in widths.items()}
+    every = torch.arange(frames)
 
-    def project(world):
+    def project(world, at):
         cam = world @ w2c[:3, :3].T + w2c[:3, 3]
         z = cam[..., 2:].clamp_min(1e-3)
-        return frame_focal() * cam[..., :2] / z + centre
+        return frame_focal()[at] * cam[..., :2] / z + centre[at]
 
-    def reprojection(world):
-        residual = (project(world) - points).norm(dim=-1)  # (T,L) pixels
+    def reprojection(world, at):
+        residual = (project(world, at) - points[at]).norm(dim=-1)  # (T,L) pixels
         knee = settings.huber_px
         robust = torch.where(residual < knee, 0.5 * residual ** 2, knee * (residual - 0.5 * knee))
-        return (weight * robust).sum() / weight.sum().clamp_min(1e-9), residual
+        return (weight[at] * robust).sum() / weight[at].sum().clamp_min(1e-9), residual
 
-    def second_differences(x):
-        return ((x[2:] - 2 * x[1:-1] + x[:-2]).pow(2) * same_clip).sum() if len(x) > 2 else x.sum() * 0
+    def bending(x, at):
+        return _bending(x, at, clip)
 
     def shared_shape():
         return shape_stepped / unit
 
     def current() -> dict[str, np.ndarray]:
         with torch.no_grad():
-            return {"shape": shared_shape().numpy()[0].copy(), "expr": expr.numpy().copy(), "rotation": rotation.numpy().copy(),
-                    "neck_pose": np.zeros((frames, 3)), "jaw_pose": jaw.numpy().copy(),
-                    "eyes_pose": eyes_pose(gaze).numpy(), "translation": translation_cm.numpy() / 100}
+            m = {name: value.numpy().copy() for name, value in motion.items()}
+            return {"shape": shared_shape().numpy()[0].copy(), "expr": m["expr"], "rotation": m["rotation"],
+                    "neck_pose": np.zeros((frames, 3)), "jaw_pose": m["jaw"],
+                    "eyes_pose": eyes_pose(motion["gaze"]).numpy(), "translation": m["translation_cm"] / 100}
 
-    def landmarks():
-        return head(shared_shape(), expr, rotation, jaw, translation_cm / 100, eyes_pose(gaze))
+    def posed(of, values):
+        return of(shared_shape(), values["expr"], values["rotation"], values["jaw"], values["translation_cm"] / 100,
+                  eyes_pose(values["gaze"]))
 
-    def objective(rigid_only: bool):
-        loss, residual = reprojection(landmarks())
-        smooth = second_differences(rotation) + second_differences(translation_cm / 100)
+    def objective(rigid_only: bool, values: dict, at: torch.Tensor):
+        """The loss at frames ``at``, whose per-frame unknowns are ``values``."""
+        loss, residual = reprojection(posed(head, values), at)
+        smooth = bending(values["rotation"], at) + bending(values["translation_cm"] / 100, at)
         if rigid_only:
             return loss + settings.smooth * scale * smooth, residual
-        prior = (settings.shape_prior * shared_shape().pow(2).sum() * scale + settings.expr_prior * expr.pow(2).mean()
-                 + settings.jaw_prior * jaw.pow(2).mean() + settings.gaze_prior * gaze.pow(2).mean())
+        prior = (settings.shape_prior * shared_shape().pow(2).sum() * scale + settings.gaze_prior * values["gaze"].pow(2).mean()
+                 + settings.expr_prior * values["expr"].pow(2).mean() + settings.jaw_prior * values["jaw"].pow(2).mean())
         prior = prior + settings.focal_prior * ((log_focal - phone) ** 2 * free).sum()
-        smooth = smooth + 0.01 * second_differences(expr) + second_differences(jaw) + second_differences(gaze)
+        smooth = smooth + 0.01 * bending(values["expr"], at) + bending(values["jaw"], at) + bending(values["gaze"], at)
         return loss + prior + settings.smooth * scale * smooth, residual
 
     def photometric(agreement, skin):
-        def stage_objective(_):
-            loss, residual = objective(False)
-            pixels = project(skin(shared_shape(), expr, rotation, jaw, translation_cm / 100, eyes_pose(gaze)))
-            return loss + photometric_settings.weight * agreement(pixels), residual
+        def stage_objective(rigid_only, values, at):
+            loss, residual = objective(rigid_only, values, at)
+            return loss + photometric_settings.weight * agreement(project(posed(skin, values), at)), residual
         return stage_objective
 
     # 1. Rigid start: the mean head placed where each frame's landmarks are, at the depth their
     # spread gives, then turned and moved onto them; 2. everything; 3. (with the frames' brightness)
-    # everything but the focal length, the skin's brightness agreeing between frames.
+    # everything but the focal length, the skin's brightness agreeing between frames: a video's
+    # every ``stride``-th frame (:func:`_knots`), the frames between moved as their knots were.
     scale = 1.0 / frames
     with torch.no_grad():
-        translation_cm.copy_(100 * _placed(head(shared_shape(), expr, rotation, jaw, translation_cm), points, weight,
-                                          frame_focal()[:, 0, 0], centre[:, 0], w2c))
-    everything = [shape_stepped] * shape_stepped.requires_grad + [expr, jaw, gaze, rotation, translation_cm]
-    stages = [([rotation, translation_cm], objective, True, max(settings.steps // 4, 1)),
-              (everything + [log_focal] * log_focal.requires_grad, objective, False, settings.steps)]
-    pairs = frame_pairs(obs.clip_index(), photometric_settings.gaps, obs.photos)
-    photometric_steps = photometric_settings.steps if brightness is not None and len(pairs) else 0
-    if photometric_steps:
-        stages.append((everything, None, False, photometric_steps))
+        motion["translation_cm"].copy_(100 * _placed(posed(head, motion), points, weight, frame_focal()[:, 0, 0],
+                                                     centre[:, 0], w2c))
+    shared = [shape_stepped] * shape_stepped.requires_grad
+    # (the unknowns, rigid only, the photometric stage's stride (None: the landmarks alone), iterations)
+    stages = [([motion["rotation"], motion["translation_cm"]], True, None, max(settings.steps // 4, 1)),
+              (shared + list(motion.values()) + [log_focal] * log_focal.requires_grad, False, None, settings.steps)]
+    if brightness is not None and len(frame_pairs(obs.clip_index(), photometric_settings.gaps, obs.photos)):
+        stride = 1 if obs.photos else photometric_settings.stride  # then every frame, after a stride
+        stages += [(None, False, stride, photometric_settings.steps),
+                   (None, False, 1, photometric_settings.fine_steps if stride > 1 else 0)]
+    stages = [stage for stage in stages if stage[3] > 0]
     done, total = 0, sum(stage[3] for stage in stages)
-    for unknowns, stage_objective, rigid_only, steps in stages:
-        if stage_objective is None:  # the photometric stage: what each frame sees, from the fit so far
+    for unknowns, rigid_only, stride, steps in stages:
+        values, at, stage_objective = motion, every, objective
+        if stride is not None:  # the photometric stage: what each frame sees, from the fit so far
+            knot_frames = _knots(obs.clip_index(), stride)
+            knots = torch.as_tensor(knot_frames)
+            gaps = tuple(sorted({max(1, round(gap / stride)) for gap in photometric_settings.gaps}))
+            pairs = frame_pairs(obs.clip_index()[knot_frames], gaps, obs.photos)
             clip_cameras = cameras()
-            frame_cameras = [frame_camera(clip_cameras, obs.clips, obs.sizes, t) for t in range(frames)]
-            stage_objective = photometric(*_photometric_term(model, current(), frame_cameras, pairs, brightness,
-                                                             seen.numpy(), photometric_settings))
+            frame_cameras = [frame_camera(clip_cameras, obs.clips, obs.sizes, int(t)) for t in knots]
+            at_knots = {name: value[knots].detach().clone().requires_grad_() for name, value in motion.items()}
+            values, at = at_knots, knots
+            unknowns = shared + list(at_knots.values())
+            term = _photometric_term(model, _at(current(), knot_frames), frame_cameras, pairs,
+                                     _at(brightness, knot_frames), seen.numpy()[knot_frames], photometric_settings)
+            stage_objective = photometric(*term)
         optimiser = torch.optim.LBFGS(unknowns, lr=1.0, max_iter=steps, history_size=30,
                                       line_search_fn="strong_wolfe", tolerance_grad=1e-10, tolerance_change=1e-12)
 
         def closure():
             optimiser.zero_grad()
-            loss, residual = stage_objective(rigid_only)
+            loss, residual = stage_objective(rigid_only, values, at)
             loss.backward()
             return loss
 
         optimiser.step(closure)
+        with torch.no_grad():
+            for name, value in values.items() if stride is not None else ():
+                _spread(motion[name], value, knots)
         done += steps
         if progress is not None:
             with torch.no_grad():
-                _, residual = objective(rigid_only)
+                _, residual = objective(rigid_only, motion, every)
             progress(done, total, float(_rms(residual, weight).mean()))
 
     with torch.no_grad():
-        _, residual = reprojection(landmarks())
+        _, residual = reprojection(posed(head, motion), every)
     return Fit(current(), cameras(), _rms(residual, weight).numpy(), seen.numpy(), obs.sizes, obs.clips)
+
+
+def _knots(clips: np.ndarray, stride: int) -> np.ndarray:
+    """The frames the photometric stage fits: every ``stride``-th of each clip (``clips (T,)``,
+    each frame's), and its last."""
+    frames = np.arange(len(clips))
+    first, last = np.searchsorted(clips, clips, "left"), np.searchsorted(clips, clips, "right") - 1
+    return frames[((frames - first) % stride == 0) | (frames == last)]
+
+
+def _bending(x: torch.Tensor, at: torch.Tensor, clips: torch.Tensor) -> torch.Tensor:
+    """The sum of squared second differences (per frame²) within each clip (``clips (T,)``, each
+    frame's) of the piecewise linear path through ``x (K,n)`` at frames ``at (K,)``: at every
+    frame, the frames' own."""
+    if len(x) < 3:
+        return x.sum() * 0
+    slope = (x[1:] - x[:-1]) / (at[1:] - at[:-1]).to(x.dtype)[:, None]
+    same_clip = (clips[at][2:] == clips[at][:-2]).to(x.dtype)[:, None]  # clips are contiguous
+    return ((slope[1:] - slope[:-1]).pow(2) * same_clip).sum()
+
+
+def _spread(full: torch.Tensor, fitted: torch.Tensor, knots: torch.Tensor) -> None:
+    """Move every frame of ``full (T,n)`` as the two knots around it moved (to ``fitted``, at
+    ``knots``), in proportion to how near each is: the knots of one clip hold its first and last
+    frames, so no frame follows a knot of another clip."""
+    change = fitted - full[knots]
+    frame = torch.arange(len(full))
+    left = (torch.searchsorted(knots, frame, right=True) - 1).clamp(0, len(knots) - 2)
+    toward = ((frame - knots[left]).to(full.dtype) / (knots[left + 1] - knots[left]).to(full.dtype)).clamp(0, 1)[:, None]
+    full += (1 - toward) * change[left] + toward * change[left + 1]
+
+
+def _at(values, frames: np.ndarray):
+    """``values`` at ``frames``: per-frame arrays (a dict's, beside its ``shape``) or a list."""
+    if isinstance(values, dict):
+        return {name: value if name == "shape" else value[frames] for name, value in values.items()}
+    return [values[t] for t in frames] if isinstance(values, list) else values[frames]
 
 
 def _clip_focals(focal, clips: int) -> list:

@@ -136,6 +136,7 @@ class DriveSettings:
     tolerance: float = 0.0  # keys within this of the curve are dropped (radians, metres, coefficients)
     fit_steps: int = 200
     photometric_steps: int | None = None  # None: those chosen for a video (photometric.CHOSEN)
+    photometric_stride: int | None = None  # None: the one chosen for a video (photometric.CHOSEN)
     size: int | None = 512
     threads: int = 2
 
@@ -160,7 +161,8 @@ def drive_clip(clip, identity: Identity, out, settings: DriveSettings = DriveSet
         tracked = pathlib.Path(capture) if capture is not None else pathlib.Path(work.name) / "capture"
         track = TrackSettings(size=settings.size, threads=settings.threads, head_file=identity.head_file,
                               fit=FitSettings(steps=settings.fit_steps, shape=identity.shape,
-                                              photometric=PhotometricSettings(steps=settings.photometric_steps)))
+                                              photometric=PhotometricSettings(steps=settings.photometric_steps,
+                                                                              stride=settings.photometric_stride)))
         report = track_footage(clip, tracked, track, selection, progress)
         performance = _tracked_params(tracked, report["frames"])
         clip_fps = float(report.get("fps") or 0) or (settings.fps or 30.0)
