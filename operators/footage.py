@@ -150,7 +150,8 @@ class _FootageJob(ImportHelper, FollowsChildJob):
     photometric_steps: IntProperty(name="Skin Steps", default=-1, min=-1, max=10000,
                                    description="Iterations of the photometric stage, which turns the head until its "
                                                "skin looks alike from frame to frame (-1: those chosen for the "
-                                               "footage, 800 for a video and 1920 for photos; 0: off, minutes faster)")
+                                               "footage, 800 for a video on every 4th frame, then 200 on every frame, and 1920 for "
+                                               "photos; 0: off, minutes faster)")
     python: StringProperty(name="Python", subtype="FILE_PATH", options={"HIDDEN", "SKIP_SAVE"},
                            description="Interpreter for the child process (empty: the preferences')")
     job_folder: StringProperty(options={"HIDDEN", "SKIP_SAVE"})

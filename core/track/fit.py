@@ -260,8 +260,9 @@ def fit_landmarks(model: FlameModel, observations: Observations, settings: FitSe
 
     # 1. Rigid start: the mean head placed where each frame's landmarks are, at the depth their
     # spread gives, then turned and moved onto them; 2. everything; 3. (with the frames' brightness)
-    # everything but the focal length, the skin's brightness agreeing between frames: a video's
-    # every ``stride``-th frame (:func:`_knots`), the frames between moved as their knots were.
+    # everything but the focal length, the skin's brightness agreeing between frames: first on a
+    # video's every ``stride``-th frame (:func:`_knots`; the frames between moved as their knots
+    # were: the clip-long turn, cheaply), then on every frame (each one's own correction).
     scale = 1.0 / frames
     with torch.no_grad():
         motion["translation_cm"].copy_(100 * _placed(posed(head, motion), points, weight, frame_focal()[:, 0, 0],
@@ -273,7 +274,7 @@ def fit_landmarks(model: FlameModel, observations: Observations, settings: FitSe
     if brightness is not None and len(frame_pairs(obs.clip_index(), photometric_settings.gaps, obs.photos)):
         stride = 1 if obs.photos else photometric_settings.stride  # then every frame, after a stride
         stages += [(None, False, stride, photometric_settings.steps),
-                   (None, False, 1, photometric_settings.fine_steps if stride > 1 else 0)]
+                   (None, False, 1, photometric_settings.fine_steps(obs.photos))]
     stages = [stage for stage in stages if stage[3] > 0]
     done, total = 0, sum(stage[3] for stage in stages)
     for unknowns, rigid_only, stride, steps in stages:

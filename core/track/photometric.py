@@ -15,7 +15,8 @@ image (a coarse depth buffer of all vertices). The landmarks stay in the loss be
 Which frames are compared (:func:`frame_pairs`): a video's frames a few gaps apart, within each
 clip (never across the cut between two); photos, which have no order in time, every two of them
 (a still head seen from around it: the widest parallax there is). Photos of several sizes are
-compared on one canvas, each at its own pixels.
+compared on one canvas, each at its own pixels. A video is fitted on every ``stride``-th frame
+first, the frames between following, then on every frame (:mod:`.fit`).
 """
 
 from __future__ import annotations
@@ -40,8 +41,8 @@ DEPTH_CELL_PX, DEPTH_SLACK_M = 3, 0.006
 #: turns, and a dozen photos take more iterations (which cost less than a clip's hundreds of
 #: frames). A video's clip-long turn is found on every 4th frame first (a quarter of the cost an
 #: iteration), then every frame is fitted: better and faster than every frame all along.
-CHOSEN = {"video": {"steps": 800, "weight": 30000.0, "stride": 4, "fine_steps": 200},
-          "photos": {"steps": 1920, "weight": 30000.0, "stride": 1, "fine_steps": 0}}
+CHOSEN = {"video": {"steps": 800, "weight": 30000.0, "stride": 4, "fine": 0.25},
+          "photos": {"steps": 1920, "weight": 30000.0, "stride": 1, "fine": 0.0}}
 
 
 @dataclasses.dataclass
@@ -50,7 +51,7 @@ class PhotometricSettings:
     points: int = 1500  # skin points sampled
     gaps: tuple[int, ...] = (1, 5, 20, 60)  # a video's frame pairs (t, t + gap); photos: every two
     stride: int | None = None  # a video's every stride-th frame is fitted, those between follow (None: CHOSEN's)
-    fine_steps: int | None = None  # then iterations with every frame (after a stride > 1; None: CHOSEN's)
+    fine: float | None = None  # after a stride > 1, this share of steps again on every frame (None: CHOSEN's)
     blur_px: float = 1.5  # the images' blur (a smooth basin for the sampling's gradient)
     weight: float | None = None  # of the mean robust brightness difference, beside the landmarks' pixels² (None: CHOSEN's)
     huber: float = 0.04  # the robust loss's knee (brightness, 0–1)
@@ -60,6 +61,10 @@ class PhotometricSettings:
         """These settings with what is not given taken from :data:`CHOSEN` for photos or a video."""
         chosen = CHOSEN["photos" if photos else "video"]
         return dataclasses.replace(self, **{name: value for name, value in chosen.items() if getattr(self, name) is None})
+
+    def fine_steps(self, photos: bool) -> int:
+        """The iterations on every frame after a video's strided ones (of resolved settings)."""
+        return 0 if photos or self.stride == 1 else round(self.steps * self.fine)
 
 
 def skin_points(model: FlameModel, count: int, seed: int) -> np.ndarray:
