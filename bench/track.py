@@ -52,10 +52,12 @@ def make_clip(folder: pathlib.Path, kind: str, seed: int, quick: bool) -> pathli
 #: shape_prior from 0.1 to 1.0, the second jaw_prior from 0.5 to 5.0, the third (on the
 #: full-length clips) the photometric stage from off to 60 iterations, the fourth its weight from
 #: 3000 to 30000, its iterations to 200 and a gap of 60 frames added, the fifth (run on the kept
-#: landmark fits: 200, 400, 800) its iterations to 800. These are the next round (1600 run on
-#: handheld 101 alone: camera 0.85 -> 0.65 deg, mesh and expression unchanged; the rest not run yet).
-TRIES = ({}, {"photometric": {"steps": 400}}, {"photometric": {"steps": 1600}},
-         {"photometric": {"weight": 100000.0}}, {"photometric": {"gaps": (1, 5, 20, 60, 150)}})
+#: landmark fits: 200, 400, 800) its iterations to 800, the sixth (kept landmark fits: strides 2
+#: and 4, 1600 iterations at stride 4, 200 fine iterations after) every 4th frame first, then 200
+#: iterations on every frame. These are the next round, not run yet.
+TRIES = ({}, {"photometric": {"fine": 0.5}}, {"photometric": {"steps": 400}},
+         {"photometric": {"stride": 8}}, {"photometric": {"weight": 100000.0}},
+         {"photometric": {"gaps": (1, 5, 20, 60, 150)}})
 #: The same for photo folders (``--photos``): the photometric stage's iterations and weight. Round
 #: 1 (weight 3000: off, 120, 240, 480, 960 iterations; weights 1000 and 10000 at 480) chose 480
 #: iterations at weight 10000; round 2 (weights 3000 and 30000, 240 and 960 iterations) weight
