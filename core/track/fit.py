@@ -272,9 +272,8 @@ def fit_landmarks(model: FlameModel, observations: Observations, settings: FitSe
     stages = [([motion["rotation"], motion["translation_cm"]], True, None, max(settings.steps // 4, 1)),
               (shared + list(motion.values()) + [log_focal] * log_focal.requires_grad, False, None, settings.steps)]
     if brightness is not None and len(frame_pairs(obs.clip_index(), photometric_settings.gaps, obs.photos)):
-        stride = 1 if obs.photos else photometric_settings.stride  # then every frame, after a stride
-        stages += [(None, False, stride, photometric_settings.steps),
-                   (None, False, 1, photometric_settings.fine_steps(obs.photos))]
+        stages += [(None, False, photometric_settings.stride, photometric_settings.steps),
+                   (None, False, 1, photometric_settings.fine_steps())]  # then every frame, after a stride
     stages = [stage for stage in stages if stage[3] > 0]
     done, total = 0, sum(stage[3] for stage in stages)
     for unknowns, rigid_only, stride, steps in stages:

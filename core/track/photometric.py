@@ -58,13 +58,15 @@ class PhotometricSettings:
     seed: int = 0
 
     def resolved(self, photos: bool) -> "PhotometricSettings":
-        """These settings with what is not given taken from :data:`CHOSEN` for photos or a video."""
+        """These settings with what is not given taken from :data:`CHOSEN` for photos or a video
+        (photos, which have no order in time, are all fitted: stride 1 whatever was given)."""
         chosen = CHOSEN["photos" if photos else "video"]
-        return dataclasses.replace(self, **{name: value for name, value in chosen.items() if getattr(self, name) is None})
+        given = {name: value for name, value in chosen.items() if getattr(self, name) is None}
+        return dataclasses.replace(self, **{**given, **({"stride": 1} if photos else {})})
 
-    def fine_steps(self, photos: bool) -> int:
-        """The iterations on every frame after a video's strided ones (of resolved settings)."""
-        return 0 if photos or self.stride == 1 else round(self.steps * self.fine)
+    def fine_steps(self) -> int:
+        """The iterations on every frame after strided ones (of resolved settings)."""
+        return 0 if self.stride == 1 else round(self.steps * self.fine)
 
 
 def skin_points(model: FlameModel, count: int, seed: int) -> np.ndarray:
