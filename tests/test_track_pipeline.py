@@ -63,6 +63,22 @@ def test_an_output_that_is_not_an_empty_folder_is_refused_before_any_work(handhe
         track_footage(handheld / "footage" / "clip.mp4", tmp_path / "file", FAST)
 
 
+@pytest.mark.parametrize("fit, field", [(FitSettings(steps=0), "steps"),
+                                         (FitSettings(photometric=PhotometricSettings(steps=-1)), "steps"),
+                                         (FitSettings(photometric=PhotometricSettings(stride=0)), "stride")])
+def test_iterations_or_a_stride_no_fit_can_run_are_refused_before_finding_the_face(handheld, tmp_path, fit, field,
+                                                                                     monkeypatch):
+    import mogaface.core.track.pipeline as pipeline
+
+    def detect(*args):
+        raise AssertionError("the face was looked for")
+
+    monkeypatch.setattr(pipeline, "_detect", detect)
+    with pytest.raises(InputError, match=field):
+        track_footage(handheld / "footage" / "clip.mp4", tmp_path / "cap", TrackSettings(size=None, fit=fit))
+    assert not (tmp_path / "cap").exists()
+
+
 def test_an_interrupted_track_resumes_from_its_saved_detections(handheld, tmp_path, monkeypatch):
     """Stopped part-way (Ctrl-C), the folder has no split files (no reader takes it) and the
     detections saved so far; the same command goes on from there and ends as a whole run does."""

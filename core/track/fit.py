@@ -116,6 +116,18 @@ class FitSettings:
     seed: int = 0
     shape: np.ndarray | None = None  # held fixed when given (an avatar's identity: a performance drives it)
 
+    def check(self, photos: bool) -> PhotometricSettings:
+        """Refuse iterations or a stride no fit can run (before a track spends minutes finding the
+        face); returns the photometric stage's settings resolved for photos or a video."""
+        photometric = self.photometric.resolved(photos)
+        if self.steps < 1 or photometric.steps < 0:
+            raise InputError(None, "steps", f"the fit needs at least 1 iteration and the photometric stage 0 (off) or "
+                                            f"more; found {self.steps} and {photometric.steps}")
+        if photometric.stride < 1:
+            raise InputError(None, "stride", f"the photometric stage fits every stride-th frame, stride ≥ 1; found "
+                                             f"{photometric.stride}")
+        return photometric
+
 
 @dataclasses.dataclass
 class Fit:
@@ -168,13 +180,7 @@ def fit_landmarks(model: FlameModel, observations: Observations, settings: FitSe
     of several sizes), then the photometric stage (``settings.photometric``, what it leaves out
     chosen for photos or a video). ``progress(step, steps, rms_px)`` is called now and then."""
     obs = observations.check()
-    photometric_settings = settings.photometric.resolved(obs.photos)  # for photos or a video
-    if settings.steps < 1 or photometric_settings.steps < 0:
-        raise InputError(None, "steps", f"the fit needs at least 1 iteration and the photometric stage 0 (off) or "
-                                        f"more; found {settings.steps} and {photometric_settings.steps}")
-    if photometric_settings.stride < 1:
-        raise InputError(None, "stride", f"the photometric stage fits every stride-th frame, stride ≥ 1; found "
-                                         f"{photometric_settings.stride}")
+    photometric_settings = settings.check(obs.photos)  # the stage's, for photos or a video
     torch.manual_seed(settings.seed)
     d = torch.float64
     head = LandmarkHead(model, obs.embedding)

@@ -128,6 +128,7 @@ def track_footage(source, out, settings: TrackSettings = TrackSettings(), select
     out = pathlib.Path(out)
     footage = open_footage(source)
     info = footage.info
+    settings.fit.check(info.kind == "photos")  # before minutes of finding the face
     paths = [clip.path for clip in info.clips] if info.clips else [info.path]
     key = f"{'|'.join(str(pathlib.Path(path).resolve()) for path in paths)}|{selection or FrameSelection()}|{settings.size}"
     resume = check_output_folder(out, key)
