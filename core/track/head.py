@@ -27,8 +27,9 @@ class LandmarkHead(torch.nn.Module):
     The same linear blend skinning as :func:`~mogaface.core.flame.lbs.linear_blend_skinning`, written
     for FLAME's joints with the neck at rest (the fit turns the head at its root): the root and the
     neck then move a vertex alike, so the jaw and the eyes turn only the vertices they weigh on,
-    about their joints, and the root's rigid motion carries the result. A clip's thousands of
-    frames never build a 4×4 matrix per vertex."""
+    about their joints, and the root's rigid motion carries the result (a vertex's weights sum to
+    1, as skinning weights do). A clip's thousands of frames never build a 4×4 matrix per vertex,
+    and the turns of joints that weigh on none of the points are not computed."""
 
     def __init__(self, model: FlameModel, embedding: LandmarkEmbedding):
         super().__init__()
@@ -46,13 +47,16 @@ class LandmarkHead(torch.nn.Module):
         d = torch.float64
         self.v_template = model.v_template.to(d)[ids]
         self.shapedirs = model.shapedirs.to(d)[ids]
-        self.exprdirs = model.exprdirs.to(d)[ids].permute(2, 0, 1).reshape(model.n_expr, -1)  # (E,V·3)
+        exprdirs = model.exprdirs.to(d)[ids].permute(2, 0, 1).reshape(model.n_expr, -1)  # (E,V·3)
         posedirs = model.posedirs.to(d).reshape(model.posedirs.shape[0], -1, 3)[:, ids]
-        self.posedirs = posedirs.reshape(model.posedirs.shape[0], -1)
+        self.blend_dirs = torch.cat([exprdirs, posedirs.reshape(model.posedirs.shape[0], -1)])  # (E+36,V·3): one product
         weights = model.lbs_weights.to(d)[ids]  # (V,5)
-        self.total_weight = weights.sum(1, keepdim=True)  # 1 for FLAME's; kept for an exact translation
         self.turning = torch.nonzero(weights[:, 2:].sum(1) > 0)[:, 0]  # the vertices the jaw or an eye moves
-        self.turning_weights = weights[self.turning, 2:, None]  # (M,3,1)
+        self.turning_joints = 2 + torch.nonzero((weights[self.turning, 2:] > 0).any(0))[:, 0]  # and which of them
+        self.turning_weights = weights[self.turning][:, self.turning_joints, None]  # (M,J,1)
+        # Skin points are vertices (one corner weighing 1, in order): their posed vertices themselves.
+        self.vertices_only = width == 1 and bool((self.barycentric == 1).all()) and torch.equal(
+            self.corner, torch.arange(len(vertices)))
         regressor = model.J_regressor.to(d)
         self.joints_template = regressor @ model.v_template.to(d)
         self.joints_shape = torch.einsum("jv,vck->jck", regressor, model.shapedirs.to(d))
@@ -69,13 +73,18 @@ class LandmarkHead(torch.nn.Module):
                   + torch.einsum("jck,bk->bjc", self.joints_expr, expr))  # (T,5,3)
         pose_feature = (rotations[:, 1:] - torch.eye(3, dtype=expr.dtype)).reshape(frames, -1)
         rest = self.v_template + torch.einsum("vck,bk->bvc", self.shapedirs, shape)  # (1,V,3)
-        posed = (rest.reshape(1, -1) + expr @ self.exprdirs + pose_feature @ self.posedirs).reshape(frames, count, 3)
-        # The jaw and the eyes, each turning its vertices about its joint (in the head's frame):
-        about = posed[:, self.turning, None] - joints[:, None, 2:]  # (T,M,3,3): from each joint
-        turned = torch.einsum("tjab,tmjb->tmja", rotations[:, 2:], about)
+        features = torch.cat([expr, pose_feature], dim=1)
+        posed = torch.addmm(rest.reshape(1, -1), features, self.blend_dirs).reshape(frames, count, 3)
+        # The jaw and the eyes (those that weigh on these vertices), each turning its vertices about
+        # its joint (in the head's frame):
+        about = posed[:, self.turning, None] - joints[:, None, self.turning_joints]  # (T,M,J,3): from each joint
+        turned = torch.einsum("tjab,tmjb->tmja", rotations[:, self.turning_joints], about)
         posed = posed.index_add(1, self.turning, ((turned - about) * self.turning_weights).sum(2))
         # then the root's rigid motion (about its joint) carries the whole head:
         root, centre = rotations[:, 0], joints[:, 0]
-        moved = posed @ root.transpose(1, 2) + (centre - (root @ centre[..., None])[..., 0])[:, None] * self.total_weight
+        offset = (centre - (root @ centre[..., None])[..., 0])[:, None]  # (T,1,3)
+        if self.vertices_only:  # each point is its vertex: the translation too is added once
+            return torch.baddbmm(offset + translation[:, None, :], posed, root.transpose(1, 2))
+        moved = torch.baddbmm(offset, posed, root.transpose(1, 2))
         points = moved.index_select(1, self.corner).reshape(frames, *self.barycentric.shape[:2], 3)
         return (points * self.barycentric).sum(-2) + translation[:, None, :]
