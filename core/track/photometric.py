@@ -158,20 +158,26 @@ class BrightnessAgreement:
         self.images = _blur(torch.as_tensor(canvas)[:, None], settings.blur_px)
         self.size = torch.tensor([width, height], dtype=torch.float64)
         pairs = np.asarray(pairs, np.int64).reshape(-1, 2)
-        self.first, self.second = torch.as_tensor(pairs[:, 0]), torch.as_tensor(pairs[:, 1])
-        self.both = torch.as_tensor(seen[pairs[:, 0]] & seen[pairs[:, 1]]).double()  # (N,P)
-        self.pair_counts = self.both.sum(1, keepdim=True).clamp_min(1)
-        self.count = self.both.sum().clamp_min(1)
+        points = seen.shape[1]
+        # Only the (pair, point) entries both frames see are compared: each as its two frames'
+        # samples in the (T·P) flattened ones, and its pair.
+        pair, point = np.nonzero(seen[pairs[:, 0]] & seen[pairs[:, 1]])
+        self.first = torch.as_tensor(pairs[pair, 0] * points + point)
+        self.second = torch.as_tensor(pairs[pair, 1] * points + point)
+        self.pair = torch.as_tensor(pair)
+        self.pair_counts = torch.as_tensor(np.bincount(pair, minlength=len(pairs)), dtype=torch.float64).clamp_min(1)
+        self.count = max(len(pair), 1)
         self.huber = settings.huber
 
     def __call__(self, pixels: torch.Tensor) -> torch.Tensor:
         grid = (2 * pixels / self.size - 1).float()[:, :, None, :]  # (T,P,1,2), align_corners=False
         sampled = torch.nn.functional.grid_sample(self.images, grid, mode="bilinear", padding_mode="border",
-                                                  align_corners=False)[:, 0, :, 0].double()  # (T,P)
-        difference = sampled.index_select(0, self.second) - sampled.index_select(0, self.first)  # (N,P)
-        offset = (self.both * difference).sum(1, keepdim=True) / self.pair_counts
-        robust = torch.nn.functional.huber_loss(difference, offset.expand_as(difference), reduction="none", delta=self.huber)
-        return (self.both * robust).sum() / self.count
+                                                  align_corners=False)[:, 0, :, 0].double().reshape(-1)  # (T·P,)
+        difference = sampled.index_select(0, self.second) - sampled.index_select(0, self.first)  # (K,) entries
+        offset = torch.zeros_like(self.pair_counts).index_add(0, self.pair, difference) / self.pair_counts  # (N,)
+        robust = torch.nn.functional.huber_loss(difference, offset.index_select(0, self.pair), reduction="sum",
+                                                delta=self.huber)
+        return robust / self.count
 
 
 def _canvas(brightness) -> np.ndarray:
