@@ -66,7 +66,8 @@ def test_the_commands_write_progress_events_and_drive_a_tracked_capture(handheld
     assert main(["track", str(clip), "--out", str(capture), "--size", "112", "--fit-steps", "3", "--quiet",
                  "--photometric-steps", "20", "--photometric-stride", "3", "--events", str(events)]) == 0
     tracking = json.loads((capture / "tracking.json").read_text())
-    assert (tracking["photometric_steps"], tracking["photometric_stride"], tracking["photometric_fine_steps"]) == (20, 3, 5)
+    assert (tracking["photometric_steps"], tracking["photometric_stride"], tracking["photometric_fine_steps"],
+            tracking["photometric_shading"]) == (20, 3, 5, True)
     lines = [json.loads(line) for line in events.read_text().splitlines()]
     assert {e["stage"] for e in lines if e["event"] == "iter"} == {"detect", "fit", "write"}
     assert all(e["eta_s"] is not None and e["eta_s"] >= 0 for e in lines if e["event"] == "iter")

@@ -38,9 +38,9 @@ def test_skin_points_are_posed_as_the_mesh_and_only_the_facing_front_is_seen(pro
     chosen = np.array([front, back])
     params = {"shape": np.zeros(model.n_shape), "expr": np.zeros((1, model.n_expr)), "jaw_pose": np.zeros((1, 3)),
               "eyes_pose": np.zeros((1, 6)), "rotation": np.array([[0.0, 0.4, 0.0]]), "translation": np.zeros((1, 3))}
-    seen = seen_points(model, params, [camera], chosen)
+    seen, normals = seen_points(model, params, [camera], chosen)
     assert seen.tolist() == [[True, False]]  # the point nearest the camera, not the back of the head
-    everything = seen_points(model, params, [camera], points)[0]
+    everything = seen_points(model, params, [camera], points)[0][0]
     assert 0.2 < everything.mean() < 0.6  # about the front half, less what the nose and ears hide
 
 
@@ -67,6 +67,26 @@ def test_brightness_agrees_where_the_points_follow_the_skin():
     hidden = np.ones((frames, 40), bool)
     hidden[:, :20] = False  # points no frame sees do not count
     assert float(BrightnessAgreement(images, hidden, settings, pairs)(still.detach())) != loss.item()
+
+
+def test_a_change_linear_in_the_skins_normal_is_removed_with_shading():
+    """The second frame is the first brightened along x (a light the head turned under), the points'
+    normals leaning along x as much: with ``shading`` each pair's change linear in the normal is
+    removed and points on the skin agree; without it only the mean is, and they do not."""
+    rng = np.random.default_rng(2)
+    texture = torch.nn.functional.avg_pool2d(torch.as_tensor(rng.random((1, 1, 80, 120)), dtype=torch.float32), 5, 1)
+    first = texture[0, 0].numpy()
+    ramp = np.broadcast_to(0.004 * (np.arange(first.shape[1], dtype=np.float32) - 60), first.shape)  # (76,116)
+    images = np.stack([first, first + ramp])
+    points = np.stack([rng.uniform(20, 96, 50), rng.uniform(20, 56, 50)], 1)
+    normals = np.zeros((2, 50, 3))
+    normals[:, :, 0] = (points[:, 0] - 60) / 60  # the normal's x follows the point's: the change is linear in it
+    normals[:, :, 2] = rng.uniform(0.5, 1.0, 50)
+    pixels = torch.as_tensor(np.stack([points, points]))
+    seen, pairs = np.ones((2, 50), bool), frame_pairs(np.zeros(2), (1,))
+    loss = {shading: float(BrightnessAgreement(images, seen, PhotometricSettings(blur_px=1.0, huber=1.0, shading=shading),
+                                               pairs, normals)(pixels)) for shading in (False, True)}
+    assert loss[True] < 1e-3 * loss[False] and loss[False] > 1e-4
 
 
 def test_a_video_is_paired_within_each_clip_and_photos_every_two():

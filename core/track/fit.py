@@ -372,9 +372,9 @@ def _photometric_term(model: FlameModel, params: dict, cameras: list[Camera], pa
     ``cameras``: each frame's; ``pairs (N,2)``: the frames compared; ``frames (T,)``: those with
     landmarks (the others' parameters are a guess)."""
     points = skin_points(model, settings.points, settings.seed)
-    seen = seen_points(model, params, cameras, points)
+    seen, normals = seen_points(model, params, cameras, points)
     skin = LandmarkHead(model, vertex_embedding(model.faces.numpy(), points))
-    return BrightnessAgreement(brightness, seen & frames[:, None], settings, pairs), skin
+    return BrightnessAgreement(brightness, seen & frames[:, None], settings, pairs, normals), skin
 
 
 def eyes_pose(gaze: torch.Tensor) -> torch.Tensor:

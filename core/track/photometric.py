@@ -5,8 +5,10 @@ A landmark detector's points are not fixed to the skin: they slide with the view
 neighbouring frames, so after the landmark fit the head is moved until each visible skin point
 samples the same brightness in frame ``t`` as in frame ``t + gap`` (for a few gaps: a short one
 for the motion, long ones for the parallax that tells the shape). No texture is estimated and no
-lighting assumed: only frame-to-frame agreement, which shading changes slowly enough to keep
-within the longest gap; each pair's mean difference is removed (exposure drift).
+lighting assumed: only frame-to-frame agreement. What a pair's differences share is removed: their
+mean (exposure drift), and for a video a change linear in the skin's normal (a head turning under
+still lights: one side of the face brightens as the other darkens), which the texture, sharp
+where the normal is smooth, does not mimic.
 
 What a point sees is decided once, from the landmark fit: facing the camera (its normal within
 :data:`FACING` of the line of sight) and in front of every other point of the mesh near it on the
@@ -40,21 +42,24 @@ DEPTH_CELL_PX, DEPTH_SLACK_M = 3, 0.006
 #: (docs/tracking.md): the skin has to outweigh the landmarks' lag to turn the head as far as it
 #: turns, and a dozen photos take more iterations (which cost less than a clip's hundreds of
 #: frames). A video's clip-long turn is found on every 4th frame first (a quarter of the cost an
-#: iteration), then every frame is fitted: better and faster than every frame all along.
-CHOSEN = {"video": {"steps": 800, "weight": 30000.0, "stride": 4, "fine": 0.25},
-          "photos": {"steps": 1920, "weight": 30000.0, "stride": 1, "fine": 0.0}}
+#: iteration), then every frame is fitted: better and faster than every frame all along. A head
+#: turning in front of a still phone turns under the room's lights: its shading's change is removed
+#: (``shading``; photos of a still head, its light unchanged, were not tried with it).
+CHOSEN = {"video": {"steps": 800, "weight": 30000.0, "stride": 4, "fine": 0.25, "shading": True},
+          "photos": {"steps": 1920, "weight": 30000.0, "stride": 1, "fine": 0.0, "shading": False}}
 
 
 @dataclasses.dataclass
 class PhotometricSettings:
     steps: int | None = None  # L-BFGS iterations after the landmark fit (0: off; None: CHOSEN's)
     points: int = 1500  # skin points sampled
-    gaps: tuple[int, ...] = (1, 5, 20, 60)  # a video's frame pairs (t, t + gap); photos: every two
+    gaps: tuple[int, ...] = (1, 5, 20, 60, 150)  # a video's frame pairs (t, t + gap); photos: every two
     stride: int | None = None  # a video's every stride-th frame is fitted, those between follow (None: CHOSEN's)
     fine: float | None = None  # after a stride > 1, this share of steps again on every frame (None: CHOSEN's)
     blur_px: float = 1.5  # the images' blur (a smooth basin for the sampling's gradient)
     weight: float | None = None  # of the mean robust brightness difference, beside the landmarks' pixels² (None: CHOSEN's)
     huber: float = 0.04  # the robust loss's knee (brightness, 0–1)
+    shading: bool | None = None  # remove each pair's change linear in the skin's normal too (None: CHOSEN's)
     seed: int = 0
 
     def resolved(self, photos: bool) -> "PhotometricSettings":
@@ -89,13 +94,14 @@ def vertex_embedding(faces: np.ndarray, vertices: np.ndarray) -> LandmarkEmbeddi
 
 
 def seen_points(model: FlameModel, params: dict, cameras: list[Camera], points: np.ndarray,
-                chunk: int = 60) -> np.ndarray:
+                chunk: int = 60) -> tuple[np.ndarray, np.ndarray]:
     """``(T, P)`` whether each of ``points`` (vertex ids) is seen in each frame of ``params`` (a
-    fit's, per frame arrays and one ``shape``) by that frame's camera of ``cameras``: see the
-    module's docstring."""
+    fit's, per frame arrays and one ``shape``) by that frame's camera of ``cameras`` (see the
+    module's docstring), and ``(T, P, 3)`` their normals in the world."""
     frames = len(params["expr"])
     faces = model.faces.numpy()
     seen = np.zeros((frames, len(points)), bool)
+    seen_normals = np.zeros((frames, len(points), 3))
     dtype = model.v_template.dtype
     for start in range(0, frames, chunk):
         given = {k: torch.as_tensor(params[k][start:start + chunk], dtype=dtype)
@@ -105,6 +111,7 @@ def seen_points(model: FlameModel, params: dict, cameras: list[Camera], points: 
             vertices, _ = model.evaluate(shape=torch.as_tensor(params["shape"], dtype=dtype)[None].expand(n, -1), **given)
         vertices = vertices.double().numpy()
         normals = _vertex_normals(vertices, faces)
+        seen_normals[start:start + n] = normals[:, points]
         for i in range(n):
             camera = cameras[start + i]
             cells_x = int(np.ceil(camera.width / DEPTH_CELL_PX)) + 1
@@ -120,7 +127,7 @@ def seen_points(model: FlameModel, params: dict, cameras: list[Camera], points: 
             facing = (normals[i, points] * sight).sum(1) > FACING * np.linalg.norm(sight, axis=1)
             front = depth[points] <= nearest[cy[points], cx[points]] + DEPTH_SLACK_M
             seen[start + i] = facing & front & ahead[points]
-    return seen
+    return seen, seen_normals
 
 
 def _vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -150,9 +157,15 @@ def frame_pairs(clips: np.ndarray, gaps: tuple[int, ...], photos: bool = False) 
 class BrightnessAgreement:
     """The photometric loss: frames' brightness (``(T,H,W)``, or a list of ``(H,W)`` for photos of
     several sizes) blurred, the ``pairs (N,2)`` of frames compared (:func:`frame_pairs`), and which
-    points each frame sees; called with the points' pixels ``(T,P,2)``."""
+    points each frame sees; called with the points' pixels ``(T,P,2)``.
 
-    def __init__(self, brightness, seen: np.ndarray, settings: PhotometricSettings, pairs: np.ndarray):
+    What each pair's differences share is removed first (least squares over the points both
+    frames see): their mean (an exposure's drift), and with ``settings.shading`` and the points'
+    ``normals (T,P,3)`` a change linear in the normal (a light that stays while the head turns
+    under it brightens one side of the face and darkens the other)."""
+
+    def __init__(self, brightness, seen: np.ndarray, settings: PhotometricSettings, pairs: np.ndarray,
+                 normals: np.ndarray | None = None):
         canvas = _canvas(brightness)
         _, height, width = canvas.shape
         self.images = _blur(torch.as_tensor(canvas)[:, None], settings.blur_px)
@@ -165,19 +178,28 @@ class BrightnessAgreement:
         self.first = torch.as_tensor(pairs[pair, 0] * points + point)
         self.second = torch.as_tensor(pairs[pair, 1] * points + point)
         self.pair = torch.as_tensor(pair)
-        self.pair_counts = torch.as_tensor(np.bincount(pair, minlength=len(pairs)), dtype=torch.float64).clamp_min(1)
         self.count = max(len(pair), 1)
         self.huber = settings.huber
+        # What is removed: each pair's least-squares fit of its differences on these features.
+        features = np.ones((len(pair), 1))
+        if settings.shading and normals is not None:
+            features = np.concatenate([features, normals[pairs[pair, 0], point]], 1)
+        self.features = torch.as_tensor(features)
+        gram = torch.zeros(len(pairs), features.shape[1], features.shape[1], dtype=torch.float64)
+        gram.index_add_(0, self.pair, self.features[:, :, None] * self.features[:, None, :])
+        ridge = 1e-6 * torch.eye(features.shape[1], dtype=torch.float64)  # a pair with few points
+        self.inverse_gram = torch.linalg.inv(gram + ridge)  # (N,F,F)
 
     def __call__(self, pixels: torch.Tensor) -> torch.Tensor:
         grid = (2 * pixels / self.size - 1).float()[:, :, None, :]  # (T,P,1,2), align_corners=False
         sampled = torch.nn.functional.grid_sample(self.images, grid, mode="bilinear", padding_mode="border",
                                                   align_corners=False)[:, 0, :, 0].double().reshape(-1)  # (T·P,)
         difference = sampled.index_select(0, self.second) - sampled.index_select(0, self.first)  # (K,) entries
-        offset = torch.zeros_like(self.pair_counts).index_add(0, self.pair, difference) / self.pair_counts  # (N,)
-        robust = torch.nn.functional.huber_loss(difference, offset.index_select(0, self.pair), reduction="sum",
-                                                delta=self.huber)
-        return robust / self.count
+        moments = torch.zeros(self.inverse_gram.shape[:2], dtype=torch.float64).index_add(
+            0, self.pair, self.features * difference[:, None])  # (N,F)
+        shared = (self.inverse_gram @ moments[..., None])[..., 0]  # each pair's fit
+        removed = (self.features * shared.index_select(0, self.pair)).sum(1)
+        return torch.nn.functional.huber_loss(difference, removed, reduction="sum", delta=self.huber) / self.count
 
 
 def _canvas(brightness) -> np.ndarray:

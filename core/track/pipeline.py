@@ -178,7 +178,8 @@ def _fit_and_write(out, model, head_file, detections, settings, info, progress) 
     photometric = settings.fit.photometric.resolved(info.kind == "photos")
     report.update(source=str(info.path), kind=info.kind, input_size=[info.width, info.height], fps=info.fps,
                   seconds={"fit": round(fit_s, 2)}, fit_steps=settings.fit.steps, photometric_steps=photometric.steps,
-                  photometric_stride=photometric.stride, photometric_fine_steps=photometric.fine_steps())
+                  photometric_stride=photometric.stride, photometric_fine_steps=photometric.fine_steps(),
+                  photometric_shading=photometric.shading)
     if info.clips:  # several videos: each one's; the fields above are the first's
         report.update(source=[str(clip.path) for clip in info.clips], clips=[
             {"source": str(clip.path), "camera": _camera_id(number), "frames": int((detections.clips == number).sum()),
