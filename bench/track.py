@@ -54,15 +54,18 @@ def make_clip(folder: pathlib.Path, kind: str, seed: int, quick: bool) -> pathli
 #: 3000 to 30000, its iterations to 200 and a gap of 60 frames added, the fifth (run on the kept
 #: landmark fits: 200, 400, 800) its iterations to 800, the sixth (kept landmark fits: strides 2
 #: and 4, 1600 iterations at stride 4, 200 fine iterations after) every 4th frame first, then 200
-#: iterations on every frame (400: no gain). These are the next round, not run yet.
-TRIES = ({}, {"photometric": {"steps": 400}}, {"photometric": {"stride": 8}},
-         {"photometric": {"weight": 100000.0}}, {"photometric": {"gaps": (1, 5, 20, 60, 150)}})
+#: iterations on every frame (400: no gain), the seventh (kept landmark fits; 400 strided
+#: iterations, stride 8 and weight 100000 lost on the handheld clip) each pair's shading removed
+#: and a gap of 150 frames. These are the next round, not run yet.
+TRIES = ({}, {"photometric": {"gaps": (1, 5, 20, 60, 150, 300)}}, {"photometric": {"weight": 100000.0}},
+         {"photometric": {"steps": 400}}, {"photometric": {"fine": 0.5}})
 #: The same for photo folders (``--photos``): the photometric stage's iterations and weight. Round
 #: 1 (weight 3000: off, 120, 240, 480, 960 iterations; weights 1000 and 10000 at 480) chose 480
 #: iterations at weight 10000; round 2 (weights 3000 and 30000, 240 and 960 iterations) weight
 #: 30000; round 3 (weights 10000 and 100000, 960 iterations) 960 iterations; round 4 (480 and 1920
-#: iterations, weight 10000) 1920 iterations. These are the next round, not run yet.
-PHOTO_TRIES = ({}, {"photometric": {"steps": 0}}, {"photometric": {"steps": 960}},
+#: iterations, weight 10000) 1920 iterations. These are the next round, not run yet (the shading
+#: removed as for a video: photos of a still head keep their light, but a user's may not).
+PHOTO_TRIES = ({}, {"photometric": {"shading": True}}, {"photometric": {"steps": 960}},
                {"photometric": {"steps": 3840}}, {"photometric": {"weight": 100000.0}})
 KEYS = ("reprojection_px", "mesh_mm", "mesh_aligned_mm", "expression_mm", "camera_rotation_deg",
         "camera_rotation_aligned_deg", "camera_centre_mm")

@@ -4,7 +4,7 @@ backward pass of each piece, against references in the same run.
 A 20-s clip at 30 fps is 600 frames. Each L-BFGS evaluation of the photometric stage poses the
 landmarks' vertices (:class:`~mogaface.core.track.head.LandmarkHead` on the procedural head's 400
 landmarks) and 1 500 skin points in every frame, and compares the skin's brightness between
-frame pairs (:class:`~mogaface.core.track.photometric.BrightnessAgreement`, gaps 1, 5, 20, 60).
+frame pairs (:class:`~mogaface.core.track.photometric.BrightnessAgreement`, gaps 1, 5, 20, 60, 150).
 References: the library's :func:`~mogaface.core.flame.lbs.linear_blend_skinning` on the same
 vertices (a 4×4 matrix blended per vertex and frame), and the whole model posed then read at the
 points. Every head's points are checked against the whole model's (to nanometres: a landmark's
@@ -108,7 +108,8 @@ def run(threads: int = 2, quick: bool = False) -> dict:
     images = rng.random((FRAMES, *IMAGE)).astype(np.float32)
     seen = rng.random((FRAMES, SKIN_POINTS)) < 0.5
     pairs = frame_pairs(np.zeros(FRAMES), PhotometricSettings().gaps)
-    agreement = BrightnessAgreement(images, seen, PhotometricSettings(), pairs)
+    normals = rng.normal(size=(FRAMES, SKIN_POINTS, 3))  # what a video's shading is removed along
+    agreement = BrightnessAgreement(images, seen, PhotometricSettings().resolved(photos=False), pairs, normals)
     pixels = torch.as_tensor(rng.uniform(20, 260, (FRAMES, SKIN_POINTS, 2))).requires_grad_(True)
     report["brightness_agreement"] = {"pairs": len(pairs), "fwd_bwd_ms": timed(lambda: agreement(pixels).backward())}
     return {
