@@ -7,7 +7,8 @@ the method's corrections (``demo`` and ``mogaface-demo`` at ``steps``), and draw
 novel cameras, which the footage never saw, at the frames it rendered them: the truth-trained
 avatar at those cameras as they are, the tracked one at those cameras moved from the true head
 to the tracked head (the two heads' poses at that frame), as the aligned novel-view protocol moves
-a held-out camera. PSNR against the truth's renders (white background).
+a held-out camera. PSNR against the truth's renders (white background). Trained avatars are kept
+and reused; the tracked one is trained again when the clip was tracked again since.
 """
 
 from __future__ import annotations
@@ -101,6 +102,12 @@ def novel_psnr(run: pathlib.Path, clip: pathlib.Path, tracked_report: dict, move
     return {"views": len(scores), "psnr": round(float(np.mean(scores)), 3) if scores else None}
 
 
+def _trained_after(avatar: pathlib.Path, tracking: pathlib.Path) -> bool:
+    """Whether ``avatar`` exists and was trained after its capture was tracked (the truth's capture
+    has no ``tracking`` file: its avatar never goes stale)."""
+    return avatar.is_file() and (not tracking.is_file() or avatar.stat().st_mtime > tracking.stat().st_mtime)
+
+
 def run(threads: int = 2, quick: bool = False, work: str | None = None, split: str | None = None) -> dict:
     from mogaface.core.train import config as C
     from mogaface.core.train.trainer import Trainer
@@ -119,7 +126,7 @@ def run(threads: int = 2, quick: bool = False, work: str | None = None, split: s
     for preset in PRESETS:
         for name, capture in (("tracked", tracked), ("truth", truth_cap)):
             run_dir = base / "avatars" / f"{kind}_{seed}_{name}_{preset}"
-            if not (run_dir / "avatar.pt").is_file():
+            if not _trained_after(run_dir / "avatar.pt", capture / "tracking.json"):
                 shutil.rmtree(run_dir, ignore_errors=True)
                 config = C.resolve(preset=preset, overrides={"train": {"steps": steps, "threads": threads},
                                                             "eval": {"at_end": False}})
