@@ -124,7 +124,7 @@ def seen_points(model: FlameModel, params: dict, cameras: list[Camera], points: 
             nearest = np.full((cells_y, cells_x), np.inf)
             np.minimum.at(nearest, (cy[ahead], cx[ahead]), depth[ahead])
             sight = camera.center - vertices[i, points]
-            facing = (normals[i, points] * sight).sum(1) > FACING * np.linalg.norm(sight, axis=1)
+            facing = (seen_normals[start + i] * sight).sum(1) > FACING * np.linalg.norm(sight, axis=1)
             front = depth[points] <= nearest[cy[points], cx[points]] + DEPTH_SLACK_M
             seen[start + i] = facing & front & ahead[points]
     return seen, seen_normals
