@@ -7,8 +7,9 @@ landmarks) and 1 500 skin points in every frame, and compares the skin's brightn
 frame pairs (:class:`~mogaface.core.track.photometric.BrightnessAgreement`, gaps 1, 5, 20, 60, 150).
 References: the library's :func:`~mogaface.core.flame.lbs.linear_blend_skinning` on the same
 vertices (a 4×4 matrix blended per vertex and frame), and the whole model posed then read at the
-points. Every head's points are checked against the whole model's (to nanometres: a landmark's
-barycentric weights, stored in float32, sum to 1 within 1e-7, and the translation is added once).
+points. The heads pose in the fit's precision (:data:`~mogaface.core.track.fit.POSED`, float32,
+from float64 parameters); every head's points are checked against the whole model's in float64
+(to a fraction of a micrometre).
 Medians of ``repeats`` runs after one warm-up, with the load average.
 """
 
@@ -69,6 +70,7 @@ def run(threads: int = 2, quick: bool = False) -> dict:
 
     from mogaface.core.data.generator import write_head_model
     from mogaface.core.flame.model import FlameModel
+    from mogaface.core.track.fit import POSED
     from mogaface.core.track.head import LandmarkHead
     from mogaface.core.track.photometric import (
         BrightnessAgreement,
@@ -94,7 +96,7 @@ def run(threads: int = 2, quick: bool = False) -> dict:
     heads = {"landmarks": _embedding(model)[0], "skin": vertex_embedding(faces, skin_points(model, SKIN_POINTS, 0))}
     report = {}
     for name, embedding in heads.items():
-        head = LandmarkHead(model, embedding)
+        head = LandmarkHead(model, embedding, dtype=POSED)
         reference = _blended_skinning(head, model)
         error = float((head(*_order(params)).detach() - embedding.positions(whole, faces)).abs().max())
         times = {label: timed(lambda pose=pose: pose(*_order(params)).square().sum().backward())
@@ -110,7 +112,7 @@ def run(threads: int = 2, quick: bool = False) -> dict:
     pairs = frame_pairs(np.zeros(FRAMES), PhotometricSettings().gaps)
     normals = rng.normal(size=(FRAMES, SKIN_POINTS, 3))  # what a video's shading is removed along
     agreement = BrightnessAgreement(images, seen, PhotometricSettings().resolved(photos=False), pairs, normals)
-    pixels = torch.as_tensor(rng.uniform(20, 260, (FRAMES, SKIN_POINTS, 2))).requires_grad_(True)
+    pixels = torch.as_tensor(rng.uniform(20, 260, (FRAMES, SKIN_POINTS, 2)), dtype=POSED).requires_grad_(True)
     report["brightness_agreement"] = {"pairs": len(pairs), "fwd_bwd_ms": timed(lambda: agreement(pixels).backward())}
     return {
         "frames": FRAMES,

@@ -43,6 +43,15 @@ def test_the_landmark_head_poses_as_the_whole_model(clip):
     landmarks = head(t["shape"], t["expr"], t["rotation"], t["jaw_pose"], t["translation"])
     expected = np.stack([obs.embedding.positions(v, model.faces.numpy()) for v in vertices])
     assert np.abs(landmarks.detach().numpy() - expected).max() < 1e-9
+    # as the fit poses them, in single precision from double parameters: within a micrometre
+    single = LandmarkHead(model, obs.embedding, dtype=torch.float32)(
+        t["shape"], t["expr"], t["rotation"], t["jaw_pose"], t["translation"])
+    assert single.dtype == torch.float32 and 0 < np.abs(single.detach().numpy() - expected).max() < 1e-6
+    # and in a camera's frame, its motion folded into the head's: as if moved after
+    camera = start_camera(WIDTH, HEIGHT, FOCAL)
+    turn, move = torch.as_tensor(camera.w2c[:3, :3]), torch.as_tensor(camera.w2c[:3, 3])
+    seen = head(t["shape"], t["expr"], t["rotation"], t["jaw_pose"], t["translation"], view=(turn, move))
+    assert np.abs(seen.detach().numpy() - (expected @ camera.w2c[:3, :3].T + camera.w2c[:3, 3])).max() < 1e-9
     # every vertex, the eyes turned too: the jaw and the eyeballs move theirs about their joints
     everything = LandmarkHead(model, vertex_embedding(model.faces.numpy(), np.arange(len(model.v_template))))
     t["eyes_pose"] = torch.as_tensor(np.random.default_rng(1).normal(0, 0.2, (FRAMES, 6)))

@@ -12,8 +12,9 @@ front of a fixed camera, which is what ``solve-cameras``, training and Blender's
 Several clips of one subject are fitted together: one shape, a camera and a focal length each, and
 no smoothness across the cut from one clip to the next.
 
-The fit (torch, float64, every frame at once, L-BFGS): a rigid start (the mean head placed at each
-frame's landmarks, then turned and moved onto them), then every parameter together on a robust
+The fit (torch, every frame at once, L-BFGS; float64 unknowns, the points posed in float32): a
+rigid start (the mean head placed at each frame's landmarks, then turned and moved onto them),
+then every parameter together on a robust
 (Huber) reprojection loss weighted by confidence, Gaussian priors on shape, expression and jaw, and a
 smoothness term on second differences over time (a clip's motion is smooth; a detector's noise is
 not); then, given the frames' brightness, the photometric stage (:mod:`.photometric`: skin points
@@ -48,6 +49,10 @@ from .photometric import (
 PHONE_FOCAL_35MM = 26.0
 #: Where the fixed camera stands in front of the head (metres along the face's +z), before the fit.
 START_DISTANCE = 0.6
+#: The heads pose their points (and the skin is sampled) in single precision: the unknowns, the
+#: L-BFGS steps and the losses' sums stay double. A third less time, the same fit on the
+#: validation clips (docs/tracking.md, round 8).
+POSED = torch.float32
 
 
 @dataclasses.dataclass
@@ -183,7 +188,7 @@ def fit_landmarks(model: FlameModel, observations: Observations, settings: FitSe
     photometric_settings = settings.check(obs.photos)  # the stage's, for photos or a video
     torch.manual_seed(settings.seed)
     d = torch.float64
-    head = LandmarkHead(model, obs.embedding)
+    head = LandmarkHead(model, obs.embedding, dtype=POSED)
     frames = obs.points.shape[0]
     points = torch.as_tensor(np.nan_to_num(obs.points), dtype=d)
     weight = torch.as_tensor(obs.confidence, dtype=d).clamp(0, 1)
@@ -218,13 +223,14 @@ def fit_landmarks(model: FlameModel, observations: Observations, settings: FitSe
     motion = {name: torch.zeros(frames, n, dtype=d, requires_grad=True) for name, n in widths.items()}
     every = torch.arange(frames)
 
-    def project(world, at):
-        cam = world @ w2c[:3, :3].T + w2c[:3, 3]
+    def project(cam, at):
+        """Pixels of points ``cam`` in the camera's frame (:func:`posed`'s) at frames ``at``."""
+        d = cam.dtype
         z = cam[..., 2:].clamp_min(1e-3)
-        return frame_focal()[at] * cam[..., :2] / z + centre[at]
+        return frame_focal()[at].to(d) * cam[..., :2] / z + centre[at].to(d)
 
-    def reprojection(world, at):
-        residual = (project(world, at) - points[at]).norm(dim=-1)  # (T,L) pixels
+    def reprojection(cam, at):
+        residual = (project(cam, at) - points[at]).norm(dim=-1)  # (T,L) pixels
         knee = settings.huber_px
         robust = torch.where(residual < knee, 0.5 * residual ** 2, knee * (residual - 0.5 * knee))
         return (weight[at] * robust).sum() / weight[at].sum().clamp_min(1e-9), residual
@@ -242,9 +248,10 @@ def fit_landmarks(model: FlameModel, observations: Observations, settings: FitSe
                     "neck_pose": np.zeros((frames, 3)), "jaw_pose": m["jaw"],
                     "eyes_pose": eyes_pose(motion["gaze"]).numpy(), "translation": m["translation_cm"] / 100}
 
-    def posed(of, values):
+    def posed(of, values, view=(w2c[:3, :3], w2c[:3, 3])):
+        """The head ``of``'s points in the camera's frame (with ``view=None``: in the world)."""
         return of(shared_shape(), values["expr"], values["rotation"], values["jaw"], values["translation_cm"] / 100,
-                  eyes_pose(values["gaze"]))
+                  eyes_pose(values["gaze"]), view=view)
 
     def objective(rigid_only: bool, values: dict, at: torch.Tensor):
         """The loss at frames ``at``, whose per-frame unknowns are ``values``."""
@@ -271,7 +278,7 @@ def fit_landmarks(model: FlameModel, observations: Observations, settings: FitSe
     # were: the clip-long turn, cheaply), then on every frame (each one's own correction).
     scale = 1.0 / frames
     with torch.no_grad():
-        motion["translation_cm"].copy_(100 * _placed(posed(head, motion), points, weight, frame_focal()[:, 0, 0],
+        motion["translation_cm"].copy_(100 * _placed(posed(head, motion, view=None), points, weight, frame_focal()[:, 0, 0],
                                                      centre[:, 0], w2c))
     shared = [shape_stepped] * shape_stepped.requires_grad
     # (the unknowns, rigid only, the photometric stage's stride (None: the landmarks alone), iterations)
@@ -373,7 +380,7 @@ def _photometric_term(model: FlameModel, params: dict, cameras: list[Camera], pa
     landmarks (the others' parameters are a guess)."""
     points = skin_points(model, settings.points, settings.seed)
     seen, normals = seen_points(model, params, cameras, points)
-    skin = LandmarkHead(model, vertex_embedding(model.faces.numpy(), points))
+    skin = LandmarkHead(model, vertex_embedding(model.faces.numpy(), points), dtype=POSED)
     return BrightnessAgreement(brightness, seen & frames[:, None], settings, pairs, normals), skin
 
 

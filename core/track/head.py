@@ -29,9 +29,10 @@ class LandmarkHead(torch.nn.Module):
     neck then move a vertex alike, so the jaw and the eyes turn only the vertices they weigh on,
     about their joints, and the root's rigid motion carries the result (a vertex's weights sum to
     1, as skinning weights do). A clip's thousands of frames never build a 4×4 matrix per vertex,
-    and the turns of joints that weigh on none of the points are not computed."""
+    and the turns of joints that weigh on none of the points are not computed. ``dtype``: what it
+    poses in (the parameters are cast to it; the fit's are float64, its posing float32)."""
 
-    def __init__(self, model: FlameModel, embedding: LandmarkEmbedding):
+    def __init__(self, model: FlameModel, embedding: LandmarkEmbedding, dtype: torch.dtype = torch.float64):
         super().__init__()
         if list(model.parents) != FLAME_PARENTS:
             raise InputError(None, "parents", f"FLAME's joints {FLAME_PARENTS} expected; found {list(model.parents)}")
@@ -42,9 +43,9 @@ class LandmarkHead(torch.nn.Module):
         rows = np.arange(len(faces))[:, None]
         vertices, corner = np.unique(faces[rows, order], return_inverse=True)
         self.corner = torch.as_tensor(corner.reshape(-1), dtype=torch.long)  # (L·width,)
-        self.barycentric = torch.as_tensor(embedding.barycentric[rows, order], dtype=torch.float64)[..., None]
+        self.barycentric = torch.as_tensor(embedding.barycentric[rows, order], dtype=dtype)[..., None]
         self.vertex_ids = ids = torch.as_tensor(vertices, dtype=torch.long)  # the vertices posed
-        d = torch.float64
+        self.dtype = d = dtype
         self.v_template = model.v_template.to(d)[ids]
         self.shapedirs = model.shapedirs.to(d)[ids]
         exprdirs = model.exprdirs.to(d)[ids].permute(2, 0, 1).reshape(model.n_expr, -1)  # (E,V·3)
@@ -62,12 +63,15 @@ class LandmarkHead(torch.nn.Module):
         self.joints_shape = torch.einsum("jv,vck->jck", regressor, model.shapedirs.to(d))
         self.joints_expr = torch.einsum("jv,vck->jck", regressor, model.exprdirs.to(d))
 
-    def forward(self, shape, expr, rotation, jaw, translation, eyes=None) -> torch.Tensor:
+    def forward(self, shape, expr, rotation, jaw, translation, eyes=None, view=None) -> torch.Tensor:
         """Landmarks ``(T,L,3)`` in the world for shape ``(1,S)`` and per-frame ``(T,·)`` parameters
-        (``eyes (T,6)``: FLAME's ``eyes_pose``, at rest when None)."""
+        (``eyes (T,6)``: FLAME's ``eyes_pose``, at rest when None); with ``view``, a rigid motion
+        ``(R (3,3), t (3,))`` such as a camera's world-to-camera, in its frame (folded into the
+        head's own motion: a clip's points are moved once)."""
+        shape, expr, rotation, jaw, translation = (value.to(self.dtype) for value in (shape, expr, rotation, jaw, translation))
         frames, count = expr.shape[0], len(self.v_template)
         zero = torch.zeros(frames, 3, dtype=expr.dtype)
-        eyes = torch.cat([zero, zero], dim=1) if eyes is None else eyes
+        eyes = torch.cat([zero, zero], dim=1) if eyes is None else eyes.to(self.dtype)
         rotations = axis_angle_to_matrix(torch.cat([rotation, zero, jaw, eyes], dim=1).reshape(frames, 5, 3))
         joints = (self.joints_template + torch.einsum("jck,bk->bjc", self.joints_shape, shape)
                   + torch.einsum("jck,bk->bjc", self.joints_expr, expr))  # (T,5,3)
@@ -83,6 +87,9 @@ class LandmarkHead(torch.nn.Module):
         # then the root's rigid motion (about its joint) carries the whole head:
         root, centre = rotations[:, 0], joints[:, 0]
         offset = (centre - (root @ centre[..., None])[..., 0])[:, None]  # (T,1,3)
+        if view is not None:
+            turn, move = (value.to(self.dtype) for value in view)
+            root, offset, translation = turn @ root, offset @ turn.T, translation @ turn.T + move
         if self.vertices_only:  # each point is its vertex: the translation too is added once
             return torch.baddbmm(offset + translation[:, None, :], posed, root.transpose(1, 2))
         moved = torch.baddbmm(offset, posed, root.transpose(1, 2))

@@ -162,14 +162,15 @@ class BrightnessAgreement:
     What each pair's differences share is removed first (least squares over the points both
     frames see): their mean (an exposure's drift), and with ``settings.shading`` and the points'
     ``normals (T,P,3)`` a change linear in the normal (a light that stays while the head turns
-    under it brightens one side of the face and darkens the other)."""
+    under it brightens one side of the face and darkens the other). Sampled and compared in float32
+    (the images' own precision), the sum returned in float64."""
 
     def __init__(self, brightness, seen: np.ndarray, settings: PhotometricSettings, pairs: np.ndarray,
                  normals: np.ndarray | None = None):
         canvas = _canvas(brightness)
         _, height, width = canvas.shape
         self.images = _blur(torch.as_tensor(canvas)[:, None], settings.blur_px)
-        self.size = torch.tensor([width, height], dtype=torch.float64)
+        self.size = torch.tensor([width, height])
         pairs = np.asarray(pairs, np.int64).reshape(-1, 2)
         points = seen.shape[1]
         # Only the (pair, point) entries both frames see are compared: each as its two frames'
@@ -184,22 +185,23 @@ class BrightnessAgreement:
         features = np.ones((len(pair), 1))
         if settings.shading and normals is not None:
             features = np.concatenate([features, normals[pairs[pair, 0], point]], 1)
-        self.features = torch.as_tensor(features)
+        features = torch.as_tensor(features)
         gram = torch.zeros(len(pairs), features.shape[1], features.shape[1], dtype=torch.float64)
-        gram.index_add_(0, self.pair, self.features[:, :, None] * self.features[:, None, :])
+        gram.index_add_(0, self.pair, features[:, :, None] * features[:, None, :])
         ridge = 1e-6 * torch.eye(features.shape[1], dtype=torch.float64)  # a pair with few points
-        self.inverse_gram = torch.linalg.inv(gram + ridge)  # (N,F,F)
+        self.inverse_gram = torch.linalg.inv(gram + ridge).float()  # (N,F,F)
+        self.features = features.float()
 
     def __call__(self, pixels: torch.Tensor) -> torch.Tensor:
         grid = (2 * pixels / self.size - 1).float()[:, :, None, :]  # (T,P,1,2), align_corners=False
         sampled = torch.nn.functional.grid_sample(self.images, grid, mode="bilinear", padding_mode="border",
-                                                  align_corners=False)[:, 0, :, 0].double().reshape(-1)  # (T·P,)
+                                                  align_corners=False)[:, 0, :, 0].reshape(-1)  # (T·P,)
         difference = sampled.index_select(0, self.second) - sampled.index_select(0, self.first)  # (K,) entries
-        moments = torch.zeros(self.inverse_gram.shape[:2], dtype=torch.float64).index_add(
-            0, self.pair, self.features * difference[:, None])  # (N,F)
-        shared = (self.inverse_gram @ moments[..., None])[..., 0]  # each pair's fit
+        moments = torch.zeros(self.inverse_gram.shape[:2]).index_add(0, self.pair, self.features * difference[:, None])
+        shared = (self.inverse_gram @ moments[..., None])[..., 0]  # each pair's fit (N,F)
         removed = (self.features * shared.index_select(0, self.pair)).sum(1)
-        return torch.nn.functional.huber_loss(difference, removed, reduction="sum", delta=self.huber) / self.count
+        loss = torch.nn.functional.huber_loss(difference, removed, reduction="sum", delta=self.huber)
+        return loss.double() / self.count
 
 
 def _canvas(brightness) -> np.ndarray:
