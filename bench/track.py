@@ -63,10 +63,10 @@ TRIES = ({}, {"photometric": {"gaps": (1, 5, 20, 60, 150, 300)}}, {"photometric"
 #: 1 (weight 3000: off, 120, 240, 480, 960 iterations; weights 1000 and 10000 at 480) chose 480
 #: iterations at weight 10000; round 2 (weights 3000 and 30000, 240 and 960 iterations) weight
 #: 30000; round 3 (weights 10000 and 100000, 960 iterations) 960 iterations; round 4 (480 and 1920
-#: iterations, weight 10000) 1920 iterations. These are the next round, not run yet (the shading
-#: removed as for a video: photos of a still head keep their light, but a user's may not).
-PHOTO_TRIES = ({}, {"photometric": {"shading": True}}, {"photometric": {"steps": 960}},
-               {"photometric": {"steps": 3840}}, {"photometric": {"weight": 100000.0}})
+#: iterations, weight 10000) 1920 iterations; round 5 (the shading removed as for a video, 960 and
+#: 3840 iterations, weight 100000) kept it. These are the next round, not run yet.
+PHOTO_TRIES = ({}, {"photometric": {"points": 3000}}, {"photometric": {"blur_px": 3.0}},
+               {"photometric": {"huber": 0.02}})
 KEYS = ("reprojection_px", "mesh_mm", "mesh_aligned_mm", "expression_mm", "camera_rotation_deg",
         "camera_rotation_aligned_deg", "camera_centre_mm")
 BARS = {"mesh_aligned_mm": 2.0, "expression_mm": 1.0, "camera_rotation_deg": 1.0}

@@ -51,7 +51,7 @@ PHONE_FOCAL_35MM = 26.0
 START_DISTANCE = 0.6
 #: The heads pose their points (and the skin is sampled) in single precision: the unknowns, the
 #: L-BFGS steps and the losses' sums stay double. A third less time, the same fit on the
-#: validation clips (docs/tracking.md, round 8).
+#: validation clips (docs/tracking.md, *Fitting the head model*).
 POSED = torch.float32
 
 
