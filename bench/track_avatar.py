@@ -3,12 +3,13 @@
 The paper's camera-free table, measured here. From one test clip of ``bench track`` (made and
 tracked there first): a second capture is written with the same images, masks and splits but the
 truth's cameras and FLAME parameters (``truth_capture``). Both are trained alike, with and without
-the method's corrections (``demo`` and ``mogaface-demo`` at ``steps``), and drawn at the truth's
+the method's corrections (``demo`` and ``mogaface-demo``, each its own length unless ``steps``), and drawn at the truth's
 novel cameras, which the footage never saw, at the frames it rendered them: the truth-trained
 avatar at those cameras as they are, the tracked one at those cameras moved from the true head
 to the tracked head (the two heads' poses at that frame), as the aligned novel-view protocol moves
 a held-out camera. PSNR against the truth's renders (white background). Trained avatars are kept
-and reused; the tracked one is trained again when the clip was tracked again since.
+and reused (each step count its own); the tracked one is trained again when the clip was tracked
+again since.
 """
 
 from __future__ import annotations
@@ -108,7 +109,8 @@ def _trained_after(avatar: pathlib.Path, tracking: pathlib.Path) -> bool:
     return avatar.is_file() and (not tracking.is_file() or avatar.stat().st_mtime > tracking.stat().st_mtime)
 
 
-def run(threads: int = 2, quick: bool = False, work: str | None = None, split: str | None = None) -> dict:
+def run(threads: int = 2, quick: bool = False, work: str | None = None, split: str | None = None,
+        steps: int | None = None) -> dict:
     from mogaface.core.train import config as C
     from mogaface.core.train.trainer import Trainer
 
@@ -121,19 +123,20 @@ def run(threads: int = 2, quick: bool = False, work: str | None = None, split: s
         raise SystemExit(f"error: {tracked}: run `bench track --split {split or 'test'}` first")
     report = json.loads((tracked / "tracking.json").read_text())
     truth_cap = truth_capture(clip, tracked, base / "truth_capture" / f"{kind}_{seed}")
-    steps = 100 if quick else 300
-    rows = {}
+    steps = steps or (100 if quick else None)  # None: each preset's own length, as a user trains it
+    rows, lengths = {}, {}
     for preset in PRESETS:
+        train = {"threads": threads, **({"steps": steps} if steps else {})}
+        config = C.resolve(preset=preset, overrides={"train": train, "eval": {"at_end": False}})
+        lengths[preset] = config.train.steps
         for name, capture in (("tracked", tracked), ("truth", truth_cap)):
-            run_dir = base / "avatars" / f"{kind}_{seed}_{name}_{preset}"
+            run_dir = base / "avatars" / f"{kind}_{seed}_{name}_{preset}" / f"steps{config.train.steps}"
             if not _trained_after(run_dir / "avatar.pt", capture / "tracking.json"):
                 shutil.rmtree(run_dir, ignore_errors=True)
-                config = C.resolve(preset=preset, overrides={"train": {"steps": steps, "threads": threads},
-                                                            "eval": {"at_end": False}})
                 Trainer(capture, run_dir, config).run()
             rows[f"{preset} {name}"] = novel_psnr(run_dir, clip, report, move=name == "tracked")
     gaps = {preset: round(rows[f"{preset} truth"]["psnr"] - rows[f"{preset} tracked"]["psnr"], 3)
             for preset in PRESETS if rows[f"{preset} truth"]["psnr"] and rows[f"{preset} tracked"]["psnr"]}
-    return {"benchmark": "track_avatar", "clip": f"{kind}_{seed}", "steps": steps, "threads": threads,
+    return {"benchmark": "track_avatar", "clip": f"{kind}_{seed}", "steps": lengths, "threads": threads,
             "load_average": [round(x, 2) for x in os.getloadavg()], "novel_view_psnr": rows,
             "gap_db_truth_minus_tracked": gaps, "bar_gap_db": 1.5}

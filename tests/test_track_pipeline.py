@@ -202,6 +202,10 @@ def test_the_photo_benchmark_refuses_what_it_cannot_do(capsys):
     assert main(["bench", "track", "--photos", "--together"]) == 2  # photo folders have no videos to join
     assert main(["bench", "splat", "--photos"]) == 2
     assert "--together tracks the split's videos" in capsys.readouterr().err
+    assert main(["bench", "track", "--steps", "500"]) == 2  # the avatars' steps: track_avatar's alone
+    assert "--steps applies to the track_avatar benchmark only" in capsys.readouterr().err
+    assert main(["bench", "track_avatar", "--steps", "0"]) == 2
+    assert "--steps must be at least 1" in capsys.readouterr().err
 
 
 def test_frames_are_composited_as_the_formula_says_and_a_failed_write_is_raised(tmp_path):

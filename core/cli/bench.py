@@ -47,7 +47,8 @@ OPTION_BENCHMARKS = {"scale": ("train", "step"),
                      "ranks": ("converge",), "variants": ("converge",), "config": ("converge",),
                      "compare": ("converge",), "subjects": ("camera_search",),
                      "test_subjects": ("camera_search",), "compare_with": ("splat", "step", "train"),
-                     "rounds": ("splat", "step", "train"), "together": ("track",), "photos": ("track",)}
+                     "rounds": ("splat", "step", "train"), "together": ("track",), "photos": ("track",),
+                     "steps": ("track_avatar",)}
 
 
 def add_arguments(parser):
@@ -98,6 +99,8 @@ def add_arguments(parser):
     parser.add_argument("--photos", action="store_true", default=None,
                         help="track only: the split's folders of photos (12 around a still head, mixed sizes) "
                              "instead of its clips")
+    parser.add_argument("--steps", type=int,
+                        help="track_avatar only: training steps of each avatar (default: each preset's own; --quick 100)")
     parser.add_argument("--rounds", type=int,
                         help="with --compare-with: runs of each side, alternating which goes first (default 2)")
 
@@ -122,6 +125,9 @@ def run(args) -> int:
         return 2
     if args.photos and args.together:
         print("error: --together tracks the split's videos as one capture; --photos has no videos", file=sys.stderr)
+        return 2
+    if args.steps is not None and args.steps < 1:
+        print("error: --steps must be at least 1", file=sys.stderr)
         return 2
     if args.rounds is not None and args.compare_with is None:
         print("error: --rounds applies with --compare-with only", file=sys.stderr)
