@@ -3,11 +3,11 @@
 The paper's camera-free table, measured here. From one test clip of ``bench track`` (made and
 tracked there first): a second capture is written with the same images, masks and splits but the
 truth's cameras and FLAME parameters (``truth_capture``). Both are trained alike, with and without
-the method's corrections (``demo`` and ``mogaface-demo``, each its own length unless ``steps``), and drawn at the truth's
-novel cameras, which the footage never saw, at the frames it rendered them: the truth-trained
-avatar at those cameras as they are, the tracked one at those cameras moved from the true head
-to the tracked head (the two heads' poses at that frame), as the aligned novel-view protocol moves
-a held-out camera. PSNR against the truth's renders (white background). Trained avatars are kept
+the method's corrections (``demo`` and ``mogaface-demo``, each its own length unless ``steps``),
+and drawn at the truth's novel cameras, which the footage never saw, at the frames it rendered
+them: the truth-trained avatar at those cameras as they are, the tracked one at those cameras
+moved from the true head to the tracked head (the two heads' poses at that frame), as the aligned
+novel-view protocol moves a held-out camera. PSNR against the truth's renders (white background). Trained avatars are kept
 and reused (each step count its own); the tracked one is trained again when the clip was tracked
 again since.
 """
