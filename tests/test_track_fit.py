@@ -98,6 +98,31 @@ def test_the_scoring_aligns_a_similar_copy_exactly_and_places_the_head(clip):
     assert np.abs(unposed @ head[:3, :3].T + head[:3, 3] - posed).max() < 1e-9
 
 
+def test_a_camera_moved_onto_a_similar_head_sees_it_as_the_camera_sees_the_true_one(clip):
+    """What bench track_avatar's novel views stand on: the tracked head is a turned, shifted and
+    larger copy of the true one; the moved camera puts each of its points on the pixel where the
+    true camera puts the true point, in front of it, and the rigid move (scale 1) keeps distances."""
+    from scipy.spatial.transform import Rotation
+
+    from mogaface.core.camera import Camera
+    from mogaface.core.evaluate.track_error import camera_onto, similarity
+
+    points = clip[3][5]
+    turn = Rotation.from_rotvec([-0.3, 0.5, 0.2]).as_matrix()
+    tracked = (1.04 * points @ turn.T + [0.05, 0.1, -0.3])
+    camera = Camera.look_at(eye=[0.6, 0.1, 0.9], target=points.mean(0), fx=900.0, width=512, height=512)
+    scale, rotation, offset = similarity(tracked, points)
+    assert abs(scale - 1 / 1.04) < 1e-9
+    moved = camera_onto(camera, scale, rotation, offset)
+    pixels, depth = camera.project(points)
+    moved_pixels, moved_depth = moved.project(tracked)
+    assert np.abs(moved_pixels - pixels).max() < 1e-6
+    assert np.all(moved_depth > 0) and np.allclose(moved_depth, depth * 1.04)
+    assert np.allclose(scale * rotation @ moved.center + offset, camera.center)  # the centre carried back
+    rigid = camera_onto(camera, 1.0, rotation, offset)  # the heads' poses alone: the centre carried rigidly
+    assert np.allclose(rotation @ rigid.center + offset, camera.center)
+
+
 def test_the_gaze_is_fitted_from_the_iris_centres(procedural_head_pkl):
     """Both eyes turned alike, seen through the dense embedding's iris centres (no noise): the gaze
     comes back. At a phone's distance a tenth of a radian moves an iris by about a pixel here, so

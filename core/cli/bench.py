@@ -28,7 +28,7 @@ BENCHMARKS = {
     "step": "one training step stage by stage (FLAME, binding, render, loss, optimiser, MoGaFace modules)",
     "track": "tracking synthetic phone clips scored against their truth: landmark reprojection, mesh, expression "
              "and camera errors, the stages' speed (--split validation to choose settings on, test to score once)",
-    "track_avatar": "an avatar trained on a tracked test clip against one trained on its truth, with and without the "
+    "track_avatar": "avatars trained on the tracked clips against ones trained on their truth, with and without the "
                     "method's corrections: novel-view PSNR at cameras the footage never saw (after bench track)",
     "track_detect": "face tracking's detection step at 720x1280: ms per frame for the detector, mesh, irises and "
                     "person mask (MediaPipe's models on ai-edge-litert)",

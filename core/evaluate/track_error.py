@@ -16,12 +16,14 @@ frame); ``track`` never reads it (``tests/test_guards.py``). Here both meet, per
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import pathlib
 
 import numpy as np
 import torch
 
+from ..camera import Camera
 from ..data import layout
 from ..data.camera_file import read_cameras
 from ..data.capture import Capture
@@ -30,15 +32,33 @@ from ..flame.model import FlameModel
 from ..io.npz import load_npz
 
 
-def similarity_aligned(source: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """``source (N,3)`` moved by the similarity that best fits it to ``target`` (Umeyama)."""
+def similarity(source: np.ndarray, target: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+    """``(scale, rotation, offset)`` of the similarity ``x ↦ scale·rotation·x + offset`` that best
+    fits ``source (N,3)`` to ``target`` (Umeyama)."""
     mu_s, mu_t = source.mean(0), target.mean(0)
     s, t = source - mu_s, target - mu_t
     u, sigma, vt = np.linalg.svd(t.T @ s / len(source))
     d = np.sign(np.linalg.det(u @ vt))
     rotation = u @ np.diag([1, 1, d]) @ vt
     scale = (sigma * [1, 1, d]).sum() / max((s ** 2).sum() / len(source), 1e-18)
-    return scale * s @ rotation.T + mu_t
+    return float(scale), rotation, mu_t - scale * rotation @ mu_s
+
+
+def similarity_aligned(source: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """``source (N,3)`` moved by the similarity that best fits it to ``target``."""
+    scale, rotation, offset = similarity(source, target)
+    return scale * source @ rotation.T + offset
+
+
+def camera_onto(camera: Camera, scale: float, rotation: np.ndarray, offset: np.ndarray) -> Camera:
+    """``camera`` moved into the world of a head that ``x ↦ scale·rotation·x + offset`` carries onto
+    the head ``camera`` looks at: it sees the first head as ``camera`` sees the second. The scale
+    becomes the camera's distance (a picture is the same when the scene and the camera's distance
+    to it scale together), as the aligned mesh error forgives what one view cannot tell."""
+    w2c = np.eye(4)
+    w2c[:3, :3] = camera.R @ rotation
+    w2c[:3, 3] = (camera.R @ offset + camera.t) / scale
+    return dataclasses.replace(camera, w2c=w2c)
 
 
 def head_to_world(params: dict, joints: np.ndarray) -> np.ndarray:
