@@ -38,6 +38,11 @@ from .config import CAMERA_GAUGES
 from .data import FlameTable
 
 HUBER_FRACTION = 0.01  # the Huber loss's knee, as a fraction of the image width (1.3 px at 128²)
+# A round that lowers the loss by less than this fraction ends the solve (past the first round or
+# two the cameras and heads only slide along the turn they share, a hundred-thousandth of a degree),
+# and so does a loss this small (px²: landmarks met to a thousandth of a pixel).
+ROUND_GAIN = 1e-4
+FITTED_LOSS = 1e-6
 MIN_LANDMARKS = 20  # weighted observations a camera needs to be turned
 
 
@@ -181,10 +186,19 @@ class _Adjustment:
         threads = torch.get_num_threads()
         torch.set_num_threads(1)  # small tensors: a second thread only waits, badly so on a busy machine
         try:
-            for _ in range(rounds):
+            before = self._loss_value()
+            for _ in range(rounds):  # L-BFGS's 200 iterations a round, until a round barely lowers the loss
                 optimiser.step(closure)
+                after = self._loss_value()
+                if after < FITTED_LOSS or before - after <= ROUND_GAIN * before:
+                    break
+                before = after
         finally:
             torch.set_num_threads(threads)
+
+    @torch.no_grad()
+    def _loss_value(self) -> float:
+        return float(self.loss())
 
     @torch.no_grad()
     def rms_by_camera(self) -> list[float]:
