@@ -212,9 +212,14 @@ def test_texture_has_fine_detail(head):
 
 
 def test_same_arguments_give_identical_arrays(head):
+    from mogaface.core.flame.procedural import _built_head
+
+    _built_head.cache_clear()  # built again, not the process's kept copy
     again = build_head(0, 0)
     for key, value in head.items():
         np.testing.assert_array_equal(again[key], value, err_msg=key)
+    again["v_template"][:] = 0  # each caller's own arrays: the kept head is untouched
+    assert np.array_equal(build_head(0, 0)["v_template"], head["v_template"])
 
 
 def test_subjects_and_seeds_differ(head):

@@ -17,6 +17,8 @@ ears. ``procedural_rig`` holds weights, joints and pose correctives,
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from .procedural_blendshapes import EXPRESSION_NAMES, SHAPE_NAMES, expression_components, shape_components
@@ -37,9 +39,15 @@ def subject_shape(subject: int) -> np.ndarray:
 
 
 def build_head(subject: int = 0, seed: int = 0) -> dict[str, np.ndarray]:
-    """A FLAME-format head model for ``subject`` with texture detail drawn from ``seed``."""
+    """A FLAME-format head model for ``subject`` with texture detail drawn from ``seed`` (the
+    caller's own copy: building one takes seconds, so a process builds each head once)."""
     if subject < 0 or seed < 0:
         raise ValueError("subject and seed must be non-negative integers")
+    return {name: array.copy() for name, array in _built_head(int(subject), int(seed)).items()}
+
+
+@functools.lru_cache(maxsize=4)
+def _built_head(subject: int, seed: int) -> dict[str, np.ndarray]:
     mesh = build_mesh()
     base = mesh.vertices
     shapedirs = shape_components(mesh, base)
