@@ -11,8 +11,9 @@ aligned novel-view protocol moves a held-out camera, in two ways (:func:`novel_p
 heads' poses (``rigid``), and by the similarity between the meshes (``similarity``), which also
 forgives the head's size: no picture tells a larger head farther away from a smaller one nearer,
 and the aligned mesh error forgives it alike. PSNR against the truth's renders (white
-background). Trained avatars are kept and reused (each step count its own); a tracked one is
-trained again when its clip was tracked again since.
+background). Each avatar is trained with ``seeds`` training seeds (default one: seed 0); the
+gaps are averaged over the clips and seeds. Trained avatars are kept and reused (each step count
+and seed its own); a tracked one is trained again when its clip was tracked again since.
 """
 
 from __future__ import annotations
@@ -119,7 +120,8 @@ def _trained_after(avatar: pathlib.Path, tracking: pathlib.Path) -> bool:
     return avatar.is_file() and (not tracking.is_file() or avatar.stat().st_mtime > tracking.stat().st_mtime)
 
 
-def clip_avatars(base: pathlib.Path, kind: str, seed: int, threads: int, steps: int | None) -> dict:
+def clip_avatars(base: pathlib.Path, kind: str, seed: int, threads: int, steps: int | None,
+                 training_seed: int = 0) -> dict:
     """One clip's avatars (trained unless kept) and their novel-view scores: ``{"steps", "psnr", "gaps"}``."""
     from mogaface.core.train import config as C
     from mogaface.core.train.trainer import Trainer
@@ -129,11 +131,12 @@ def clip_avatars(base: pathlib.Path, kind: str, seed: int, threads: int, steps: 
     truth_cap = truth_capture(clip, tracked, base / "truth_capture" / f"{kind}_{seed}")
     psnr, lengths = {}, {}
     for preset in PRESETS:
-        train = {"threads": threads, **({"steps": steps} if steps else {})}
+        train = {"threads": threads, "seed": training_seed, **({"steps": steps} if steps else {})}
         config = C.resolve(preset=preset, overrides={"train": train, "eval": {"at_end": False}})
         lengths[preset] = config.train.steps
+        folder = f"steps{config.train.steps}" + (f"_seed{training_seed}" if training_seed else "")
         for name, capture in (("tracked", tracked), ("truth", truth_cap)):
-            run_dir = base / "avatars" / f"{kind}_{seed}_{name}_{preset}" / f"steps{config.train.steps}"
+            run_dir = base / "avatars" / f"{kind}_{seed}_{name}_{preset}" / folder
             if not _trained_after(run_dir / "avatar.pt", capture / "tracking.json"):
                 shutil.rmtree(run_dir, ignore_errors=True)
                 Trainer(capture, run_dir, config).run()
@@ -148,7 +151,7 @@ def clip_avatars(base: pathlib.Path, kind: str, seed: int, threads: int, steps: 
 
 
 def run(threads: int = 2, quick: bool = False, work: str | None = None, split: str | None = None,
-        steps: int | None = None) -> dict:
+        steps: int | None = None, seeds: int | None = None) -> dict:
     from .track import CLIPS
 
     base = pathlib.Path(work or "out/bench_track") / ("quick" if quick else "full")
@@ -158,9 +161,10 @@ def run(threads: int = 2, quick: bool = False, work: str | None = None, split: s
         if not (tracked := base / "tracked" / f"{kind}_{seed}" / "tracking.json").is_file():
             raise SystemExit(f"error: {tracked.parent}: run `bench track --split {split}` first")
     steps = steps or (100 if quick else None)  # None: each preset's own length, as a user trains it
-    rows = {f"{kind}_{seed}": clip_avatars(base, kind, seed, threads, steps) for kind, seed in clips}
+    rows = {f"{kind}_{seed} seed {s}": clip_avatars(base, kind, seed, threads, steps, s)
+            for s in range(seeds or 1) for kind, seed in clips}
     mean_gaps = {move: {preset: round(float(np.mean([row["gaps"][move][preset] for row in rows.values()])), 3)
                         for preset in PRESETS} for move in MOVES}
     return {"benchmark": "track_avatar", "split": split, "threads": threads,
-            "load_average": [round(x, 2) for x in os.getloadavg()], "clips": rows,
+            "load_average": [round(x, 2) for x in os.getloadavg()], "avatars": rows,
             "mean_gap_db_truth_minus_tracked": mean_gaps, "bar_gap_db": 1.5}

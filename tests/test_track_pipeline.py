@@ -206,6 +206,10 @@ def test_the_photo_benchmark_refuses_what_it_cannot_do(capsys):
     assert "--steps applies to the track_avatar benchmark only" in capsys.readouterr().err
     assert main(["bench", "track_avatar", "--steps", "0"]) == 2
     assert "--steps must be at least 1" in capsys.readouterr().err
+    assert main(["bench", "track", "--seeds", "2"]) == 2  # the avatars' training seeds, as the steps
+    assert "--seeds applies to the track_avatar benchmark only" in capsys.readouterr().err
+    assert main(["bench", "track_avatar", "--seeds", "0"]) == 2
+    assert "--seeds must be at least 1" in capsys.readouterr().err
 
 
 def test_frames_are_composited_as_the_formula_says_and_a_failed_write_is_raised(tmp_path):

@@ -48,7 +48,7 @@ OPTION_BENCHMARKS = {"scale": ("train", "step"),
                      "compare": ("converge",), "subjects": ("camera_search",),
                      "test_subjects": ("camera_search",), "compare_with": ("splat", "step", "train"),
                      "rounds": ("splat", "step", "train"), "together": ("track",), "photos": ("track",),
-                     "steps": ("track_avatar",)}
+                     "steps": ("track_avatar",), "seeds": ("track_avatar",)}
 
 
 def add_arguments(parser):
@@ -101,6 +101,8 @@ def add_arguments(parser):
                              "instead of its clips")
     parser.add_argument("--steps", type=int,
                         help="track_avatar only: training steps of each avatar (default: each preset's own; --quick 100)")
+    parser.add_argument("--seeds", type=int,
+                        help="track_avatar only: train each avatar with this many seeds (0, 1, ...; default 1)")
     parser.add_argument("--rounds", type=int,
                         help="with --compare-with: runs of each side, alternating which goes first (default 2)")
 
@@ -126,9 +128,10 @@ def run(args) -> int:
     if args.photos and args.together:
         print("error: --together tracks the split's videos as one capture; --photos has no videos", file=sys.stderr)
         return 2
-    if args.steps is not None and args.steps < 1:
-        print("error: --steps must be at least 1", file=sys.stderr)
-        return 2
+    for name in ("steps", "seeds"):
+        if getattr(args, name) is not None and getattr(args, name) < 1:
+            print(f"error: --{name} must be at least 1", file=sys.stderr)
+            return 2
     if args.rounds is not None and args.compare_with is None:
         print("error: --rounds applies with --compare-with only", file=sys.stderr)
         return 2
