@@ -101,7 +101,8 @@ def test_the_scoring_aligns_a_similar_copy_exactly_and_places_the_head(clip):
 def test_a_camera_moved_onto_a_similar_head_sees_it_as_the_camera_sees_the_true_one(clip):
     """What bench track_avatar's novel views stand on: the tracked head is a turned, shifted and
     larger copy of the true one; the moved camera puts each of its points on the pixel where the
-    true camera puts the true point, in front of it, and the rigid move (scale 1) keeps distances."""
+    true camera puts the true point, in front of it; with scale 1 (the heads' poses alone) the centre
+    is carried rigidly."""
     from scipy.spatial.transform import Rotation
 
     from mogaface.core.camera import Camera
@@ -109,7 +110,7 @@ def test_a_camera_moved_onto_a_similar_head_sees_it_as_the_camera_sees_the_true_
 
     points = clip[3][5]
     turn = Rotation.from_rotvec([-0.3, 0.5, 0.2]).as_matrix()
-    tracked = (1.04 * points @ turn.T + [0.05, 0.1, -0.3])
+    tracked = 1.04 * points @ turn.T + [0.05, 0.1, -0.3]
     camera = Camera.look_at(eye=[0.6, 0.1, 0.9], target=points.mean(0), fx=900.0, width=512, height=512)
     scale, rotation, offset = similarity(tracked, points)
     assert abs(scale - 1 / 1.04) < 1e-9
