@@ -122,16 +122,13 @@ def run(args) -> int:
     if args.minutes is not None and not args.minutes > 0:
         print("error: --minutes must be positive", file=sys.stderr)
         return 2
-    if args.ranks is not None and args.ranks < 1:
-        print("error: --ranks must be at least 1", file=sys.stderr)
-        return 2
-    if args.photos and args.together:
-        print("error: --together tracks the split's videos as one capture; --photos has no videos", file=sys.stderr)
-        return 2
-    for name in ("steps", "seeds"):
+    for name in ("ranks", "steps", "seeds"):
         if getattr(args, name) is not None and getattr(args, name) < 1:
             print(f"error: --{name} must be at least 1", file=sys.stderr)
             return 2
+    if args.photos and args.together:
+        print("error: --together tracks the split's videos as one capture; --photos has no videos", file=sys.stderr)
+        return 2
     if args.rounds is not None and args.compare_with is None:
         print("error: --rounds applies with --compare-with only", file=sys.stderr)
         return 2
