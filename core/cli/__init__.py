@@ -41,6 +41,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "train": ("train", "train an avatar on a capture (resumable run folder)"),
     "bench": ("bench", "run a benchmark and print JSON"),
     "environment": ("environment", "print where this process finds its code and packages (JSON)"),
+    "compile-kernels": ("compile_kernels", "compile the engine's numba kernels into the user's cache now, so the "
+                                           "first render or training starts at full pace (JSON)"),
     "train-refiner": ("train_refiner", "train the multi-view refiner of per-frame parameters on a finished run"),
     "refine-tracking": ("refine_tracking", "improve a capture's tracking with a run's refiner; write flame_param files"),
     "solve-cameras": ("solve_cameras", "turn a capture's cameras to fit its 2D landmarks; write a cameras file"),
