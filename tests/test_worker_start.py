@@ -10,6 +10,7 @@ in folders nobody else can write (numba loads them with pickle).
 import json
 import os
 import pathlib
+import shutil
 import stat
 import subprocess
 import sys
@@ -175,6 +176,35 @@ def test_two_import_names_never_load_each_others_numba_cache(tmp_path):
     assert all(r["counts"] == first[0]["counts"] for r in again)
     for name in (blender, worker):
         assert list(numba_cache.folder_for(name, tmp_path / "cache").rglob("*.nbi")), name
+
+
+def test_copies_of_the_same_code_share_its_kernels_and_a_changed_folder_compiles_again(tmp_path):
+    """The cache is filed by the code, not by where it lies (core/numba_locator.py): a second
+    install of the same code loads the first one's kernels; a change anywhere in the kernel's folder
+    (its neighbours are inlined) compiles it again."""
+    env = dict(os.environ, **{numba_cache.CACHE_ENV: str(tmp_path / "cache")})
+    env.pop("NUMBA_CACHE_DIR", None)
+
+    def copy_of_the_package(where):
+        (where / "core").mkdir(parents=True)
+        shutil.copy(ROOT / "__init__.py", where / "__init__.py")
+        shutil.copytree(ROOT / "core", where / "core", dirs_exist_ok=True,
+                        ignore=shutil.ignore_patterns("__pycache__"))
+        return where
+
+    def hits(root):
+        result = subprocess.run([sys.executable, "-I", "-c", KERNEL_UNDER_A_NAME, str(root), "mogaface"],
+                                capture_output=True, text=True, timeout=300, env=env, cwd=tmp_path)
+        assert result.returncode == 0, result.stderr[-2000:]
+        return json.loads(result.stdout)["hits"]
+
+    first, second = copy_of_the_package(tmp_path / "a"), copy_of_the_package(tmp_path / "b")
+    assert hits(first) == 0 and hits(second) > 0  # compiled once, by the first copy
+    beside = second / "core" / "data" / "paths.py"  # not the kernel's file: a module of its folder
+    beside.write_text(beside.read_text() + "\n# changed\n")
+    assert hits(second) == 0 and hits(first) == 0  # each change of the folder's code compiles again
+    filed = numba_cache.folder_for("mogaface", tmp_path / "cache") / "package" / "core" / "data"
+    assert list(filed.glob("mesh_raster.bin_to_bands-*.nbi"))  # under its folder in the package
 
 
 def test_the_progress_bar_text_fits_the_sidebar_and_says_compiling_until_timed():

@@ -17,6 +17,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
+from .. import numba_locator  # noqa: F401  (the kernels' cache filed by code: before they are defined)
+
 #: Blocks of points whose plane gradients are summed apart (then in this order).
 BLOCKS = 4
 # (first, second) coordinate of each plane: xy, xz, yz.

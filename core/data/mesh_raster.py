@@ -16,6 +16,8 @@ import math
 import numba as nb
 import numpy as np
 
+from .. import numba_locator  # noqa: F401  (the kernels' cache filed by code: before they are defined)
+
 BAND = 16  # rows per band (in supersampled pixels)
 
 

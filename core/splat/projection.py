@@ -12,6 +12,8 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from .. import numba_locator  # noqa: F401  (the kernels' cache filed by code: before they are defined)
+
 NEAR = 0.01  # Gaussians with camera depth z <= NEAR are culled
 FAR = 1e8  # ... and those with z >= FAR: depth-weighted sums and their gradients stay finite
 BLUR = 0.3  # px², added to the 2D covariance (anti-aliasing floor of 3DGS)

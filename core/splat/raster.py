@@ -16,6 +16,7 @@ import numpy as np
 from numba import njit, prange, types
 from numba.extending import intrinsic
 
+from .. import numba_locator  # noqa: F401  (the kernels' cache filed by code: before they are defined)
 from .tiles import ALPHA_MIN, MAX_HALF, SIGMAS, TILE, margin, support_q
 
 T_MIN = 1e-4  # a pixel stops once its transmittance would fall below this

@@ -13,6 +13,8 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from .. import numba_locator  # noqa: F401  (the kernels' cache filed by code: before they are defined)
+
 TILE = 16
 ALPHA_MIN = 1.0 / 255.0
 SIGMAS = 3.0

@@ -17,6 +17,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
+from .. import numba_locator  # noqa: F401  (the kernels' cache filed by code: before they are defined)
+
 
 @njit(cache=True, parallel=True, fastmath=True, nogil=True)
 def forward(a, b, taps, c1, c2, derivs):
