@@ -257,7 +257,8 @@ def test_the_cancel_flag_stops_a_running_raster_kernel():
     size = 1024
     (means, quats, scales, opacities, colors), viewmat, K = head_scene(200_000, size, size)
     n = means.shape[0]
-    means2d, conics, cov2d = (np.empty((n, k), np.float32) for k in (2, 3, 3))
+    means2d, conics = (np.empty((n, k), np.float32) for k in (2, 3))
+    cov2d = np.empty((n, 3), np.float64)  # the engine's types: the kernels compiled for it are reused
     depths, radii = np.empty(n, np.float32), np.empty(n, np.int32)
     projection.project_forward(means.numpy(), (quats / quats.norm(dim=1, keepdim=True)).numpy(), scales.numpy(),
                                viewmat.numpy(), K.numpy(), size, size, means2d, conics, depths, cov2d, radii)
