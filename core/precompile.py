@@ -39,6 +39,7 @@ def _splat() -> None:
                     background=torch.ones(3).requires_grad_())
     (out.rgb.sum() + out.alpha.sum() + out.depth.sum()).backward()
 
+
 def _mesh() -> None:
     """The mesh renderer of captures and previews (near-plane clipping included)."""
     import numpy as np
