@@ -40,9 +40,8 @@ def _folder_hash(folder: str, stamps: tuple) -> str:
 
 def folder_stamp(folder: pathlib.Path) -> str:
     """A hash of every ``.py`` file in ``folder``: changes when any of them does."""
-    files = sorted(p for p in folder.iterdir() if p.suffix == ".py" and p.is_file())
-    stamps = tuple((p.name, p.stat().st_mtime_ns, p.stat().st_size) for p in files)
-    return _folder_hash(str(folder), stamps)
+    files = sorted((p.name, p.stat()) for p in folder.iterdir() if p.suffix == ".py" and p.is_file())
+    return _folder_hash(str(folder), tuple((name, info.st_mtime_ns, info.st_size) for name, info in files))
 
 
 class PackageCacheLocator(caching._SourceFileBackedLocatorMixin, caching._CacheLocator):

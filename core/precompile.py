@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import concurrent.futures
 import multiprocessing
-import os
 import time
 
 
@@ -92,8 +91,3 @@ def compile_kernels(jobs: int = 2) -> dict[str, float]:
             max_workers=min(jobs, len(GROUPS)), mp_context=multiprocessing.get_context("spawn")) as pool:
         seconds = dict(zip(GROUPS, pool.map(compile_group, GROUPS)))
     return seconds
-
-
-def cache_folder() -> str | None:
-    """Where this process's kernels are cached (numba's folder for this import name)."""
-    return os.environ.get("NUMBA_CACHE_DIR")

@@ -19,7 +19,7 @@ def run(args) -> int:
     import time
 
     from ..errors import InputError
-    from ..precompile import cache_folder, compile_kernels
+    from ..precompile import compile_kernels
 
     if args.jobs < 1:
         raise InputError(None, "--jobs", f"expected at least 1, got {args.jobs}")
@@ -27,5 +27,5 @@ def run(args) -> int:
     seconds = compile_kernels(args.jobs)
     print(json.dumps({"seconds": {name: round(s, 2) for name, s in seconds.items()},
                       "wall_seconds": round(time.perf_counter() - start, 2), "jobs": args.jobs,
-                      "cache": cache_folder()}, indent=1))
+                      "cache": os.environ.get("NUMBA_CACHE_DIR")}, indent=1))
     return 0
