@@ -13,6 +13,7 @@ frames such a capture read "mirrored" by chance.
 from __future__ import annotations
 
 import dataclasses
+import os
 import pathlib
 
 import numpy as np
@@ -60,8 +61,9 @@ def mask_coverage(vertices: np.ndarray, camera: Camera, mask: np.ndarray) -> flo
     return float(values.mean())
 
 
-def check_cy(capture: Capture, head_file: str | pathlib.Path | None, max_frames: int = FRAMES) -> CyReport:
-    """Compare the two readings of ``cy`` on up to ``max_frames`` frames (needs the head model)."""
+def check_cy(capture: Capture, head, max_frames: int = FRAMES) -> CyReport:
+    """Compare the two readings of ``cy`` on up to ``max_frames`` frames (needs the head model: its
+    file, or the model already loaded for the capture's tracking, as training has it)."""
     import torch
 
     from ..flame.model import FlameModel
@@ -70,12 +72,13 @@ def check_cy(capture: Capture, head_file: str | pathlib.Path | None, max_frames:
     frames = capture.frames()
     if all(abs(2 * capture.camera(f).cy - capture.camera(f).height) < 1e-6 for f in frames):
         return CyReport(declared, "centred", reason="every principal point is at the image centre: both readings agree")
-    if head_file is None or not pathlib.Path(head_file).is_file():
+    given_file = isinstance(head, (str, os.PathLike))
+    if head is None or given_file and not pathlib.Path(head).is_file():
         return CyReport(declared, "unchecked", reason="no head model to project (pass --head FLAME_MODEL)")
     picks = [frames[i] for i in np.unique(np.linspace(0, len(frames) - 1, max_frames).round().astype(int))]
     params = [capture.flame_params(f.timestep_index) for f in picks]
     offsets = [p[k] for p in params for k in ("static_offset", "dynamic_offset") if k in p]
-    model = FlameModel.load(head_file, n_vertices=offsets[0].shape[0] if offsets else None)
+    model = FlameModel.load(head, n_vertices=offsets[0].shape[0] if offsets else None) if given_file else head
     as_read, other = [], []
     with torch.no_grad():
         for frame, p in zip(picks, params):

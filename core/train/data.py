@@ -18,7 +18,8 @@ JOINTS = ("rotation", "neck_pose", "jaw_pose", "eyes_pose")
 
 def principal_point_notes(capture, head) -> list[str]:
     """A warning when the masks fit the other reading of ``cy`` better (a capture written with
-    ``cy`` from the top edge and no ``"cy_origin": "top"``): training would go on, misaligned."""
+    ``cy`` from the top edge and no ``"cy_origin": "top"``): training would go on, misaligned.
+    ``head``: the model file, or the avatar's model (loaded for this tracking already)."""
     from ..data.cy_check import check_cy
 
     try:

@@ -125,7 +125,7 @@ class Trainer:
         self.strategy = densify_strategy(self.config, len(self.avatar.gaussians), len(self.avatar.flame.faces))
         if self.comm.is_writer:
             self.outputs.write_run_json(self.avatar, self.table, self.step, self.elapsed, complete=False)
-            self._notes.extend(principal_point_notes(self.data.capture, head))
+            self._notes.extend(principal_point_notes(self.data.capture, self.avatar.flame))
 
     def _restore(self, state: dict) -> None:
         self.avatar = Avatar.from_state(state["avatar"], self.run_folder.root, source=self.run_folder.checkpoint_dir)
