@@ -3,7 +3,11 @@ steps, every row is scored at the held-out camera, and a second run reuses the r
 
 import json
 
+import pytest
+
 from mogaface.core.cli import main
+
+pytestmark = pytest.mark.benchmark  # a benchmark command end to end: CI's second pytest run
 
 
 def test_each_batch_sees_the_same_images_and_runs_are_reused(tmp_path):

@@ -11,6 +11,8 @@ import pytest
 
 from mogaface.core.cli import main
 
+pytestmark = pytest.mark.benchmark  # a benchmark command end to end: CI's second pytest run
+
 
 @pytest.fixture(scope="module")
 def searched(tmp_path_factory):

@@ -6,9 +6,12 @@ import json
 import tomllib
 
 import numpy as np
+import pytest
 from PIL import Image
 
 from mogaface.core.cli import main
+
+pytestmark = pytest.mark.benchmark  # a benchmark command end to end: CI's second pytest run
 
 
 def test_the_curve_is_scored_as_training_goes_and_the_capture_is_reused(tmp_path, capsys):

@@ -364,7 +364,7 @@ def test_a_damaged_or_hostile_refiner_file_is_a_clear_error(tmp_path, damage, fi
         assert field in str(error.value)
 
 
-def test_the_command_trains_a_refiner_that_eval_then_uses(run_root, tmp_path, capsys, monkeypatch):
+def test_the_command_trains_a_refiner_that_eval_then_uses(run_root, tmp_path, capsys):
     from mogaface.core.cli import main
     from mogaface.core.evaluate.evaluation import evaluate_run
 
@@ -381,9 +381,19 @@ def test_the_command_trains_a_refiner_that_eval_then_uses(run_root, tmp_path, ca
     assert result["inference"].startswith("multi-view refiner")
     assert main(["train-refiner", str(tmp_path / "missing")]) == 2
 
+
+@pytest.mark.benchmark
+def test_the_benchmark_compares_a_refiner_with_fitting_and_the_search_chooses_on_validation_frames(
+        run_root, tmp_path, capsys, monkeypatch):
+    from mogaface.core.cli import main
+
+    run = tmp_path / "run"
+    shutil.copytree(run_root, run, ignore=shutil.ignore_patterns("refiner.pt"))
+    train_refiner(run, RefinerSettings(starts=2, offsets_per_start=2, gap_timesteps=2, curvature_timesteps=1,
+                                       threads=1))
+
     # the benchmark of that refiner against fitting of every asked length
     out = tmp_path / "bench.json"
-    capsys.readouterr()
     assert main(["bench", "refiner", "--avatar", str(run), "--quick", "--threads", "1",
                  "--fit-steps", "1,3", "--out", str(out)]) == 0
     report = json.loads(out.read_text())
@@ -463,6 +473,7 @@ def test_the_command_trains_a_refiner_that_eval_then_uses(run_root, tmp_path, ca
     assert "validation frames only" in capsys.readouterr().err
 
 
+@pytest.mark.benchmark
 def test_the_training_search_trains_a_refiner_per_try_on_validation_frames_and_reuses_them(run_root, tmp_path,
                                                                                            monkeypatch):
     import mogaface.bench.refiner_training_search as search
