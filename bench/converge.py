@@ -17,6 +17,9 @@ scored on the same evenly spaced training timesteps (the novel view: PSNR, SSIM,
 keeps the clock and scores. ``--variants`` picks some of :data:`VARIANTS`; ``--config FILE.toml``
 trains them under those settings (a schedule to compare; the curve is named after the file).
 
+``--capture DIR`` trains on that capture instead (a Cycles capture, a tracked real one): the same
+variants, clock and scores, on its held-out camera (its ``val`` split).
+
 Prints JSON (the curve per variant, steps per second, Gaussians, the load average) and writes
 ``converge.png`` (the curves against minutes) in the work folder. ``--quick``: a 96×66 capture of
 4 views, a few seconds per variant (a smoke run).
@@ -234,7 +237,7 @@ def train_ranks(capture: pathlib.Path, run: pathlib.Path, variant: str, minutes:
 
 def run(threads: int = 2, quick: bool = False, minutes: float | None = None, work: str | None = None,
         ranks: int | None = None, variants: str | None = None, config: str | None = None,
-        compare: str | None = None) -> dict:
+        compare: str | None = None, capture: str | None = None) -> dict:
     from mogaface.core.data.capture import Capture
 
     from .plot import line_plots
@@ -253,8 +256,10 @@ def run(threads: int = 2, quick: bool = False, minutes: float | None = None, wor
     minutes = minutes if minutes is not None else (QUICK["minutes"] if quick else MINUTES)
     every = QUICK["every"] if quick else EVERY
     frames = QUICK["frames"] if quick else SCORED_FRAMES
-    capture, made_s = ensure_capture(folder / "capture", settings)
+    capture, made_s = (pathlib.Path(capture), 0.0) if capture else ensure_capture(folder / "capture", settings)
     opened = Capture.open(capture)
+    opened.frames("val")  # the held-out camera the curve scores: a capture without one fails here, named
+    size = opened.camera(opened.frames("train")[0])
     load_before = os.getloadavg()
     if config is not None:  # a bad file fails here, before the first variant trains
         variant_config(names[0], minutes, threads, ranks, config)
@@ -272,7 +277,7 @@ def run(threads: int = 2, quick: bool = False, minutes: float | None = None, wor
                        "series": {name: [(p["minutes"], p[metric]) for p in v["curve"]] for name, v in variants.items()}}
                       for metric in ("psnr", "ssim", "lpips")])
     return {
-        "capture": {"path": str(capture), "width": settings.size, "height": settings.image_height,
+        "capture": {"path": str(capture), "width": size.width, "height": size.height,
                     "training_cameras": len({f.camera_id for f in opened.frames("train")}),
                     "training_timesteps": len({f.timestep_index for f in opened.frames("train")}),
                     "training_images": len(opened.frames("train")), "made_in_s": round(made_s, 1)},

@@ -3,6 +3,7 @@ size and reused, each variant trains to its time budget and is scored as it goes
 avatar for the full method), and the plot is written."""
 
 import json
+import shutil
 import tomllib
 
 import numpy as np
@@ -48,6 +49,21 @@ def test_the_curve_is_scored_as_training_goes_and_the_capture_is_reused(tmp_path
     again = json.loads(capsys.readouterr().out)
     assert again["capture"]["made_in_s"] == 0.0 and again["minutes"] == 0.02  # the capture reused
     assert list(again["variants"]) == ["finetune"]
+    # a capture named by the user: trained and scored where it lies, its size read from it
+    given = tmp_path / "given.json"
+    assert main(["bench", "converge", "--quick", "--threads", "1", "--capture", str(work / "capture"), "--minutes",
+                 "0.02", "--variants", "finetune", "--work", str(tmp_path / "other"), "--out", str(given)]) == 0
+    capsys.readouterr()
+    named = json.loads(given.read_text())
+    assert named["capture"]["path"] == str(work / "capture") and named["capture"]["made_in_s"] == 0.0
+    assert (named["capture"]["width"], named["capture"]["height"]) == (96, 66)
+    assert not (tmp_path / "other" / "capture").exists() and (tmp_path / "other" / "runs" / "finetune").is_dir()
+    assert len(named["variants"]["finetune"]["curve"]) >= 2
+    no_val = tmp_path / "no_val"
+    shutil.copytree(work / "capture", no_val)
+    (no_val / "transforms_val.json").unlink()
+    assert main(["bench", "converge", "--quick", "--capture", str(no_val), "--work", str(tmp_path / "other")]) == 2
+    assert "no_val: field 'split': no 'val' split" in capsys.readouterr().err
     # the curves of both reports side by side, timed to the first one's final PSNR
     assert main(["bench", "converge", "--compare", f"{out},{second}", "--work", str(tmp_path / "cmp"),
                  "--out", str(tmp_path / "cmp.json")]) == 0

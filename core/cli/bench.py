@@ -45,7 +45,7 @@ OPTION_BENCHMARKS = {"scale": ("train", "step"),
                      "split": ("refiner", "refiner_search", "refiner_training_search", "camera_search", "track", "track_avatar"),
                      "minutes": ("converge",), "work": ("converge", "batch", "camera_search", "track", "track_avatar"),
                      "ranks": ("converge",), "variants": ("converge",), "config": ("converge",),
-                     "compare": ("converge",), "subjects": ("camera_search",),
+                     "compare": ("converge",), "capture": ("converge",), "subjects": ("camera_search",),
                      "test_subjects": ("camera_search",), "compare_with": ("splat", "step", "train"),
                      "rounds": ("splat", "step", "train"), "together": ("track",), "photos": ("track",),
                      "steps": ("track_avatar",), "seeds": ("track_avatar",)}
@@ -72,6 +72,9 @@ def add_arguments(parser):
     parser.add_argument("--work", help="converge, batch, camera_search: folder for the capture (made once, reused) "
                                        "and runs (default out/bench_converge, out/bench_batch, "
                                        "out/bench_camera_search)")
+    parser.add_argument("--capture", metavar="DIR",
+                        help="converge only: train on this capture (its val split the held-out camera scored) "
+                             "instead of making the synthetic one")
     parser.add_argument("--subjects", metavar="S,S",
                         help="camera_search only: search on the mean of these subjects' validation frames (each its "
                              "own noise draw; default 0)")
