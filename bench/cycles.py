@@ -6,6 +6,8 @@ samples: seconds per image (median over the cameras; the first image of a moment
 head), the child's start, and what a whole capture then takes (the default capture's 2 400 images
 at 256²; a real-scale one, 16 cameras × 400 timesteps at 802×550, as ``bench converge`` trains);
 and the real-scale size again at 8 and 16 samples, the noise below telling what they cost.
+The denoiser's prefilter at that size: seconds an image and noise at 16 and 32 samples with the
+albedo and normal passes as rendered (``FAST``, the captures') or denoised first (``ACCURATE``).
 
 Noise: the frontal camera at 256² rendered with 8, 16, 32 and 64 samples (denoised) against a
 1 024-sample reference, PSNR on the head's pixels (sRGB): the noise must sit well below the
@@ -26,11 +28,15 @@ SIZES = ((256, 256), (512, 512), (802, 550))
 SAMPLES = (8, 16, 32, 64)
 REFERENCE_SAMPLES = 1024
 CAMERAS = 4  # images timed per size
+PREFILTER_SAMPLES = (16, 32)
+PREFILTERS = ("FAST", "ACCURATE")  # the denoiser's albedo and normal passes as rendered, or denoised first
 MOMENT = 75  # a timestep mid-capture (an expression, the mouth open a little)
 
 
-def _job(folder: pathlib.Path, label: str, width: int, height: int, samples: int, cameras: int, repeat: int = 1):
-    """A job of one moment seen by ``cameras`` of the dome (each ``repeat`` times, own noise)."""
+def _job(folder: pathlib.Path, label: str, width: int, height: int, samples: int, cameras: int, repeat: int = 1,
+         prefilter: str | None = None):
+    """A job of one moment seen by ``cameras`` of the dome (each ``repeat`` times, own noise),
+    denoised with ``prefilter`` (default: the captures')."""
     import numpy as np
 
     from mogaface.core.data import generator
@@ -50,12 +56,12 @@ def _job(folder: pathlib.Path, label: str, width: int, height: int, samples: int
     sequences = make_sequences(settings.timesteps, model.n_shape, model.n_expr, mouth_components(model.arrays),
                                seed=settings.seed)
     moment = [m for m in generator.moments(sequences, [0.0] * len(chosen)) if m[0] == MOMENT]
-    root = folder / f"{label}_{width}x{height}_{samples}"
+    root = folder / f"{label}_{width}x{height}_{samples}_{prefilter}"
     frames = write_job(root, model, chosen, moment, [0.0] * len(chosen), settings)
-    if repeat > 1:
-        job = json.loads((root / "job.json").read_text())
-        job["frames"] = [dict(f, image=f"r{r}_{f['image']}") for r in range(repeat) for f in frames]
-        (root / "job.json").write_text(json.dumps(job))
+    job = json.loads((root / "job.json").read_text())
+    job["frames"] = [dict(f, image=f"r{r}_{f['image']}") for r in range(repeat) for f in frames]
+    job["denoising_prefilter"] = prefilter or job["denoising_prefilter"]
+    (root / "job.json").write_text(json.dumps(job))
     return root
 
 
@@ -82,6 +88,24 @@ def _foreground_psnr(image, reference) -> float:
     covered = b[..., 3] > 0.5
     error = np.mean((linear_to_srgb(a[..., :3])[covered] - linear_to_srgb(b[..., :3])[covered]) ** 2)
     return float(10 * np.log10(1.0 / max(error, 1e-12)))
+
+
+def _denoising(folder: pathlib.Path, size: tuple[int, int], threads: int, quick: bool) -> dict:
+    """The denoiser's prefilter at the real-scale size: seconds an image and noise (as above, the
+    frontal camera against a reference) at 16 and 32 samples, each prefilter."""
+    reference = _job(folder, "denoise_reference", *size, 64 if quick else REFERENCE_SAMPLES, 1)
+    _render(reference, threads)
+    reference_image = next((reference / "renders").glob("*.exr"))
+    table = {}
+    for samples in PREFILTER_SAMPLES:
+        for prefilter in PREFILTERS:
+            root = _job(folder, "denoise", *size, samples, 1, repeat=2, prefilter=prefilter)
+            _, *each = _render(root, threads)
+            table[f"{samples}_{prefilter}"] = {
+                "samples": samples, "prefilter": prefilter, "seconds_per_image": round(each[-1], 2),
+                "psnr_vs_reference_db": round(_foreground_psnr(sorted((root / "renders").glob("*.exr"))[0],
+                                                                reference_image), 2)}
+    return table
 
 
 def run(threads: int = 2, quick: bool = False) -> dict:
@@ -116,6 +140,7 @@ def run(threads: int = 2, quick: bool = False) -> dict:
             first, second = sorted((root / "renders").glob("*.exr"))
             noise[samples] = {"psnr_vs_reference_db": round(_foreground_psnr(first, reference_image), 2),
                               "psnr_between_two_seeds_db": round(_foreground_psnr(first, second), 2)}
+        denoising = _denoising(folder, largest, threads, quick)
     per_image = speed[f"{largest[0]}x{largest[1]}"]["seconds_per_image"]
     small = speed[f"{sizes[0][0]}x{sizes[0][1]}"]["seconds_per_image"]
     real_scale = 16 * 400 / 3600  # hours a real-scale capture takes per second an image
@@ -131,6 +156,8 @@ def run(threads: int = 2, quick: bool = False) -> dict:
         "real_scale_capture_hours": round(per_image * real_scale, 2),
         "real_scale_fewer_samples": {samples: {"seconds_per_image": seconds, "capture_hours": round(seconds * real_scale, 2)}
                                      for samples, seconds in fewer.items()},
+        "denoising_at": f"{largest[0]}x{largest[1]}",
+        "denoising": denoising,
         "load_average_before": [round(x, 2) for x in load_before],
         "load_average_after": [round(x, 2) for x in os.getloadavg()],
     }

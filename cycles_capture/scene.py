@@ -156,6 +156,7 @@ class HeadScene:
         cycles.use_denoising = True
         cycles.denoiser = "OPENIMAGEDENOISE"
         cycles.denoising_input_passes = "RGB_ALBEDO_NORMAL"
+        cycles.denoising_prefilter = job["denoising_prefilter"]
         cycles.max_bounces, cycles.diffuse_bounces, cycles.glossy_bounces = 6, 2, 2
         cycles.transparent_max_bounces = 16
         cycles.caustics_reflective = cycles.caustics_refractive = False

@@ -46,6 +46,10 @@ LIGHT_RIG = (
     ((-0.9, 0.35, -0.8), 1.2, 0.6, 8.0),
 )
 WORLD_GREY = 0.06
+# The denoiser takes the albedo and normal passes as rendered ("FAST"), not denoised first
+# ("ACCURATE", Cycles' default): at 802×550 and 32 samples that costs 1.1 dB of noise and saves
+# 3.1 of 11.8 s an image, more than halving the samples does (docs/data-format.md).
+DENOISING_PREFILTER = "FAST"
 
 
 def moment_name(timestep: int, delay: float) -> str:
@@ -103,7 +107,8 @@ def write_job(root: pathlib.Path, model, cameras, moments, delays, settings) -> 
                        for k, d in enumerate(delays) if d == delay]
     centre = 0.5 * (rest.min(0) + rest.max(0))
     write_json(job_file, {
-        "settings": fingerprint, "samples": settings.samples, "seed": settings.seed, "materials": list(MATERIALS),
+        "settings": fingerprint, "samples": settings.samples, "denoising_prefilter": DENOISING_PREFILTER,
+        "seed": settings.seed, "materials": list(MATERIALS),
         "lights": [{"position": list(centre + distance * np.asarray(d) / np.linalg.norm(d)),
                     "target": list(centre), "size": size, "power": power}
                    for d, distance, size, power in LIGHT_RIG],
